@@ -1,0 +1,278 @@
+"""PushT-Fixed / -Rand / -Obs: a Panda with a stick pushes a T-shaped block to a goal pose.
+
+Model (after ManiSkill's PushT-v1; numbers in DESIGN.md). The table top is z = 0, the robot base
+sits at (-0.615, 0, 0). The T slides on the table: it has planar joints (slide x, slide y, hinge
+yaw) instead of a free joint, and the table's Coulomb friction is a joint friction loss equal to
+mu * m * g (torsion: times an effective radius). That removes all T-table contacts, the most
+expensive part of the scene in MJX, and makes the T pose three numbers. The arm has position
+servos and no gravity (the T, being planar, does not feel gravity either; a real Panda compensates
+its own), so the only contacts are the stick against the T, the table and the obstacles.
+
+Control: action in [-1, 1]^7 scaled to a 0.1 rad joint-position target offset from the current
+joint angles; `substeps` physics steps per control step (default 4 x 12.5 ms = 20 Hz control;
+DESIGN.md's 5 x 10 ms tracks the same, see experiments/bench_env.py).
+Cost per step (= -reward) is the sum of three non-negative terms of the next state: the T's
+angular distance to the goal (rad / pi), its position distance (m) and the stick tip's distance to
+the T (m), weighted by `PushTConfig`. Success: the T covers >= 90% of the goal T's area.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from pachs_jax.envs import base, coverage, panda
+
+BASE_POS = (-0.615, 0.0, 0.0)
+FIXED_GOAL = (-0.156, -0.1, 5.0 * np.pi / 3.0)  # x (m), y (m), yaw (rad)
+# Start distribution around the goal: x offset U[-0.1, 0.1], y offset U[-0.1, 0.2], yaw U[0, 2 pi].
+START_OFFSET_LOW = (-0.1, -0.1)
+START_OFFSET_HIGH = (0.1, 0.2)
+T_MASS = 0.8  # kg
+T_HALF_HEIGHT = 0.02  # m
+# The arm's start configuration: stick vertical, tip 2 cm above the table at (-0.40, -0.32).
+HOME_QPOS = (-1.0217, 0.3428, 0.0217, -2.7163, -0.0882, 3.0588, -0.1406)
+ARM_ACTION_SCALE = 0.1  # rad per unit action per control step
+# PushT-Obs obstacles: rows (cx, cy, half_x, half_y, yaw), world frame, 4 cm tall blocks.
+# Two blocks left and right of the region above the goal make a 0.14 m gate the T must pass
+# (turned stem-first or bar-first), and a third blocks the straight push from below.
+OBSTACLES = ((-0.245, 0.035, 0.02, 0.02, 0.0),
+             (-0.065, 0.035, 0.02, 0.02, 0.0),
+             (-0.156, -0.265, 0.05, 0.02, 0.0))
+TABLE_HALF_EXTENT = 0.45  # m: the T must stay within this box around the goal region
+
+
+@dataclasses.dataclass(frozen=True)
+class PushTConfig:
+  """Task and physics parameters of PushT.
+
+  variant: 'fixed', 'rand' or 'obs'.
+  physics_dt: s per physics step; substeps: physics steps per control step.
+  solver_iterations / ls_iterations: MJX Newton solver and line-search iterations.
+  table_friction: T-table Coulomb coefficient (becomes joint friction loss).
+  w_angle, w_position, w_reach: cost weights of the three dense terms.
+  """
+
+  variant: str = 'fixed'
+  episode_length: int = 100
+  physics_dt: float = 0.0125
+  substeps: int = 4
+  solver_iterations: int = 4
+  ls_iterations: int = 8
+  table_friction: float = 0.5
+  pusher_friction: float = 0.8
+  w_angle: float = 1.0
+  w_position: float = 3.0
+  w_reach: float = 0.5
+  success_coverage: float = coverage.SUCCESS_THRESHOLD
+
+
+def _box_xml(name: str, cx, cy, hx, hy, yaw, hz, z, rgba) -> str:
+  return (f'<geom name="{name}" type="box" size="{hx} {hy} {hz}" pos="{cx} {cy} {z}" '
+          f'euler="0 0 {yaw}" rgba="{rgba}" contype="0" conaffinity="0"/>')
+
+
+def model_xml(config: PushTConfig) -> str:
+  """MJCF of the PushT scene for a config (obstacles only for the 'obs' variant)."""
+  g = 9.81
+  fl_xy = config.table_friction * T_MASS * g
+  fl_yaw = fl_xy * 0.05  # effective radius of the contact patch (m)
+  bar, stem = coverage.T_BOXES
+  t_geoms = ''.join(
+      f'<geom name="t_{n}" type="box" size="{b[2]} {b[3]} {T_HALF_HEIGHT}" '
+      f'pos="{b[0]} {b[1]} 0" rgba="0.85 0.35 0.2 1" contype="0" conaffinity="0" '
+      f'friction="{config.pusher_friction} 0.005 0.0001"/>'
+      for n, b in (('bar', bar), ('stem', stem)))
+  goal_geoms = ''.join(
+      f'<geom name="goal_{n}" type="box" size="{b[2]} {b[3]} 0.0005" pos="{b[0]} {b[1]} 0" '
+      f'rgba="0.2 0.8 0.3 0.5" contype="0" conaffinity="0" group="2"/>'
+      for n, b in (('bar', bar), ('stem', stem)))
+  obstacles = OBSTACLES if config.variant == 'obs' else ()
+  obstacle_geoms = ''.join(
+      _box_xml(f'obstacle{i}', *o, hz=0.02, z=0.02, rgba='0.4 0.4 0.45 1')
+      for i, o in enumerate(obstacles))
+  pairs = ['<pair geom1="stick" geom2="t_bar"/>', '<pair geom1="stick" geom2="t_stem"/>',
+           '<pair geom1="stick" geom2="table"/>']
+  for i in range(len(obstacles)):
+    pairs += [f'<pair geom1="t_bar" geom2="obstacle{i}"/>',
+              f'<pair geom1="t_stem" geom2="obstacle{i}"/>',
+              f'<pair geom1="stick" geom2="obstacle{i}"/>']
+  gx, gy, gyaw = FIXED_GOAL
+  return f"""
+<mujoco model="pusht-{config.variant}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{config.physics_dt}" gravity="0 0 0" integrator="implicitfast"
+          iterations="{config.solver_iterations}" ls_iterations="{config.ls_iterations}"
+          cone="pyramidal">
+    <flag eulerdamp="disable"/>
+  </option>
+  <default>{panda.arm_defaults_xml()}</default>
+  <worldbody>
+    <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
+    <geom name="table" type="plane" size="1 1 0.01" rgba="0.8 0.75 0.65 1"
+          contype="0" conaffinity="0"/>
+    <body name="goal" pos="{gx} {gy} 0.0005" euler="0 0 {gyaw}">{goal_geoms}</body>
+    {obstacle_geoms}
+    {panda.arm_body_xml('stick', base_pos=BASE_POS)}
+    <body name="tblock" pos="0 0 {T_HALF_HEIGHT}">
+      <inertial pos="0 0 0" mass="{T_MASS}" diaginertia="0.0025 0.0025 0.0045"/>
+      <joint name="t_x" type="slide" axis="1 0 0" frictionloss="{fl_xy}" damping="0.5"/>
+      <joint name="t_y" type="slide" axis="0 1 0" frictionloss="{fl_xy}" damping="0.5"/>
+      <joint name="t_yaw" type="hinge" axis="0 0 1" frictionloss="{fl_yaw}" damping="0.01"/>
+      {t_geoms}
+    </body>
+  </worldbody>
+  <contact>{''.join(pairs)}</contact>
+  {panda.arm_actuators_xml()}
+</mujoco>"""
+
+
+def wrap_angle(a: jax.Array) -> jax.Array:
+  """Angle wrapped into [-pi, pi)."""
+  return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
+
+class PushTEnv(base.Env):
+  """PushT on MJX. qpos = [7 arm joints, T x, T y, T yaw]; goal = [x, y, yaw]."""
+
+  goal_size = 3
+
+  def __init__(self, config: PushTConfig = PushTConfig()):
+    if config.variant not in ('fixed', 'rand', 'obs'):
+      raise ValueError(f"PushT variant must be 'fixed', 'rand' or 'obs', got {config.variant!r}")
+    self.config = config
+    self.name = f'pusht-{config.variant}'
+    self.episode_length = config.episode_length
+    self.mj_model = mujoco.MjModel.from_xml_string(model_xml(config))
+    self.mjx_model = mjx.put_model(self.mj_model)
+    self._data_template = mjx.make_data(self.mjx_model)
+    self._tip_site = self.mj_model.site('tip').id
+    self.obstacles = np.array(OBSTACLES if config.variant == 'obs' else np.zeros((0, 5)),
+                              np.float32).reshape(-1, 5)
+    home = np.concatenate([HOME_QPOS, np.zeros(3)])
+    self._home_qpos = jnp.asarray(home, jnp.float32)
+    self._arm_lower = jnp.asarray(panda.JOINT_LOWER, jnp.float32)
+    self._arm_upper = jnp.asarray(panda.JOINT_UPPER, jnp.float32)
+
+  @property
+  def action_size(self) -> int:
+    return panda.NUM_JOINTS
+
+  @property
+  def default_lattice_resolution(self) -> jax.Array:
+    # T x, T y (m), T yaw (rad), tip x, tip y (m).
+    return jnp.array([0.01, 0.01, 0.1, 0.02, 0.02], jnp.float32)
+
+  # ---- state construction ----
+
+  def node_from_pose(self, t_pose: jax.Array, goal: jax.Array) -> base.NodeState:
+    """A start node with the arm at home, T at t_pose [3] and goal [3]; no batch axis."""
+    qpos = self._home_qpos.at[7:].set(jnp.asarray(t_pose, jnp.float32))
+    nv = self.mj_model.nv
+    return base.NodeState(qpos=qpos, qvel=jnp.zeros(nv, jnp.float32),
+                          ctrl=qpos[:7], qacc_warmstart=jnp.zeros(nv, jnp.float32),
+                          goal=jnp.asarray(goal, jnp.float32), t=jnp.zeros((), jnp.int32))
+
+  def sample_instance(self, key: jax.Array) -> base.NodeState:
+    """Start and goal from the task's distribution (rejection-free; see `instances` for sets)."""
+    k_goal, k_off, k_yaw = jax.random.split(key, 3)
+    fixed = jnp.asarray(FIXED_GOAL, jnp.float32)
+    if self.config.variant == 'rand':
+      goal = jnp.array([
+          jax.random.uniform(k_goal, (), minval=-0.22, maxval=-0.09),
+          jax.random.uniform(jax.random.fold_in(k_goal, 1), (), minval=-0.15, maxval=0.05),
+          jax.random.uniform(jax.random.fold_in(k_goal, 2), (), maxval=2 * jnp.pi)])
+    else:
+      goal = fixed
+    off = jax.random.uniform(k_off, (2,), minval=jnp.asarray(START_OFFSET_LOW),
+                             maxval=jnp.asarray(START_OFFSET_HIGH))
+    yaw = jax.random.uniform(k_yaw, (), maxval=2 * jnp.pi)
+    start = jnp.concatenate([goal[:2] + off, yaw[None]])
+    return self.node_from_pose(start, goal)
+
+  # ---- physics: the only place where it happens ----
+
+  def restore(self, node: base.NodeState) -> mjx.Data:
+    """An mjx.Data holding exactly the node's simulation state (derived fields recomputed)."""
+    return self._data_template.replace(qpos=node.qpos, qvel=node.qvel, ctrl=node.ctrl,
+                                       qacc_warmstart=node.qacc_warmstart)
+
+  def transition(self, node: base.NodeState, action: jax.Array) -> base.EdgeOutcome:
+    action, action_ok = base.sanitize_actions(action)
+    target = jnp.clip(node.qpos[:7] + ARM_ACTION_SCALE * action, self._arm_lower,
+                      self._arm_upper)
+    data = self.restore(node).replace(ctrl=target)
+    data = jax.lax.fori_loop(0, self.config.substeps,
+                             lambda _, d: mjx.step(self.mjx_model, d), data)
+    next_node = base.NodeState(qpos=data.qpos, qvel=data.qvel, ctrl=data.ctrl,
+                               qacc_warmstart=data.qacc_warmstart, goal=node.goal,
+                               t=node.t + 1)
+    finite = base.finite_node(next_node)
+    t_xy = next_node.qpos[7:9]
+    on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(FIXED_GOAL[:2])) < TABLE_HALF_EXTENT)
+    is_valid = finite & action_ok & on_table
+    # Keep invalid successors finite: they are dropped by the search and end an episode.
+    next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, old), next_node, node)
+    next_node = next_node.replace(t=node.t + 1)
+    tip = self._tip_xy(data)
+    cost = jnp.where(finite, self._cost(next_node, tip), self._invalid_cost())
+    return base.EdgeOutcome(next_node, cost, self.goal_reached(next_node) & is_valid, is_valid)
+
+  def _tip_xy(self, data: mjx.Data) -> jax.Array:
+    return data.site_xpos[self._tip_site, :2]
+
+  def tip_position(self, node: base.NodeState) -> jax.Array:
+    """[3] world position of the stick tip (m) of one node, by forward kinematics."""
+    data = mjx.kinematics(self.mjx_model, self.restore(node))
+    return data.site_xpos[self._tip_site]
+
+  def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
+    c = self.config
+    pose, goal = node.qpos[7:10], node.goal
+    angle = jnp.abs(wrap_angle(pose[2] - goal[2])) / jnp.pi
+    position = jnp.linalg.norm(pose[:2] - goal[:2])
+    reach = jnp.maximum(jnp.linalg.norm(tip_xy - pose[:2]) - 0.05, 0.0)
+    return c.w_angle * angle + c.w_position * position + c.w_reach * reach
+
+  def _invalid_cost(self) -> jax.Array:
+    c = self.config
+    return jnp.asarray(c.w_angle + c.w_position * 2 * TABLE_HALF_EXTENT + c.w_reach, jnp.float32)
+
+  # ---- what the networks and the search read ----
+
+  def observation(self, node: base.NodeState) -> jax.Array:
+    tip = self.tip_position(node)
+    pose, goal = node.qpos[7:10], node.goal
+    c, s = jnp.cos(goal[2]), jnp.sin(goal[2])
+    d = pose[:2] - goal[:2]
+    rel = jnp.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])  # T in goal frame (m)
+    dyaw = pose[2] - goal[2]
+    ct, st = jnp.cos(pose[2]), jnp.sin(pose[2])
+    dt = tip[:2] - pose[:2]
+    tip_in_t = jnp.array([ct * dt[0] + st * dt[1], -st * dt[0] + ct * dt[1]])
+    arm_q = node.qpos[:7]
+    return jnp.concatenate([
+        arm_q, 0.1 * node.qvel[:7], tip, pose[:2], jnp.array([ct, st]), goal[:2],
+        jnp.array([c, s]), rel, jnp.array([jnp.cos(dyaw), jnp.sin(dyaw)]), tip_in_t,
+        node.qvel[7:10]]).astype(jnp.float32)
+
+  def lattice_coords(self, node: base.NodeState, resolution: jax.Array) -> jax.Array:
+    pose = node.qpos[7:10]
+    tip = self.tip_position(node)
+    yaw = pose[2] % (2 * jnp.pi)
+    values = jnp.stack([pose[0], pose[1], yaw, tip[0], tip[1]])
+    return jnp.floor(values / resolution).astype(jnp.int32)
+
+  def goal_reached(self, node: base.NodeState) -> jax.Array:
+    return coverage.coverage(node.qpos[7:10], node.goal) >= self.config.success_coverage
+
+
+@functools.lru_cache(maxsize=None)
+def make_pusht(variant: str) -> PushTEnv:
+  return PushTEnv(PushTConfig(variant=variant))
