@@ -133,6 +133,27 @@ def model_xml(config: PushTConfig) -> str:
 </mujoco>"""
 
 
+def _box_points(box: np.ndarray, spacing: float = 0.0025) -> np.ndarray:
+  """[P, 2] world points filling a box row (cx, cy, half_x, half_y, yaw) on a grid (m)."""
+  cx, cy, hx, hy, yaw = box
+  u = np.arange(-hx, hx + 1e-9, spacing)
+  v = np.arange(-hy, hy + 1e-9, spacing)
+  uu, vv = [a.ravel() for a in np.meshgrid(u, v)]
+  c, s = np.cos(yaw), np.sin(yaw)
+  return np.stack([cx + c * uu - s * vv, cy + s * uu + c * vv], -1).astype(np.float32)
+
+
+def _t_points_in_box(poses: np.ndarray, box_points: np.ndarray) -> np.ndarray:
+  """[N] bool: a corner of the T at poses [N, 3] lies inside the (axis-aligned) box sampled by
+  box_points, i.e. within the points' bounding box."""
+  lo, hi = box_points.min(0), box_points.max(0)
+  c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+  corners = coverage.T_OUTLINE[None]
+  wx = poses[:, 0:1] + c * corners[..., 0] - s * corners[..., 1]
+  wy = poses[:, 1:2] + s * corners[..., 0] + c * corners[..., 1]
+  return np.any((wx >= lo[0]) & (wx <= hi[0]) & (wy >= lo[1]) & (wy <= hi[1]), axis=-1)
+
+
 def wrap_angle(a: jax.Array) -> jax.Array:
   """Angle wrapped into [-pi, pi)."""
   return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
@@ -196,6 +217,32 @@ class PushTEnv(base.Env):
     start = jnp.concatenate([goal[:2] + off, yaw[None]])
     return self.node_from_pose(start, goal)
 
+  def canonical_instances(self, num: int = 30, seed: int = 0) -> base.NodeState:
+    """[num] start nodes fixed by seed: the instance set every experiment uses.
+
+    Candidates come from `sample_instance`; those already at the goal, touching the stick's start
+    position or overlapping an obstacle (with 5 mm clearance) are rejected.
+    """
+    if num <= 0:
+      raise ValueError(f'num must be positive, got {num}')
+    keys = jax.random.split(jax.random.PRNGKey(seed), 8 * num + 64)
+    nodes = jax.jit(self.initial_nodes)(keys)
+    poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
+    ok = np.asarray(coverage.coverage(poses, goals)) < self.config.success_coverage
+    tip_xy = np.array([[-0.40, -0.32]], np.float32)
+    keep_out = [_box_points(np.array([tip_xy[0, 0], tip_xy[0, 1], 0.03, 0.03, 0.0]))]
+    keep_out += [_box_points(np.asarray(o) + np.array([0, 0, 0.005, 0.005, 0]))
+                 for o in self.obstacles]
+    for pts in keep_out:
+      hit = np.asarray(coverage.points_in_t(np.broadcast_to(pts, (len(poses),) + pts.shape),
+                                            poses))
+      ok &= ~hit.any(axis=-1)
+      ok &= ~_t_points_in_box(poses, pts)
+    index = np.flatnonzero(ok)[:num]
+    if len(index) < num:
+      raise RuntimeError(f'only {len(index)} of {num} instances passed the rejection tests')
+    return jax.tree.map(lambda x: x[index], nodes)
+
   # ---- physics: the only place where it happens ----
 
   def restore(self, node: base.NodeState) -> mjx.Data:
@@ -218,7 +265,8 @@ class PushTEnv(base.Env):
     on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(FIXED_GOAL[:2])) < TABLE_HALF_EXTENT)
     is_valid = finite & action_ok & on_table
     # Keep invalid successors finite: they are dropped by the search and end an episode.
-    next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, old), next_node, node)
+    next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
+                             next_node, node)
     next_node = next_node.replace(t=node.t + 1)
     tip = self._tip_xy(data)
     cost = jnp.where(finite, self._cost(next_node, tip), self._invalid_cost())
