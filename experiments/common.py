@@ -1,0 +1,70 @@
+"""Shared helpers of the experiment scripts: provenance, timing, result files."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from typing import Any, Callable, Dict, List
+
+import jax
+import numpy as np
+
+
+def git_revision() -> str:
+  """The checkout's commit (with '+dirty' when files differ), or 'unknown'."""
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  try:
+    rev = subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=root, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no'], cwd=root,
+                           capture_output=True, text=True).stdout.strip()
+    return rev + ('+dirty' if dirty else '')
+  except (OSError, subprocess.CalledProcessError):
+    return os.environ.get('PACHS_GIT_REVISION', 'unknown')
+
+
+def provenance() -> Dict[str, Any]:
+  """Device, command, revision and versions for a results file."""
+  dev = jax.devices()[0]
+  return {
+      'command': ' '.join([os.path.basename(sys.executable)] + sys.argv),
+      'git_revision': git_revision(),
+      'device': f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}',
+      'host_cpus': os.cpu_count(),
+      'jax': jax.__version__,
+      'python': platform.python_version(),
+      'date_utc': time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime()),
+  }
+
+
+def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1) -> Dict[str, float]:
+  """Median and min wall time (s) of fn() with its outputs blocked on; compile excluded."""
+  for _ in range(warmup):
+    jax.block_until_ready(fn())
+  times: List[float] = []
+  for _ in range(repeats):
+    start = time.perf_counter()
+    jax.block_until_ready(fn())
+    times.append(time.perf_counter() - start)
+  return {'median_s': float(np.median(times)), 'min_s': float(np.min(times))}
+
+
+def write_json(path: str, payload: Dict[str, Any]) -> None:
+  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+  with open(path, 'w') as f:
+    json.dump(payload, f, indent=1, default=float)
+
+
+def markdown_table(rows: List[Dict[str, Any]], columns: List[str]) -> str:
+  """A markdown table of the given columns of rows (floats with 4 significant digits)."""
+  def fmt(v):
+    if isinstance(v, float):
+      return f'{v:.4g}'
+    return str(v)
+  lines = ['| ' + ' | '.join(columns) + ' |', '|' + '---|' * len(columns)]
+  lines += ['| ' + ' | '.join(fmt(r.get(c, '')) for c in columns) + ' |' for r in rows]
+  return '\n'.join(lines)
