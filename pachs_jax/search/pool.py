@@ -1,0 +1,140 @@
+"""The node pool: every search node of I instances in fixed-capacity arrays [I, P, ...].
+
+A node holds its compact simulation state (any `NodeState` pytree, stored leaf by leaf, so the
+pool never knows the fields), its search bookkeeping, and the N edges sampled when it was
+expanded (an OPEN entry of a real edge names only (node, slot)). Node 0 is the start.
+
+Bytes per node: the state's bytes (for the grid world 2 + 1 + 1 + 1 + 2 floats and t: 32 B;
+for an MJX task 4 (nq + 2 nv + nu + G) + 4), plus 4 (g) + 4 (parent) + 4 A (action) + 4 (depth)
++ 2 (closed, is_goal) + 4 (open_key) + 4 N (A + 1) (sampled edges) bytes.
+"""
+
+from __future__ import annotations
+
+from typing import Tuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from pachs_jax.envs import base
+
+ROOT_INDEX = 0
+NO_PARENT = -1
+
+
+@struct.dataclass
+class NodePool:
+  """Nodes of I instances, capacity P (entries at index >= size are unused).
+
+  nodes: NodeState [I, P, ...] the state of each node.
+  g: [I, P] float32 cost of the best known path from the start (cost units).
+  parent: [I, P] int32 parent node index (NO_PARENT for the start).
+  action: [I, P, A] float32 the action from the parent that reached the node.
+  depth: [I, P] int32 edges from the start.
+  closed: [I, P] bool, the node was expanded.
+  is_goal: [I, P] bool, the node satisfies the goal rule.
+  open_key: [I, P] float32 priority of the node's latest dummy edge (a popped dummy edge with
+    another key is stale).
+  edge_actions: [I, P, N, A] float32 the actions sampled when the node was expanded.
+  edge_q: [I, P, N] float32 their cost-to-go estimates q = max(-Q, 0).
+  size: [I] int32 nodes in use; overflow: [I] int32 new nodes that found no room.
+  """
+
+  nodes: base.NodeState
+  g: jax.Array
+  parent: jax.Array
+  action: jax.Array
+  depth: jax.Array
+  closed: jax.Array
+  is_goal: jax.Array
+  open_key: jax.Array
+  edge_actions: jax.Array
+  edge_q: jax.Array
+  size: jax.Array
+  overflow: jax.Array
+
+  @property
+  def capacity(self) -> int:
+    return self.g.shape[1]
+
+
+def _rows(index: jax.Array) -> jax.Array:
+  return jnp.arange(index.shape[0]).reshape((-1,) + (1,) * (index.ndim - 1))
+
+
+def init(start: base.NodeState, start_is_goal: jax.Array, capacity: int, num_actions: int,
+         action_size: int) -> NodePool:
+  """A pool of `capacity` nodes per instance holding the start nodes start [I, ...] at index 0."""
+  num_instances = start_is_goal.shape[0]
+  shape = (num_instances, capacity)
+
+  def leaf(x):
+    x = jnp.asarray(x)
+    out = jnp.zeros(shape + x.shape[1:], x.dtype)
+    return out.at[:, ROOT_INDEX].set(x)
+
+  return NodePool(
+      nodes=jax.tree.map(leaf, start),
+      g=jnp.zeros(shape, jnp.float32),
+      parent=jnp.full(shape, NO_PARENT, jnp.int32),
+      action=jnp.zeros(shape + (action_size,), jnp.float32),
+      depth=jnp.zeros(shape, jnp.int32),
+      closed=jnp.zeros(shape, bool),
+      is_goal=jnp.zeros(shape, bool).at[:, ROOT_INDEX].set(start_is_goal),
+      open_key=jnp.full(shape, jnp.inf, jnp.float32).at[:, ROOT_INDEX].set(0.0),
+      edge_actions=jnp.zeros(shape + (num_actions, action_size), jnp.float32),
+      edge_q=jnp.zeros(shape + (num_actions,), jnp.float32),
+      size=jnp.ones((num_instances,), jnp.int32),
+      overflow=jnp.zeros((num_instances,), jnp.int32))
+
+
+def gather(values: jax.Array, index: jax.Array) -> jax.Array:
+  """values [I, P, ...] at index [I, K] -> [I, K, ...]."""
+  return values[_rows(index), index]
+
+
+def gather_nodes(pool: NodePool, index: jax.Array) -> base.NodeState:
+  """NodeState [I, K, ...] of the nodes at index [I, K]."""
+  return jax.tree.map(lambda x: gather(x, index), pool.nodes)
+
+
+def _scatter(values: jax.Array, index: jax.Array, mask: jax.Array, new: jax.Array) -> jax.Array:
+  """values [I, P, ...] with new [I, K, ...] written at index [I, K] where mask."""
+  target = jnp.where(mask, index, values.shape[1])  # out of bounds: dropped
+  return values.at[_rows(index), target].set(new.astype(values.dtype), mode='drop')
+
+
+def allocate(pool: NodePool, want: jax.Array) -> Tuple[NodePool, jax.Array, jax.Array]:
+  """New node indices for the entries of want [I, K] in order: (pool, index [I, K], ok [I, K]).
+
+  Entries that do not fit get ok False and are counted in overflow.
+  """
+  index = pool.size[:, None] + jnp.cumsum(want, axis=1, dtype=jnp.int32) - 1
+  ok = want & (index < pool.capacity)
+  pool = pool.replace(
+      size=pool.size + jnp.sum(ok, axis=1, dtype=jnp.int32),
+      overflow=pool.overflow + jnp.sum(want & ~ok, axis=1, dtype=jnp.int32))
+  return pool, index, ok
+
+
+def set_nodes(pool: NodePool, index: jax.Array, mask: jax.Array, nodes: base.NodeState,
+              g: jax.Array, parent: jax.Array, action: jax.Array, depth: jax.Array,
+              is_goal: jax.Array, open_key: jax.Array) -> NodePool:
+  """Writes the (open) nodes [I, K] at index [I, K] where mask."""
+  put = lambda values, new: _scatter(values, index, mask, new)
+  return pool.replace(
+      nodes=jax.tree.map(put, pool.nodes, nodes), g=put(pool.g, g),
+      parent=put(pool.parent, parent), action=put(pool.action, action),
+      depth=put(pool.depth, depth), closed=put(pool.closed, jnp.zeros_like(mask)),
+      is_goal=put(pool.is_goal, is_goal), open_key=put(pool.open_key, open_key))
+
+
+def close(pool: NodePool, index: jax.Array, mask: jax.Array, edge_actions: jax.Array,
+          edge_q: jax.Array) -> NodePool:
+  """Marks the nodes at index [I, K] expanded (where mask) and stores their sampled edges
+  edge_actions [I, K, N, A] and edge_q [I, K, N]."""
+  return pool.replace(
+      closed=_scatter(pool.closed, index, mask, jnp.ones_like(mask)),
+      edge_actions=_scatter(pool.edge_actions, index, mask, edge_actions),
+      edge_q=_scatter(pool.edge_q, index, mask, edge_q))

@@ -1,0 +1,197 @@
+"""What the PACHS search is configured with, calls, and returns.
+
+`SearchConfig` (static, hashable) sets the search; the actor-critic enters through the
+`ActorCritic` protocol; `SearchResult` is what one planning call returns per problem instance;
+`StopReason` names why an instance stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Optional, Protocol, Tuple
+
+import jax
+from flax import struct
+
+from pachs_jax.envs import base
+
+HEAP_KINDS = ('flat', 'segmented', 'blocked')
+
+
+class StopReason:
+  """Why a search instance stopped ([I] int32 codes in `SearchResult.stop_reason`)."""
+
+  RUNNING = 0  # not stopped yet (a chunked run that was interrupted)
+  GOAL = 1  # a dummy edge of a goal state was popped
+  BUDGET = 2  # a popped edge needed an evaluation beyond `max_evaluations`
+  ITERATIONS = 3  # `max_iterations` loop iterations done
+  OPEN_EMPTY = 4  # OPEN held no edge: every reachable lattice cell was expanded
+  CAPACITY = 5  # the heap, node pool or lattice table overflowed (see the overflow counts)
+  TIME_LIMIT = 6  # the host's wall-clock limit ran out between chunks (set by `plan`)
+
+  NAMES = ('running', 'goal', 'budget', 'iterations', 'open_empty', 'capacity', 'time_limit')
+
+  @classmethod
+  def name(cls, code: int) -> str:
+    return cls.NAMES[int(code)]
+
+
+class ActorCritic(Protocol):
+  """The trained model as the search sees it; both functions are pure and jittable.
+
+  `sample_actions(key, obs[B, O], num) -> [B, num, A]` actions in [-1, 1] (the actor's
+  proposals for the outgoing edges of B states).
+  `q_values(obs[B, O], actions[B, num, A]) -> [B, num]` float32 critic Q, a reward sum in the
+  environment's reward units; the search uses the cost-to-go q = max(-Q, 0).
+  """
+
+  def sample_actions(self, key: jax.Array, obs: jax.Array, num: int) -> jax.Array:
+    ...
+
+  def q_values(self, obs: jax.Array, actions: jax.Array) -> jax.Array:
+    ...
+
+
+def _next_pow2(n: int) -> int:
+  return 1 << max(0, int(n - 1).bit_length())
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchConfig:
+  """PACHS parameters; capacities left as None are derived from the evaluation budget.
+
+  weight: heuristic weight w >= 0 (f = g + w * q).
+  num_actions: N actions sampled per expansion.
+  pop_size: K edges popped per instance and loop iteration.
+  max_evaluations: edge-evaluation budget per instance.
+  max_iterations: loop-iteration limit per instance (None: no limit beyond the budget).
+  lattice_resolution: [L] lattice cell sizes (None: the environment's default).
+  heap_kind: 'flat' (one top_k over the buffer), 'segmented' (flat buffer with per-segment
+    minima, two small top_k) or 'blocked' (binary heap of sorted blocks of K entries).
+  heap_capacity: entries per instance; None: (N + 1) * (budget + 1), which never overflows.
+  segment_size: entries per segment of the 'segmented' heap (None: about sqrt(capacity)).
+  pool_capacity: nodes per instance; None: budget + 1, which never overflows.
+  table_capacity: lattice-table slots per instance, a power of two; None: >= 2 * pool.
+  max_path_length: actions kept in a returned path (longer paths keep their first ones).
+  """
+
+  weight: float = 1.0
+  num_actions: int = 16
+  pop_size: int = 16
+  max_evaluations: int = 100_000
+  max_iterations: Optional[int] = None
+  lattice_resolution: Optional[Tuple[float, ...]] = None
+  heap_kind: str = 'segmented'
+  heap_capacity: Optional[int] = None
+  segment_size: Optional[int] = None
+  pool_capacity: Optional[int] = None
+  table_capacity: Optional[int] = None
+  max_path_length: int = 1024
+
+  def __post_init__(self):
+    def positive_int(name, allow_none=False):
+      v = getattr(self, name)
+      if v is None and allow_none:
+        return
+      if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise ValueError(f'SearchConfig.{name} must be a positive int, got {v!r}')
+
+    w = self.weight
+    if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) or w < 0:
+      raise ValueError(f'SearchConfig.weight must be a finite number >= 0, got {w!r}')
+    for name in ('num_actions', 'pop_size', 'max_evaluations', 'max_path_length'):
+      positive_int(name)
+    for name in ('max_iterations', 'heap_capacity', 'segment_size', 'pool_capacity',
+                 'table_capacity'):
+      positive_int(name, allow_none=True)
+    if self.heap_kind not in HEAP_KINDS:
+      raise ValueError(f'SearchConfig.heap_kind must be one of {HEAP_KINDS}, '
+                       f'got {self.heap_kind!r}')
+    if self.table_capacity is not None and self.table_capacity & (self.table_capacity - 1):
+      raise ValueError('SearchConfig.table_capacity must be a power of two, '
+                       f'got {self.table_capacity}')
+    if self.lattice_resolution is not None:
+      res = tuple(self.lattice_resolution)
+      if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0
+                            for r in res):
+        raise ValueError('SearchConfig.lattice_resolution must be a non-empty tuple of '
+                         f'positive cell sizes, got {self.lattice_resolution!r}')
+      object.__setattr__(self, 'lattice_resolution', tuple(float(r) for r in res))
+    if self.pool * (self.num_actions + 1) >= 2**31:
+      raise ValueError('pool_capacity * (num_actions + 1) must stay below 2**31 (heap entries '
+                       f'store node * (N + 1) + slot as int32); got {self.pool} nodes and '
+                       f'N = {self.num_actions}')
+    if self.heap >= 2**31 or self.table >= 2**31:
+      raise ValueError('heap and table capacities must stay below 2**31 '
+                       f'(got heap {self.heap}, table {self.table})')
+
+  # ---- derived sizes ----
+
+  @property
+  def heap(self) -> int:
+    """Heap capacity (entries per instance)."""
+    if self.heap_capacity is not None:
+      return self.heap_capacity
+    return (self.num_actions + 1) * (self.max_evaluations + 1)
+
+  @property
+  def pool(self) -> int:
+    """Node-pool capacity (nodes per instance)."""
+    return self.pool_capacity if self.pool_capacity is not None else self.max_evaluations + 1
+
+  @property
+  def table(self) -> int:
+    """Lattice-table capacity (slots per instance, a power of two)."""
+    if self.table_capacity is not None:
+      return self.table_capacity
+    return _next_pow2(2 * self.pool)
+
+  @property
+  def iterations(self) -> int:
+    """Loop-iteration limit per instance (the default can never be reached before the budget)."""
+    if self.max_iterations is not None:
+      return self.max_iterations
+    return min(2**31 - 1, (self.num_actions + 1) * (self.max_evaluations + 1) + 1)
+
+
+@struct.dataclass
+class SearchResult:
+  """The outcome of planning I problem instances (leading axis I everywhere).
+
+  found: [I] bool, a goal state's dummy edge was popped; the path ends at that goal.
+  stop_reason: [I] int32 `StopReason` code.
+  path_actions: [I, max_path_length, A] actions from the start; rows >= path_length are 0.
+  path_length: [I] int32 number of actions in the path (may exceed max_path_length, see
+    path_truncated).
+  path_nodes: NodeState [I, max_path_length + 1, ...] states along the path (start first).
+  path_truncated: [I] bool, the path was longer than max_path_length (its prefix is kept).
+  path_is_goal: [I] bool, the path's last state satisfies the goal rule.
+  cost: [I] float32 path cost g of the last state (sum of edge costs, the env's cost units).
+  expanded: [I] int32 states expanded (dummy edges popped and expanded).
+  evaluated: [I] int32 edges evaluated (env.evaluate calls counted per edge).
+  invalid: [I] int32 evaluated edges that were invalid (dropped).
+  generated: [I] int32 nodes in the pool.
+  iterations: [I] int32 loop iterations.
+  heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space.
+  wall_time_s: [] float32 host wall-clock seconds of the planning call without compilation
+    (set by `plan`; NaN from `Search.result`).
+  """
+
+  found: jax.Array
+  stop_reason: jax.Array
+  path_actions: jax.Array
+  path_length: jax.Array
+  path_nodes: base.NodeState
+  path_truncated: jax.Array
+  path_is_goal: jax.Array
+  cost: jax.Array
+  expanded: jax.Array
+  evaluated: jax.Array
+  invalid: jax.Array
+  generated: jax.Array
+  iterations: jax.Array
+  heap_overflow: jax.Array
+  pool_overflow: jax.Array
+  table_overflow: jax.Array
+  wall_time_s: jax.Array

@@ -1,0 +1,191 @@
+"""The edge heap designs against Python's heapq on random push / pop sequences."""
+
+import functools
+import heapq
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.search import heap as heap_lib
+
+NUM_INSTANCES = 3
+K = 4
+M = 9  # entries offered per push
+
+# (kind, capacity, segment size): the segmented heap with small segments (many segments) and
+# with segments larger than K entries, plus a K larger than the number of segments.
+DESIGNS = [('flat', 600, None), ('segmented', 600, 4), ('segmented', 600, 64),
+           ('segmented', 40, 16), ('blocked', 600, None)]
+
+
+@functools.lru_cache(maxsize=None)
+def _ops(kind, capacity, segment, k=K):
+  """(init, jitted push, jitted pop) of one design, shared by the tests."""
+  init = lambda: heap_lib.init(kind, NUM_INSTANCES, capacity, k, segment_size=segment)
+  push = jax.jit(heap_lib.push)
+  pop = jax.jit(lambda h, active: heap_lib.pop(h, k, active))
+  return init, push, pop
+
+
+peek = jax.jit(heap_lib.peek)
+
+
+class Model:
+  """heapq per instance, with the flat designs' rule that capacity counts all stored pushes."""
+
+  def __init__(self, capacity, append_only):
+    self.queues = [[] for _ in range(NUM_INSTANCES)]
+    self.seq = [0] * NUM_INSTANCES
+    self.capacity, self.append_only = capacity, append_only
+    self.overflow = [0] * NUM_INSTANCES
+
+  def push(self, keys, values, mask):
+    for i in range(NUM_INSTANCES):
+      for key, value, m in zip(keys[i], values[i], mask[i]):
+        if not m or not key < np.inf:
+          continue
+        used = self.seq[i] if self.append_only else len(self.queues[i])
+        if used >= self.capacity:
+          self.overflow[i] += 1
+          continue
+        heapq.heappush(self.queues[i], (float(key), self.seq[i], int(value)))
+        self.seq[i] += 1
+
+  def pop(self, k, active):
+    out = []
+    for i in range(NUM_INSTANCES):
+      got = []
+      while active[i] and self.queues[i] and len(got) < k:
+        key, _, value = heapq.heappop(self.queues[i])
+        got.append((key, value))
+      out.append(got)
+    return out
+
+
+def _random_push(rng):
+  # Few distinct keys (many ties), some random floats, negative zero and a few -inf.
+  keys = rng.choice([0.0, -0.0, 1.0, 2.0, 2.5, 7.0], size=(NUM_INSTANCES, M))
+  floats = rng.uniform(0, 10, size=(NUM_INSTANCES, M))
+  keys = np.where(rng.random((NUM_INSTANCES, M)) < 0.3, floats, keys).astype(np.float32)
+  values = rng.integers(0, 1000, size=(NUM_INSTANCES, M)).astype(np.int32)
+  mask = rng.random((NUM_INSTANCES, M)) < 0.7
+  return keys, values, mask
+
+
+def _check_pop(model, got_keys, got_values, got_mask, active):
+  want = model.pop(K, active)
+  for i in range(NUM_INSTANCES):
+    n = int(got_mask[i].sum())
+    assert n == len(want[i]), (i, n, want[i])
+    assert got_mask[i, :n].all()  # valid entries first
+    pairs = list(zip(got_keys[i, :n].tolist(), got_values[i, :n].tolist()))
+    assert pairs == want[i], (i, pairs, want[i])
+
+
+@pytest.mark.parametrize('kind,capacity,segment', DESIGNS)
+def test_matches_heapq(kind, capacity, segment):
+  init, push, pop = _ops(kind, capacity, segment)
+  rng = np.random.default_rng(0)
+  model = Model(capacity, append_only=kind != 'blocked')
+  heap = init()
+  for step in range(60):
+    if rng.random() < 0.55 or step < 3:
+      keys, values, mask = _random_push(rng)
+      heap = push(heap, jnp.asarray(keys), jnp.asarray(values), jnp.asarray(mask))
+      model.push(keys, values, mask)
+    else:
+      key, value, present = peek(heap)  # the best entry, left in place
+      for i in range(NUM_INSTANCES):
+        assert bool(present[i]) == bool(model.queues[i])
+        if model.queues[i]:
+          assert (float(key[i]), int(value[i])) == (model.queues[i][0][0], model.queues[i][0][2])
+      active = rng.random(NUM_INSTANCES) < 0.8
+      heap, k, v, m = pop(heap, jnp.asarray(active))
+      _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), active)
+    np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)),
+                                  [len(q) for q in model.queues])
+  # Drain everything.
+  while any(model.queues):
+    heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
+    _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), [True] * NUM_INSTANCES)
+  heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
+  assert not np.asarray(m).any()  # empty
+  np.testing.assert_array_equal(np.asarray(heap_lib.overflow(heap)), model.overflow)
+
+
+@pytest.mark.parametrize('kind', ['flat', 'segmented'])
+def test_flat_overflow_is_counted(kind):
+  capacity = 20
+  init, push, pop = _ops(kind, capacity, 8)
+  model = Model(capacity, append_only=True)
+  heap = init()
+  rng = np.random.default_rng(1)
+  for _ in range(4):
+    keys, values, mask = _random_push(rng)
+    heap = push(heap, jnp.asarray(keys), jnp.asarray(values), jnp.asarray(mask))
+    model.push(keys, values, mask)
+    heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
+    _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), [True] * NUM_INSTANCES)
+  assert min(model.overflow) > 0
+  np.testing.assert_array_equal(np.asarray(heap.overflow), model.overflow)
+
+
+def test_blocked_overflow_is_counted():
+  capacity = 8  # two blocks of K = 4
+  init, push, pop = _ops('blocked', capacity, None)
+  heap = init()
+  rng = np.random.default_rng(2)
+  pushed = np.zeros(NUM_INSTANCES, int)
+  for _ in range(3):
+    keys, values, mask = _random_push(rng)
+    heap = push(heap, jnp.asarray(keys), jnp.asarray(values), jnp.asarray(mask))
+    pushed += mask.sum(axis=1)
+  overflow = np.asarray(heap.overflow)
+  assert (overflow > 0).all()
+  assert (overflow % K == 0).all()  # whole blocks are dropped
+  # Conservation: stored + dropped = pushed, and exactly the stored entries come out again.
+  popped = np.zeros(NUM_INSTANCES, int)
+  for _ in range(10):
+    heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
+    m = np.asarray(m)
+    popped += m.sum(axis=1)
+    k = np.asarray(k)
+    for i in range(NUM_INSTANCES):  # each pop comes out sorted
+      assert (np.diff(k[i][m[i]]) >= 0).all()
+  np.testing.assert_array_equal(popped + overflow, pushed)
+  assert (popped <= capacity + K - 1).all()
+
+
+@pytest.mark.parametrize('kind,capacity,segment', DESIGNS[:1] + DESIGNS[2:3] + DESIGNS[4:])
+def test_non_finite_keys_are_not_stored(kind, capacity, segment):
+  init, push, pop = _ops(kind, capacity, segment)
+  keys = jnp.array([[jnp.nan, jnp.inf, 3.0, -jnp.inf, 1.0]] * NUM_INSTANCES, jnp.float32)
+  values = jnp.broadcast_to(jnp.arange(5, dtype=jnp.int32), keys.shape)
+  heap = push(init(), keys, values, jnp.ones(keys.shape, bool))
+  np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)), [3] * NUM_INSTANCES)
+  _, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
+  np.testing.assert_array_equal(np.asarray(v)[:, :3], [[3, 4, 2]] * NUM_INSTANCES)
+  np.testing.assert_array_equal(np.asarray(m)[:, :4], [[True, True, True, False]] * NUM_INSTANCES)
+  assert np.asarray(k)[0, 0] == -np.inf
+
+
+def test_inactive_instances_do_not_change():
+  init, push, pop = _ops('blocked', 600, None)
+  keys = jnp.arange(2 * NUM_INSTANCES * M, dtype=jnp.float32).reshape(NUM_INSTANCES, 2 * M)
+  heap = push(init(), keys, keys.astype(jnp.int32), jnp.ones(keys.shape, bool))
+  active = jnp.array([True, False, True])
+  new, _, _, m = pop(heap, active)
+  assert not np.asarray(m)[1].any()
+  for old_leaf, new_leaf in zip(jax.tree.leaves(heap), jax.tree.leaves(new)):
+    np.testing.assert_array_equal(np.asarray(old_leaf)[1], np.asarray(new_leaf)[1])
+
+
+def test_bad_arguments():
+  with pytest.raises(ValueError, match='heap kind'):
+    heap_lib.init('fibonacci', 1, 10, 2)
+  with pytest.raises(ValueError, match='capacity'):
+    heap_lib.init('flat', 1, 0, 2)
+  with pytest.raises(ValueError, match='block size'):
+    heap_lib.pop(heap_lib.init('blocked', 1, 16, 4), 3)

@@ -1,0 +1,339 @@
+"""PACHS on the analytic grid world: optimality, bounds, batching, replay, anytime, stops."""
+
+import dataclasses
+import functools
+import heapq
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import gridworld
+from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search, plan
+
+SIZE = 14
+POCKET = (1, 12)  # a free cell walled in: unreachable from outside
+NUM_FOUND = 6  # instances 0..5 have reachable goals (instance 5: start == goal)
+
+
+def _grid(seed, density):
+  rng = np.random.default_rng(seed)
+  obstacles = rng.random((SIZE, SIZE)) < density
+  obstacles[:4, 10:] = False
+  obstacles[3, 10:] = True  # the pocket's walls: row 3 and column 10 around rows 0-2
+  obstacles[:3, 10] = True
+  return obstacles
+
+
+def _dijkstra(obstacles, start, goal):
+  """Cheapest 8-connected path cost (float64), inf when unreachable."""
+  dist = {start: 0.0}
+  queue = [(0.0, start)]
+  while queue:
+    d, (r, c) = heapq.heappop(queue)
+    if (r, c) == goal:
+      return d
+    if d > dist[(r, c)]:
+      continue
+    for dr, dc in gridworld.MOVES_8:
+      nr, nc = r + dr, c + dc
+      if 0 <= nr < SIZE and 0 <= nc < SIZE and not obstacles[nr, nc]:
+        nd = d + math.hypot(dr, dc)
+        if nd < dist.get((nr, nc), math.inf):
+          dist[(nr, nc)] = nd
+          heapq.heappush(queue, (nd, (nr, nc)))
+  return math.inf
+
+
+class Problem:
+  """Random far-apart start / goal pairs on a random grid, one with start == goal and one with
+  the goal in the walled pocket, as one batch of instances."""
+
+  def __init__(self, seed, density=0.28):
+    self.obstacles = _grid(seed, density)
+    self.env = gridworld.GridWorld(self.obstacles, connectivity=8)
+    self.actor_critic = gridworld.GridActorCritic(self.env)
+    rng = np.random.default_rng(seed + 100)
+    outside = np.argwhere(~self.obstacles)
+    outside = outside[~((outside[:, 0] < 3) & (outside[:, 1] > 10))]
+    starts, goals = [], []
+    while len(starts) < NUM_FOUND - 1:  # reachable, far-apart pairs
+      a, b = outside[rng.choice(len(outside), 2, replace=False)]
+      if np.isfinite(_dijkstra(self.obstacles, tuple(a), tuple(b))) and np.abs(a - b).max() >= 7:
+        starts.append(a)
+        goals.append(b)
+    starts.append(outside[0])
+    goals.append(outside[0])  # start == goal
+    starts.append(outside[1])
+    goals.append(np.array(POCKET))  # unreachable
+    self.starts, self.goals = np.array(starts), np.array(goals)
+    self.optimal = np.array([_dijkstra(self.obstacles, tuple(s), tuple(g))
+                             for s, g in zip(starts, goals)])
+    self.nodes = self.env.node(self.starts, self.goals)
+    self.keys = instance_keys(jax.random.PRNGKey(0), len(starts))
+
+  def subset(self, i):
+    return jax.tree.map(lambda x: x[i:i + 1], self.nodes), self.keys[i:i + 1]
+
+
+BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, max_evaluations=3000,
+                    heap_kind='flat')
+
+
+@pytest.fixture(scope='module')
+def problem():
+  return Problem(seed=4)
+
+
+@pytest.fixture(scope='module')
+def search(problem):
+  return make_search(problem.env, problem.actor_critic, BASE)
+
+
+@pytest.fixture(scope='module')
+def base_result(problem, search):
+  return plan(problem.env, problem.actor_critic, problem.nodes, BASE, problem.keys, search=search)
+
+
+def _np(tree):
+  return jax.tree.map(np.asarray, tree)
+
+
+def _leaves(result):
+  """The result's arrays with a leading instance axis (all but the wall time)."""
+  return jax.tree.leaves(result.replace(wall_time_s=None))
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted_evaluate(env):
+  return jax.jit(env.evaluate)
+
+
+def _replay(env, result, i):
+  """Replays instance i's actions from its start; checks the states and returns the cost."""
+  res = _np(result)
+  length = int(res.path_length[i])
+  node = jax.tree.map(lambda x: x[i, :1], result.path_nodes)
+  cost = np.float32(0.0)
+  evaluate = _jitted_evaluate(env)
+  for t in range(length):
+    out = evaluate(node, jnp.asarray(res.path_actions[i, t:t + 1]))
+    assert bool(out.is_valid[0])
+    cost = cost + np.float32(out.cost[0])
+    node = out.next_node
+    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(res.path_nodes)):
+      np.testing.assert_array_equal(np.asarray(got)[0], want[i, t + 1])  # bit for bit
+  assert not res.path_actions[i, length:].any()
+  return cost, node
+
+
+def test_k1_w1_is_optimal(problem, base_result):
+  res = _np(base_result)
+  reachable = np.isfinite(problem.optimal)
+  np.testing.assert_array_equal(res.found, reachable)
+  np.testing.assert_allclose(res.cost[reachable], problem.optimal[reachable], atol=1e-4)
+  np.testing.assert_array_equal(res.stop_reason[reachable], StopReason.GOAL)
+  assert res.path_length[NUM_FOUND - 1] == 0 and res.cost[NUM_FOUND - 1] == 0.0
+  assert res.wall_time_s > 0
+  assert (res.expanded[:NUM_FOUND - 1] > 0).all() and (res.evaluated > 0).sum() >= NUM_FOUND - 1
+  assert not (res.heap_overflow.any() or res.pool_overflow.any() or res.table_overflow.any())
+
+
+def test_k1_w1_is_optimal_on_a_denser_grid():
+  other = Problem(seed=11, density=0.36)
+  res = _np(plan(other.env, other.actor_critic, other.nodes, BASE, other.keys))
+  reachable = np.isfinite(other.optimal)
+  np.testing.assert_array_equal(res.found, reachable)
+  np.testing.assert_allclose(res.cost[reachable], other.optimal[reachable], atol=1e-4)
+
+
+def test_unreachable_goal_empties_open(problem, base_result):
+  res = _np(base_result)
+  i = NUM_FOUND  # the pocket goal
+  assert not res.found[i]
+  assert res.stop_reason[i] == StopReason.OPEN_EMPTY
+  # Every reachable cell was generated once (the lattice merges revisits) and expanded.
+  reachable = sum(np.isfinite(_dijkstra(problem.obstacles, tuple(problem.starts[i]), (r, c)))
+                  for r in range(SIZE) for c in range(SIZE))
+  assert res.generated[i] == reachable
+  assert res.expanded[i] == reachable
+
+
+def test_replay_reproduces_path_states(problem, search, base_result):
+  # The run replaced the state of some open node by a cheaper one found later (its dummy
+  # edges: one per new node and one per improvement), so replay covers that case too.
+  state = search.run(search.init(problem.nodes, problem.keys))
+  dummy_pushes = np.asarray(state.heap.size) - 1 - BASE.num_actions * np.asarray(state.expanded)
+  improvements = dummy_pushes - (np.asarray(state.pool.size) - 1)
+  assert improvements[:NUM_FOUND].sum() > 0
+  for i in range(NUM_FOUND):
+    cost, node = _replay(problem.env, base_result, i)
+    np.testing.assert_allclose(cost, np.asarray(base_result.cost)[i], rtol=1e-6)
+    assert bool(problem.env.is_goal(node)[0])
+
+
+def test_batch_equals_one_by_one(problem, base_result):
+  search1 = make_search(problem.env, problem.actor_critic, BASE)
+  for i in (0, 3, NUM_FOUND):
+    nodes, keys = problem.subset(i)
+    single = plan(problem.env, problem.actor_critic, nodes, BASE, keys, search=search1)
+    for got, want in zip(_leaves(single), _leaves(base_result)):
+      np.testing.assert_array_equal(np.asarray(got)[0], np.asarray(want)[i])
+
+
+def test_anytime_chunks_equal_one_run(problem, search, base_result):
+  state = search.init(problem.nodes, problem.keys)
+  partial = None
+  for chunk in range(1000):
+    state = search.run_chunk(state, jnp.int32(7))
+    if chunk == 1:
+      partial = _np(search.result(state))
+    if not bool(jnp.any(state.active)):
+      break
+  chunked = search.result(state)
+  for got, want in zip(_leaves(chunked), _leaves(base_result)):
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+  # Mid-run (14 iterations): unfinished instances return a replayable path to an open node.
+  running = partial.stop_reason == StopReason.RUNNING
+  assert running[:NUM_FOUND - 1].all()
+  assert not partial.found[running].any()
+  assert (partial.path_length[running] > 0).all()
+  for i in np.flatnonzero(running):
+    cost, _ = _replay(problem.env, jax.tree.map(jnp.asarray, partial), i)
+    np.testing.assert_allclose(cost, partial.cost[i], rtol=1e-6)
+
+
+def test_time_limit_returns_best_open_paths(problem, search):
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, BASE, problem.keys,
+                 time_limit_s=1e-6, chunk_iterations=5, search=search))
+  assert res.stop_reason[NUM_FOUND - 1] == StopReason.GOAL  # found in the first iteration
+  timed_out = res.stop_reason == StopReason.TIME_LIMIT
+  assert timed_out[:NUM_FOUND - 1].all()
+  np.testing.assert_array_equal(res.iterations[timed_out], 5)
+  assert not res.found[timed_out].any()
+  assert res.path_length[timed_out].max() >= 1
+  for i in np.flatnonzero(timed_out):  # paths to the states of the best OPEN entries
+    cost, _ = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
+    np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
+
+
+@pytest.mark.parametrize('kind,pop_size,weight', [('segmented', 1, 2.0), ('blocked', 1, 1.5)])
+def test_weighted_within_bound(problem, kind, pop_size, weight):
+  config = dataclasses.replace(BASE, heap_kind=kind, pop_size=pop_size, weight=weight,
+                               segment_size=16)
+  res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
+  reachable = np.isfinite(problem.optimal)
+  np.testing.assert_array_equal(np.asarray(res.found), reachable)
+  cost = np.asarray(res.cost)[reachable]
+  assert (cost <= weight * problem.optimal[reachable] + 1e-4).all()
+  assert (cost >= problem.optimal[reachable] - 1e-4).all()
+  for i in range(NUM_FOUND):
+    replayed, _ = _replay(problem.env, res, i)
+    np.testing.assert_allclose(replayed, cost[i], rtol=1e-6)
+
+
+def test_pop_many_finds_paths_with_correct_cost(problem):
+  config = dataclasses.replace(BASE, heap_kind='blocked', pop_size=6)
+  res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
+  reachable = np.isfinite(problem.optimal)
+  np.testing.assert_array_equal(np.asarray(res.found), reachable)
+  assert np.asarray(res.stop_reason)[NUM_FOUND] == StopReason.OPEN_EMPTY
+  cost = np.asarray(res.cost)
+  assert (cost[reachable] >= problem.optimal[reachable] - 1e-4).all()
+  for i in range(NUM_FOUND):
+    replayed, node = _replay(problem.env, res, i)
+    np.testing.assert_allclose(replayed, cost[i], rtol=1e-6)
+    assert bool(problem.env.is_goal(node)[0])
+
+
+def test_tiny_budget_stops_on_budget(problem):
+  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6, heap_kind='segmented')
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  hit = res.stop_reason == StopReason.BUDGET
+  assert hit[:NUM_FOUND - 1].all()
+  np.testing.assert_array_equal(res.evaluated[hit], 6)  # never more than the budget
+  assert not res.found[hit].any()
+  assert (res.path_length[hit] >= 1).all()  # the real-time answer: a path to an open node
+
+
+def test_tiny_pool_stops_on_capacity(problem):
+  config = dataclasses.replace(BASE, pool_capacity=6)  # paths need >= 8 nodes
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  hit = res.stop_reason == StopReason.CAPACITY
+  assert hit[:NUM_FOUND - 1].all()
+  assert (res.pool_overflow[hit] > 0).all()
+  np.testing.assert_array_equal(res.generated[hit], 6)
+
+
+def test_iteration_limit(problem):
+  config = dataclasses.replace(BASE, max_iterations=3)
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  np.testing.assert_array_equal(res.stop_reason[:NUM_FOUND - 1], StopReason.ITERATIONS)
+  np.testing.assert_array_equal(res.iterations[:NUM_FOUND - 1], 3)
+  # K = 1: the first iteration expands the start, the others evaluate or expand one edge each.
+  np.testing.assert_array_equal((res.evaluated + res.expanded)[:NUM_FOUND - 1], 3)
+
+
+@pytest.mark.parametrize('changes,match', [
+    (dict(max_evaluations=0), 'max_evaluations'), (dict(pop_size=0), 'pop_size'),
+    (dict(num_actions=0), 'num_actions'), (dict(weight=-1.0), 'weight'),
+    (dict(weight=float('nan')), 'weight'), (dict(heap_kind='pairing'), 'heap_kind'),
+    (dict(table_capacity=100), 'power of two'), (dict(lattice_resolution=(1.0, 0.0)), 'lattice'),
+    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations')])
+def test_config_validation(changes, match):
+  with pytest.raises(ValueError, match=match):
+    dataclasses.replace(BASE, **changes)
+
+
+def test_mismatched_pieces_are_rejected(problem):
+  env, ac = problem.env, problem.actor_critic
+  with pytest.raises(ValueError, match='lattice_resolution'):
+    make_search(env, ac, dataclasses.replace(BASE, lattice_resolution=(1.0, 1.0, 1.0)))
+
+  class WrongShape:
+    sample_actions = ac.sample_actions
+
+    def q_values(self, obs, actions):
+      return ac.q_values(obs, actions)[..., None]
+
+  with pytest.raises(ValueError, match='q_values'):
+    make_search(env, WrongShape(), BASE)
+  with pytest.raises(ValueError, match='sample_actions'):
+    make_search(env, object(), BASE)
+  bad_start = env.node(jnp.zeros((2, 3)), jnp.zeros((2, 3)))
+  with pytest.raises(ValueError, match='start_nodes'):
+    plan(env, ac, bad_start, BASE, jax.random.PRNGKey(0))
+
+
+def test_stand_in_critic_is_exact_on_free_moves(problem):
+  env, ac = problem.env, problem.actor_critic
+  sampled = env.initial_nodes(jax.random.split(jax.random.PRNGKey(1), 16))
+  for cells in (sampled.qpos, sampled.goal):  # random instances start and end on free cells
+    cells = np.asarray(cells).astype(int)
+    assert not problem.obstacles[cells[:, 0], cells[:, 1]].any()
+  obs = env.observe(problem.nodes)
+  actions = ac.sample_actions(jax.random.PRNGKey(0), obs, 8)
+  np.testing.assert_array_equal(np.asarray(env.move(actions[0])), env.moves)
+  q = np.asarray(ac.q_values(obs, actions))
+  out = env.evaluate(jax.tree.map(lambda x: jnp.repeat(x, 8, axis=0), problem.nodes),
+                     actions.reshape(-1, 2))
+  h = np.asarray(ac.heuristic(out.next_node.qpos, out.next_node.goal)).reshape(q.shape)
+  cost = np.asarray(out.cost).reshape(q.shape)
+  valid = np.asarray(out.is_valid).reshape(q.shape)
+  np.testing.assert_allclose(-q[valid], (cost + h)[valid], rtol=1e-6)
+
+
+def test_coarse_lattice_merges_states_and_paths_replay(problem):
+  # 2 x 2 grid cells share a lattice cell, so at most (SIZE / 2)^2 nodes exist; most moves
+  # land in an already closed lattice cell and are dropped.
+  config = dataclasses.replace(BASE, lattice_resolution=(2.0, 2.0), pop_size=2,
+                               heap_kind='segmented')
+  res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
+  out = _np(res)
+  assert (out.generated <= (SIZE // 2) ** 2).all()
+  for i in range(len(out.found)):
+    cost, node = _replay(problem.env, res, i)
+    np.testing.assert_allclose(cost, out.cost[i], rtol=1e-6)
+    assert bool(problem.env.is_goal(node)[0]) == out.found[i]
