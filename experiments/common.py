@@ -24,6 +24,7 @@ def git_revision() -> str:
                            capture_output=True, text=True).stdout.strip()
     return rev + ('+dirty' if dirty else '')
   except (OSError, subprocess.CalledProcessError):
+    # The GPU machine gets a copy of the tree without .git: pass PACHS_GIT_REVISION there.
     return os.environ.get('PACHS_GIT_REVISION', 'unknown')
 
 
