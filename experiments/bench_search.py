@@ -1,0 +1,112 @@
+"""PACHS search throughput on the accelerator next to raw batched env steps, in one run.
+
+For each (instances I, pop size K) the search runs to its evaluation budget and reports edges
+evaluated per second (compile excluded); the raw throughput of `env.evaluate` at the same batch
+I*K is measured in the same run. Also: bytes per node and per instance at the budget.
+
+  python experiments/bench_search.py --task pusht-fixed --out experiments/results/bench_search.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import bench_env
+import common
+from pachs_jax import planner
+from pachs_jax.search import pachs
+from pachs_jax.sac import actor_critic as ac_lib
+
+
+def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.ActorCritic:
+  """A randomly initialised actor-critic of the task's shapes (throughput only)."""
+  config = ac_lib.ModelConfig(task=env.name, observation_size=env.observation_size,
+                              action_size=env.action_size, actor_hidden=hidden,
+                              critic_hidden=hidden, episode_length=env.episode_length)
+  nets = config.networks()
+  kp, kq = jax.random.split(jax.random.PRNGKey(seed))
+  params = ac_lib.ActorCriticParams(
+      normalizer={'mean': jnp.zeros(env.observation_size), 'std': jnp.ones(env.observation_size)},
+      policy=nets.policy_init(kp), q=nets.q_init(kq))
+  return ac_lib.ActorCritic(params=params, config=config)
+
+
+def tree_bytes(tree) -> int:
+  return int(sum(np.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(tree)))
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-fixed')
+  parser.add_argument('--checkpoint', default=None, help='default: the shipped model, else '
+                      'an untrained one')
+  parser.add_argument('--instances', default='1,30')
+  parser.add_argument('--pop-sizes', default='16,64,256')
+  parser.add_argument('--num-actions', type=int, default=8)
+  parser.add_argument('--budget', type=int, default=100_000)
+  parser.add_argument('--weight', type=float, default=2.0)
+  parser.add_argument('--out', default='experiments/results/bench_search.json')
+  args = parser.parse_args()
+
+  try:
+    env, model = planner.load_model(args.task, args.checkpoint)
+    model_name = args.checkpoint or planner.checkpoint_path(args.task)
+  except FileNotFoundError:
+    from pachs_jax import envs
+    env = envs.make(args.task)
+    model, model_name = untrained_model(env), 'untrained 3x256 (no checkpoint yet)'
+  result = {'provenance': common.provenance(), 'task': args.task, 'model': model_name,
+            'rows': []}
+  starts_all = env.canonical_instances(30)
+  for num_instances in [int(x) for x in args.instances.split(',')]:
+    for k in [int(x) for x in args.pop_sizes.split(',')]:
+      config = planner.default_config(args.task, pop_size=k, num_actions=args.num_actions,
+                                      max_evaluations=args.budget, weight=args.weight)
+      index = np.arange(num_instances) % 30
+      starts = jax.tree.map(lambda x: x[index], starts_all)
+      search = pachs.make_search(env, model, config)
+      t0 = time.perf_counter()
+      out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+      first = time.perf_counter() - t0
+      out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+      wall = float(out.wall_time_s)
+      evaluated = int(np.sum(out.evaluated))
+      iterations = int(np.max(out.iterations))
+      raw = bench_env.mjx_throughput(env, num_instances * k, steps=20, repeats=3)
+      state_shape = jax.eval_shape(search.init, starts, pachs.instance_keys(
+          jax.random.PRNGKey(0), num_instances))
+      row = {
+          'instances': num_instances, 'K': k, 'N': args.num_actions, 'budget': args.budget,
+          'wall_s': wall, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
+          'iterations': iterations, 'found': int(np.sum(out.found)),
+          'expanded': int(np.sum(out.expanded)),
+          'edges_per_s': evaluated / wall,
+          'evaluated_per_iteration_per_instance': evaluated / max(iterations, 1) / num_instances,
+          'raw_env_steps_per_s_same_batch': raw['env_steps_per_s'],
+          'search_over_raw': evaluated / wall / raw['env_steps_per_s'],
+          'state_bytes_per_instance': tree_bytes(state_shape) // num_instances,
+          'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool),
+          'stop_reasons': np.bincount(np.asarray(out.stop_reason), minlength=7).tolist(),
+      }
+      print(row, flush=True)
+      result['rows'].append(row)
+      common.write_json(args.out, result)
+  md = [f"# PACHS search throughput ({args.task}, model: {model_name})\n\n"
+        f"{result['provenance']}\n",
+        common.markdown_table(result['rows'], [
+            'instances', 'K', 'N', 'budget', 'wall_s', 'evaluated', 'found', 'edges_per_s',
+            'raw_env_steps_per_s_same_batch', 'search_over_raw',
+            'evaluated_per_iteration_per_instance', 'state_bytes_per_instance'])]
+  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+    f.write('\n'.join(md) + '\n')
+
+
+if __name__ == '__main__':
+  main()

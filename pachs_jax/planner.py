@@ -1,0 +1,102 @@
+"""Planning with the shipped models: per-task defaults, checkpoint lookup, a result table.
+
+The search itself lives in `pachs_jax.search`; this module only wires a task, its trained
+actor-critic and tuned parameters together for the `pachs plan` command and the experiments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Dict, List, Optional, Sequence
+
+import jax
+import numpy as np
+
+from pachs_jax import envs
+from pachs_jax.search import types as search_types
+
+CHECKPOINT_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'checkpoints')
+
+# The model each task plans with (PushT-Obs uses the PushT-Fixed model, as in the original).
+MODEL_FOR_TASK: Dict[str, str] = {
+    'pusht-fixed': 'pusht-fixed',
+    'pusht-rand': 'pusht-rand',
+    'pusht-obs': 'pusht-fixed',
+    'shelf': 'shelf',
+}
+
+# Tuned search parameters per task (w, N, K; lattice resolution: the env's default when None).
+TASK_DEFAULTS: Dict[str, search_types.SearchConfig] = {
+    'pusht-fixed': search_types.SearchConfig(weight=2.0, num_actions=8, pop_size=64,
+                                             max_evaluations=100_000),
+    'pusht-rand': search_types.SearchConfig(weight=2.0, num_actions=8, pop_size=64,
+                                            max_evaluations=100_000),
+    'pusht-obs': search_types.SearchConfig(weight=2.0, num_actions=8, pop_size=64,
+                                           max_evaluations=100_000),
+    'shelf': search_types.SearchConfig(weight=2.0, num_actions=8, pop_size=16,
+                                       max_evaluations=20_000),
+}
+
+
+def default_config(task: str, **overrides) -> search_types.SearchConfig:
+  """The tuned SearchConfig of a task with fields replaced by the non-None overrides."""
+  if task not in TASK_DEFAULTS:
+    raise ValueError(f'unknown task {task!r}; valid tasks: {", ".join(TASK_DEFAULTS)}')
+  kept = {k: v for k, v in overrides.items() if v is not None}
+  return dataclasses.replace(TASK_DEFAULTS[task], **kept)
+
+
+def checkpoint_path(task: str) -> str:
+  """Directory of the shipped actor-critic that plans `task`."""
+  if task not in MODEL_FOR_TASK:
+    raise ValueError(f'unknown task {task!r}; valid tasks: {", ".join(MODEL_FOR_TASK)}')
+  return os.path.join(CHECKPOINT_DIR, MODEL_FOR_TASK[task])
+
+
+def load_model(task: str, path: Optional[str] = None):
+  """The actor-critic for a task (the shipped one unless `path`), checked against the env."""
+  from pachs_jax.sac import checkpoint
+  env = envs.make(task)
+  path = path or checkpoint_path(task)
+  if not os.path.exists(path):
+    raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
+                            f'--task {MODEL_FOR_TASK.get(task, task)}')
+  model_env = envs.make(MODEL_FOR_TASK[task]) if path == checkpoint_path(task) else env
+  model = checkpoint.load_actor_critic(path, task=model_env.name)
+  if model.config.observation_size != env.observation_size:
+    raise ValueError(f'{path!r}: observation size {model.config.observation_size} does not fit '
+                     f'task {task!r} ({env.observation_size})')
+  return env, model
+
+
+def parse_instances(text: str, available: int) -> List[int]:
+  """'0-29' or '0,3,5' or '7' -> sorted instance indices, checked against `available`."""
+  out = set()
+  try:
+    for part in text.split(','):
+      if '-' in part:
+        lo, hi = (int(x) for x in part.split('-'))
+        out.update(range(lo, hi + 1))
+      else:
+        out.add(int(part))
+  except ValueError:
+    raise ValueError(f"instances must look like '0-29' or '0,3,5', got {text!r}") from None
+  bad = [i for i in out if not 0 <= i < available]
+  if not out or bad:
+    raise ValueError(f'instances must lie in 0..{available - 1}, got {text!r}')
+  return sorted(out)
+
+
+def result_rows(result: search_types.SearchResult, instances: Sequence[int]) -> List[dict]:
+  """One dict per instance: found, cost, expansions, evaluations, stop reason."""
+  r = jax.tree.map(np.asarray, result)
+  rows = []
+  for i, inst in enumerate(instances):
+    rows.append({
+        'instance': int(inst), 'found': bool(r.found[i]), 'cost': float(r.cost[i]),
+        'path_length': int(r.path_length[i]), 'expanded': int(r.expanded[i]),
+        'evaluated': int(r.evaluated[i]), 'iterations': int(r.iterations[i]),
+        'stop': search_types.StopReason.name(r.stop_reason[i]),
+        'overflow': int(r.heap_overflow[i] + r.pool_overflow[i] + r.table_overflow[i])})
+  return rows
