@@ -1,0 +1,52 @@
+"""Per-task SAC hyperparameters (one SACConfig per task name), for a single H100/H200.
+
+Network sizes: the original used 2x64 layers on the shelf and 3x256 on PushT-Fixed; its 3x1024
+for PushT-Rand would alone make a ~26 MB export (actor + twin critic, float32), beyond the 25 MB
+that all shipped checkpoints share, so PushT-Rand uses 3x512 (~6.5 MB; with 3x256 Fixed/Obs
+~1.7 MB each and the shelf ~0.1 MB). Throughput: thousands of environments per vmapped step and
+several large-batch updates per step keep the GPU busy on both the physics and the networks.
+
+PushT: discount 0.8 and initial temperature 0.2 (ManiSkill's SAC baseline uses gamma 0.8). On
+one H200 with these settings PushT-Fixed reached ~100% training-episode success after ~7M env
+steps (about one minute at ~132k env steps/s with deterministic XLA ops); with discount 0.97 and
+temperature 1.0 it was still below 3% at 7.7M steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Dict
+
+from pachs_jax.sac.config import SACConfig
+
+_PUSHT = SACConfig(
+    num_envs=2048, batch_size=4096, grad_updates_per_step=8, steps_per_epoch=25,
+    actor_learning_rate=3e-4, critic_learning_rate=3e-4, alpha_learning_rate=3e-4,
+    discount=0.8, reward_scaling=1.0, tau=0.005, replay_capacity=1_000_000,
+    min_replay_size=65_536, actor_hidden=(256, 256, 256), critic_hidden=(256, 256, 256),
+    init_alpha=0.2, eval_instances=256)
+
+PRESETS: Dict[str, SACConfig] = {
+    # Small enough to learn in seconds on a CPU (used by the tests).
+    'point-mass': SACConfig(
+        num_envs=16, batch_size=128, grad_updates_per_step=8, steps_per_epoch=25,
+        actor_learning_rate=1e-3, critic_learning_rate=1e-3, alpha_learning_rate=1e-3,
+        discount=0.9, replay_capacity=20_000, min_replay_size=256, actor_hidden=(32, 32),
+        critic_hidden=(32, 32), init_alpha=0.1, eval_instances=64),
+    'pusht-fixed': _PUSHT,
+    # The Obs task is normally solved with the Fixed model; this trains one of its own.
+    'pusht-obs': _PUSHT,
+    'pusht-rand': dataclasses.replace(_PUSHT, actor_hidden=(512, 512, 512),
+                                      critic_hidden=(512, 512, 512)),
+    'shelf': SACConfig(
+        num_envs=1024, batch_size=2048, grad_updates_per_step=4, steps_per_epoch=50,
+        discount=0.9, replay_capacity=1_000_000, min_replay_size=32_768,
+        actor_hidden=(64, 64), critic_hidden=(64, 64), init_alpha=0.2, eval_instances=256),
+}
+
+
+def preset(task: str) -> SACConfig:
+  """The preset SACConfig of a task name."""
+  if task not in PRESETS:
+    raise ValueError(f'no SAC preset for task {task!r}; known: {sorted(PRESETS)}')
+  return PRESETS[task]

@@ -1,0 +1,118 @@
+"""Progress reporting of training runs: a progress bar, metrics.csv and TensorBoard.
+
+`RunReporter` implements train.Reporter. On a resumed run it first drops the CSV rows written
+after the checkpoint being resumed, so metrics.csv reads as one uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from typing import Dict
+
+CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'success_rate',
+               'episodes', 'reward_mean', 'critic_loss', 'actor_loss', 'alpha_loss', 'alpha',
+               'buffer_size', 'eval_success_deterministic', 'eval_success_stochastic',
+               'eval_cost_deterministic')
+
+
+def _truncate_csv(path: str, max_env_steps: int) -> None:
+  """Keeps the header and the rows with env_steps <= max_env_steps."""
+  if not os.path.exists(path):
+    return
+  with open(path, newline='') as f:
+    rows = list(csv.DictReader(f))
+  kept = [r for r in rows if r.get('env_steps') and int(float(r['env_steps'])) <= max_env_steps]
+  with open(path, 'w', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction='ignore')
+    writer.writeheader()
+    writer.writerows(kept)
+
+
+class RunReporter:
+  """Writes run_dir/metrics.csv, TensorBoard events (if tensorboardX is installed) and a tqdm bar.
+
+  progress: 'bar' (tqdm: env steps, env steps/s, episode return, success rate), 'lines' (a
+    printed line at most every line_seconds and at every evaluation; for logs) or 'none'.
+  tensorboard: write run_dir/tensorboard when tensorboardX can be imported.
+  """
+
+  def __init__(self, run_dir: str, progress: str = 'bar', tensorboard: bool = True,
+               description: str = '', line_seconds: float = 30.0):
+    if progress not in ('bar', 'lines', 'none'):
+      raise ValueError(f"progress must be 'bar', 'lines' or 'none', got {progress!r}")
+    self.run_dir = run_dir
+    self.csv_path = os.path.join(run_dir, 'metrics.csv')
+    self._progress = progress
+    self._line_seconds = line_seconds
+    self._last_line = -math.inf
+    self._tensorboard = tensorboard
+    self._description = description
+    self._bar = None
+    self._writer = None
+    self._csv_file = None
+    self._csv = None
+    self._last = 0
+
+  def start(self, env_steps: int, total_env_steps: int) -> None:
+    os.makedirs(self.run_dir, exist_ok=True)
+    _truncate_csv(self.csv_path, env_steps)
+    new = not os.path.exists(self.csv_path)
+    self._csv_file = open(self.csv_path, 'a', newline='')
+    self._csv = csv.DictWriter(self._csv_file, fieldnames=CSV_COLUMNS, extrasaction='ignore')
+    if new:
+      self._csv.writeheader()
+    if self._tensorboard:
+      try:
+        import tensorboardX  # pylint: disable=import-outside-toplevel
+        self._writer = tensorboardX.SummaryWriter(os.path.join(self.run_dir, 'tensorboard'))
+      except ImportError:
+        self._writer = None
+    if self._progress == 'bar':
+      import tqdm  # pylint: disable=import-outside-toplevel
+      self._bar = tqdm.tqdm(total=total_env_steps, initial=env_steps, unit='step',
+                            unit_scale=True, desc=self._description, dynamic_ncols=True)
+    self._last = env_steps
+
+  def report(self, env_steps: int, metrics: Dict[str, float]) -> None:
+    row = {k: v for k, v in metrics.items() if not (isinstance(v, float) and math.isnan(v))}
+    row['env_steps'] = env_steps
+    self._csv.writerow(row)
+    self._csv_file.flush()
+    if self._writer is not None:
+      for k, v in metrics.items():
+        if k != 'epoch' and not math.isnan(v):
+          self._writer.add_scalar(k, v, env_steps)
+    if self._bar is not None:
+      self._bar.update(env_steps - self._last)
+      post = {'sps': f"{metrics.get('sps', 0.0):.3g}",
+              'ret': f"{metrics.get('episode_return', math.nan):.3g}",
+              'succ': f"{metrics.get('success_rate', math.nan):.2f}"}
+      if 'eval_success_deterministic' in metrics:
+        post['eval'] = f"{metrics['eval_success_deterministic']:.2f}"
+      self._bar.set_postfix(post, refresh=False)
+    elif self._progress == 'lines':
+      now = time.time()
+      if now - self._last_line >= self._line_seconds or 'eval_success_deterministic' in metrics:
+        print(f'[{self._description}] ' + summary_line(dict(metrics, env_steps=env_steps)),
+              flush=True)
+        self._last_line = now
+    self._last = env_steps
+
+  def close(self) -> None:
+    if self._bar is not None:
+      self._bar.close()
+    if self._writer is not None:
+      self._writer.close()
+    if self._csv_file is not None:
+      self._csv_file.close()
+    self._bar = self._writer = self._csv_file = self._csv = None
+
+
+def summary_line(metrics: Dict[str, float]) -> str:
+  """One line of the main metrics (for logs of non-interactive runs)."""
+  keys = ('env_steps', 'walltime', 'sps', 'episode_return', 'success_rate', 'critic_loss',
+          'alpha', 'eval_success_deterministic', 'eval_success_stochastic')
+  return ' '.join(f'{k}={metrics[k]:.4g}' for k in keys if k in metrics)

@@ -1,0 +1,228 @@
+"""SAC training runs: the epoch loop with checkpoints, resumption, time budgets and evaluation.
+
+`train(trainer, run_dir, total_env_steps, ...)` runs jitted epochs of `trainer` (see
+trainer.py), checkpoints the whole training state into run_dir/state (orbax, last few kept) and
+exports the actor-critic into run_dir/model. With `resume=True` it continues from the latest
+complete checkpoint; because every epoch is the same jitted function of the restored state, a
+resumed run ends with the same parameters, bit for bit on the same device, as an uninterrupted
+one. `max_minutes` bounds one invocation's wall time (it checkpoints and returns before the
+bound), so a long run can be split into several commands.
+
+Layout of run_dir: state/<epoch>/ (training checkpoints), model/ (actor-critic export),
+metrics.csv and tensorboard/ (written by a reporter, see reporting.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from typing import Any, Dict, Optional, Protocol
+
+import jax
+import numpy as np
+
+from pachs_jax.sac import checkpoint
+from pachs_jax.sac import evaluator
+from pachs_jax.sac.actor_critic import ActorCritic, ActorCriticParams, ModelConfig
+from pachs_jax.sac.config import SACConfig
+from pachs_jax.sac.trainer import Trainer, TrainingState, make_trainer
+
+__all__ = ['SACConfig', 'Trainer', 'TrainingState', 'make_trainer', 'train', 'TrainResult',
+           'actor_critic_from_state', 'read_run_config', 'STATE_SUBDIR']
+
+STATE_SUBDIR = 'state'
+TRAINING_FORMAT = 'pachs_jax.sac_training/1'
+
+
+class Reporter(Protocol):
+  """Receives progress: start once, then one report per epoch, then close."""
+
+  def start(self, env_steps: int, total_env_steps: int) -> None:
+    ...
+
+  def report(self, env_steps: int, metrics: Dict[str, float]) -> None:
+    ...
+
+  def close(self) -> None:
+    ...
+
+
+@dataclasses.dataclass
+class TrainResult:
+  """state: the final TrainingState; actor_critic: its exported networks; finished: the run
+  reached total_env_steps (False when the time budget stopped it first)."""
+
+  state: TrainingState
+  actor_critic: ActorCritic
+  epoch: int
+  env_steps: int
+  finished: bool
+
+
+def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> ActorCritic:
+  """The actor-critic (actor, twin critic, observation statistics) of a training state."""
+  env, config = trainer.env, trainer.config
+  model = ModelConfig(task=env.name, observation_size=env.observation_size,
+                      action_size=env.action_size, actor_hidden=config.actor_hidden,
+                      critic_hidden=config.critic_hidden, activation=config.activation,
+                      normalize_observations=config.normalize_observations,
+                      discount=config.discount, reward_scaling=config.reward_scaling,
+                      episode_length=env.episode_length)
+  normalizer = {'mean': state.normalizer.mean, 'std': state.normalizer.std}
+  params = ActorCriticParams(normalizer=normalizer, policy=state.policy_params,
+                             q=state.q_params)
+  return ActorCritic(params=params, config=model)
+
+
+def read_run_config(run_dir: str) -> Optional[Dict[str, Any]]:
+  """Metadata (task, sizes, 'sac_config' dict, epoch, env_steps) of a run directory's latest
+  training checkpoint, or None when it has none."""
+  directory = os.path.join(run_dir, STATE_SUBDIR)
+  if not os.path.isdir(directory):
+    return None
+  ckpts = checkpoint.TrainingCheckpoints(directory)
+  try:
+    latest = ckpts.latest_epoch()
+    return None if latest is None else ckpts.read_meta(latest)
+  finally:
+    ckpts.close()
+
+
+def _check_meta(trainer: Trainer, meta: Dict[str, Any], where: str) -> None:
+  env = trainer.env
+  if meta.get('format') != TRAINING_FORMAT:
+    raise ValueError(f'{where}: unknown training checkpoint format {meta.get("format")!r}')
+  if meta['task'] != env.name:
+    raise ValueError(f'{where} was trained on task {meta["task"]!r}, not {env.name!r}')
+  if (meta['observation_size'], meta['action_size']) != (env.observation_size, env.action_size):
+    raise ValueError(f'{where}: observation/action sizes {meta["observation_size"]}/'
+                     f'{meta["action_size"]} != env {env.name!r} sizes '
+                     f'{env.observation_size}/{env.action_size}')
+  stored = SACConfig.from_dict(meta['sac_config'])
+  diff = stored.differences(trainer.config)
+  if diff:
+    lines = ', '.join(f'{k}: checkpoint {a!r} vs requested {b!r}' for k, (a, b) in diff.items())
+    raise ValueError(f'{where}: the run was started with a different SACConfig ({lines}); '
+                     'resume with the stored config (see read_run_config)')
+
+
+def _host_metrics(metrics: Dict[str, Any]) -> Dict[str, float]:
+  m = {k: float(v) for k, v in jax.device_get(metrics).items()}
+  episodes = m.get('episodes', 0.0)
+  m['episode_return'] = m['episode_return_sum'] / episodes if episodes > 0 else math.nan
+  m['success_rate'] = m['successes'] / episodes if episodes > 0 else math.nan
+  return m
+
+
+def _make_evaluation(trainer: Trainer):
+  """fn(state) -> eval metrics over a fixed set of start nodes, or None when disabled."""
+  count = trainer.config.eval_instances
+  if count == 0:
+    return None
+  env = trainer.env
+  key = jax.random.fold_in(jax.random.PRNGKey(trainer.config.seed), 0x5EED)
+  nodes = env.initial_nodes(jax.random.split(key, count))
+  det = evaluator.make_rollout_fn(env, deterministic=True)
+  sto = evaluator.make_rollout_fn(env, deterministic=False)
+
+  def evaluate(state: TrainingState) -> Dict[str, float]:
+    ac = actor_critic_from_state(trainer, state)
+    d = det(ac, nodes, key)
+    s = sto(ac, nodes, key)
+    return {'eval_success_deterministic': float(np.mean(d.success)),
+            'eval_success_stochastic': float(np.mean(s.success)),
+            'eval_cost_deterministic': float(np.mean(d.cost))}
+
+  return evaluate
+
+
+def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool = False,
+          max_minutes: Optional[float] = None, checkpoint_minutes: float = 5.0,
+          checkpoint_every_epochs: int = 0, keep_checkpoints: int = 3,
+          reporter: Optional[Reporter] = None) -> TrainResult:
+  """Trains until total_env_steps (rounded up to whole epochs) or the time budget.
+
+  resume: continue from run_dir's latest checkpoint (a fresh start when it has none); without
+    it, a run_dir that already holds checkpoints is an error.
+  max_minutes: wall-time budget of this call; it stops before an epoch that would overrun it,
+    checkpoints and returns (finished=False).
+  checkpoint_minutes / checkpoint_every_epochs: save when either is due (0 disables the latter);
+    the end of the call always saves.
+  """
+  if total_env_steps < 1:
+    raise ValueError(f'total_env_steps must be >= 1, got {total_env_steps}')
+  if max_minutes is not None and max_minutes <= 0:
+    raise ValueError(f'max_minutes must be > 0, got {max_minutes}')
+  start_time = time.time()
+  deadline = None if max_minutes is None else start_time + 60.0 * max_minutes
+  env, config = trainer.env, trainer.config
+  os.makedirs(run_dir, exist_ok=True)
+  ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, STATE_SUBDIR),
+                                         keep=keep_checkpoints)
+  latest = ckpts.latest_epoch()
+  if latest is not None and not resume:
+    ckpts.close()
+    raise ValueError(f'{run_dir!r} already holds training checkpoints (latest epoch {latest}); '
+                     'pass resume=True (--resume) to continue it or choose another directory')
+  if latest is not None:
+    _check_meta(trainer, ckpts.read_meta(latest), os.path.join(run_dir, STATE_SUBDIR))
+    state = ckpts.restore(latest, jax.eval_shape(trainer.init))
+    epoch = latest
+  else:
+    state = trainer.init()
+    epoch = 0
+  num_epochs = trainer.num_epochs(total_env_steps)
+  evaluate = _make_evaluation(trainer)
+  reporter_ = reporter
+  if reporter_ is not None:
+    reporter_.start(trainer.env_steps(epoch), trainer.env_steps(num_epochs))
+
+  def save(state: TrainingState, epoch: int) -> Dict[str, float]:
+    env_steps = trainer.env_steps(epoch)
+    meta = {'format': TRAINING_FORMAT, 'task': env.name,
+            'observation_size': env.observation_size, 'action_size': env.action_size,
+            'sac_config': config.to_dict(), 'epoch': epoch, 'env_steps': env_steps}
+    ckpts.save(epoch, state, meta)
+    checkpoint.save_actor_critic(os.path.join(run_dir, checkpoint.MODEL_SUBDIR),
+                                 actor_critic_from_state(trainer, state),
+                                 extra={'sac_config': config.to_dict(), 'epoch': epoch,
+                                        'env_steps': env_steps})
+    return evaluate(state) if evaluate is not None else {}
+
+  saved_epoch, last_save_time = epoch, time.time()
+  epoch_seconds, save_seconds = 0.0, 0.0
+  try:
+    while epoch < num_epochs:
+      now = time.time()
+      if (deadline is not None and epoch_seconds > 0
+          and now + 1.5 * epoch_seconds + save_seconds > deadline):
+        break
+      state, metrics = trainer.epoch(state)
+      epoch += 1
+      metrics = _host_metrics(metrics)  # waits for the epoch
+      epoch_seconds = time.time() - now
+      metrics.update(epoch=float(epoch), sps=trainer.env_steps_per_epoch / epoch_seconds,
+                     walltime=time.time() - start_time)
+      due = ((checkpoint_every_epochs > 0 and epoch % checkpoint_every_epochs == 0)
+             or time.time() - last_save_time >= 60.0 * checkpoint_minutes
+             or epoch == num_epochs)
+      if not due and deadline is not None:
+        due = time.time() + 1.5 * epoch_seconds + save_seconds > deadline
+      if due:
+        t = time.time()
+        metrics.update(save(state, epoch))
+        saved_epoch, last_save_time = epoch, time.time()
+        save_seconds = last_save_time - t
+      if reporter_ is not None:
+        reporter_.report(trainer.env_steps(epoch), metrics)
+    if saved_epoch != epoch:
+      save(state, epoch)
+  finally:
+    ckpts.close()
+    if reporter_ is not None:
+      reporter_.close()
+  return TrainResult(state=state, actor_critic=actor_critic_from_state(trainer, state),
+                     epoch=epoch, env_steps=trainer.env_steps(epoch),
+                     finished=epoch >= num_epochs)

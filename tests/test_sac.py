@@ -1,0 +1,281 @@
+"""SAC trainer, checkpoints, resumption and evaluator on the analytic point-mass task (CPU).
+
+One trainer (one compilation of init and epoch) is shared by every test through module fixtures.
+"""
+
+import dataclasses
+import importlib.util
+import json
+import os
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import base
+from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
+from pachs_jax.sac import checkpoint, evaluator, presets, train
+from pachs_jax.sac.trainer import make_trainer
+
+TOTAL_STEPS = 4000  # env steps of the shared training run (10 epochs of 400 after prefill)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _leaves_equal(a, b) -> bool:
+  """Bit-for-bit equality of two pytrees (NaNs included)."""
+  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+  return len(la) == len(lb) and all(
+      x.shape == y.shape and x.dtype == y.dtype
+      and np.asarray(x).tobytes() == np.asarray(y).tobytes() for x, y in zip(la, lb))
+
+
+@pytest.fixture(scope='module')
+def env():
+  return PointMassEnv()
+
+
+@pytest.fixture(scope='module')
+def trainer(env):
+  config = dataclasses.replace(presets.preset('point-mass'), eval_instances=0)
+  return make_trainer(env, config)
+
+
+@pytest.fixture(scope='module')
+def trained(trainer, tmp_path_factory):
+  run_dir = str(tmp_path_factory.mktemp('run'))
+  result = train.train(trainer, run_dir, TOTAL_STEPS)
+  return run_dir, result
+
+
+@pytest.fixture(scope='module')
+def eval_nodes(env):
+  return env.initial_nodes(jax.random.split(jax.random.PRNGKey(2024), 256))
+
+
+# ---------------------------------------------------------------------- environment ----
+
+def test_point_mass_transition(env):
+  node = env.node_from_positions(jnp.array([0.0, 0.0]), jnp.array([0.3, 0.0]))
+  nodes = jax.tree.map(lambda x: jnp.stack([x, x, x]), node)
+  actions = jnp.array([[1.0, 0.0], [2.0, 0.0], [jnp.nan, 0.0]])
+  out = env.evaluate(nodes, actions)
+  np.testing.assert_allclose(out.next_node.qpos[0], [0.1, 0.0], atol=1e-6)
+  np.testing.assert_allclose(out.next_node.qpos[1], [0.1, 0.0], atol=1e-6)  # action clipped
+  np.testing.assert_allclose(out.next_node.qpos[2], [0.0, 0.0])  # invalid: does not move
+  np.testing.assert_allclose(out.cost[0], 0.2 + 0.01, atol=1e-6)
+  assert out.is_valid.tolist() == [True, True, False]
+  assert out.next_node.t.tolist() == [1, 1, 1]
+  near = env.node_from_positions(jnp.array([0.26, 0.0]), jnp.array([0.3, 0.0]))
+  assert bool(env.goal_reached(near)) and not bool(env.goal_reached(node))
+  keys = env.lattice_key(jax.tree.map(lambda x: x[None], near))
+  assert keys.tolist() == [[10, 0]]
+  assert env.observation_size == 4 and env.action_size == 2
+  state = env.step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(2))
+  assert float(state.reward) <= 0.0
+
+
+# ------------------------------------------------------------------------- learning ----
+
+def test_learns_point_mass(env, trainer, trained, eval_nodes):
+  _, result = trained
+  assert result.finished and result.env_steps >= TOTAL_STEPS
+  rates = evaluator.success_rates(env, result.actor_critic, eval_nodes, jax.random.PRNGKey(1))
+  assert rates['deterministic'] >= 0.9, rates
+  assert rates['stochastic'] >= 0.8, rates
+  untrained = train.actor_critic_from_state(trainer, trainer.init())
+  before = evaluator.success_rates(env, untrained, eval_nodes, jax.random.PRNGKey(1))
+  assert before['deterministic'] < 0.5, before
+
+
+def test_critic_prefers_moving_toward_goal(env, trained, eval_nodes):
+  ac = trained[1].actor_critic
+  obs = env.observe(eval_nodes)
+  direction = eval_nodes.goal - eval_nodes.qpos
+  direction = direction / jnp.linalg.norm(direction, axis=-1, keepdims=True)
+  actions = jnp.stack([direction, -direction], axis=1)  # [B, 2, A]: toward, away
+  q = ac.q_values(obs, actions)
+  assert q.shape == (256, 2) and q.dtype == jnp.float32
+  assert float(jnp.mean(q[:, 0] > q[:, 1])) > 0.9
+  assert float(jnp.mean(q)) < 0.0  # rewards are costs: Q is a negative cost-to-go
+
+
+# ---------------------------------------------------------------------- checkpoints ----
+
+def test_checkpoint_round_trip(env, trained, eval_nodes):
+  run_dir, result = trained
+  loaded = checkpoint.load_actor_critic(run_dir, env=env)
+  direct = checkpoint.load_actor_critic(os.path.join(run_dir, 'model'), task='point-mass')
+  ac = result.actor_critic
+  assert loaded.config == ac.config == direct.config
+  obs = env.observe(eval_nodes)
+  key = jax.random.PRNGKey(7)
+  samples = jax.jit(lambda a, k, o: a.sample_actions(k, o, 5))
+  for other in (loaded, direct):
+    s0, s1 = samples(ac, key, obs), samples(other, key, obs)
+    assert s0.shape == (256, 5, 2)
+    np.testing.assert_array_equal(s0, s1)
+    np.testing.assert_array_equal(ac.q_values(obs, s0), other.q_values(obs, s0))
+    np.testing.assert_array_equal(ac.deterministic_action(obs), other.deterministic_action(obs))
+  s = samples(loaded, key, obs)
+  assert float(jnp.max(jnp.abs(s))) <= 1.0
+  assert not np.array_equal(s[:, 0], s[:, 1])  # independent samples per state
+
+
+def test_checkpoint_errors(env, trained, tmp_path):
+  run_dir, _ = trained
+  with pytest.raises(ValueError, match='does not exist'):
+    checkpoint.load_actor_critic(str(tmp_path / 'missing'))
+  with pytest.raises(ValueError, match='not an actor-critic checkpoint'):
+    checkpoint.load_actor_critic(str(tmp_path))
+  with pytest.raises(ValueError, match="trained on task 'point-mass', not 'pusht-fixed'"):
+    checkpoint.load_actor_critic(run_dir, task='pusht-fixed')
+  with pytest.raises(ValueError, match='observation size 4 != .* observation size 6'):
+    checkpoint.load_actor_critic(run_dir, env=PointMassEnv(PointMassConfig(dim=3)))
+  # A config that does not describe the stored parameters.
+  bad = str(tmp_path / 'bad')
+  shutil.copytree(os.path.join(run_dir, 'model'), bad)
+  config_path = os.path.join(bad, checkpoint.CONFIG_FILE)
+  with open(config_path) as f:
+    meta = json.load(f)
+  meta['model']['critic_hidden'] = [64, 64]
+  with open(config_path, 'w') as f:
+    json.dump(meta, f)
+  with pytest.raises(ValueError, match='has shape .* needs'):
+    checkpoint.load_actor_critic(bad, env=env)
+  meta['format'] = 'something-else'
+  with open(config_path, 'w') as f:
+    json.dump(meta, f)
+  with pytest.raises(ValueError, match='unknown checkpoint format'):
+    checkpoint.load_actor_critic(bad)
+
+
+def test_actor_critic_input_errors(trained):
+  ac = trained[1].actor_critic
+  with pytest.raises(ValueError, match=r'obs must have shape \[B, 4\]'):
+    ac.deterministic_action(jnp.zeros((3, 5)))
+  with pytest.raises(ValueError, match='num must be a positive'):
+    ac.sample_actions(jax.random.PRNGKey(0), jnp.zeros((3, 4)), 0)
+  with pytest.raises(ValueError, match='actions must have shape'):
+    ac.q_values(jnp.zeros((3, 4)), jnp.zeros((3, 2)))
+
+
+# ------------------------------------------------------------------------- resuming ----
+
+class _Killed(Exception):
+  pass
+
+
+class _KillAfter:
+  """A reporter that aborts the run after `epochs` epochs (a kill between checkpoints)."""
+
+  def __init__(self, epochs):
+    self.epochs, self.seen = epochs, 0
+
+  def start(self, env_steps, total_env_steps):
+    pass
+
+  def report(self, env_steps, metrics):
+    self.seen += 1
+    if self.seen >= self.epochs:
+      raise _Killed()
+
+  def close(self):
+    pass
+
+
+def test_resume_is_bit_exact(trainer, trained, tmp_path):
+  _, uninterrupted = trained
+  # Killed after epoch 5 with checkpoints every 2 epochs: resumes from epoch 4.
+  killed = str(tmp_path / 'killed')
+  with pytest.raises(_Killed):
+    train.train(trainer, killed, TOTAL_STEPS, checkpoint_every_epochs=2, reporter=_KillAfter(5))
+  assert train.read_run_config(killed)['epoch'] == 4
+  resumed = train.train(trainer, killed, TOTAL_STEPS, resume=True)
+  assert resumed.finished and resumed.epoch == uninterrupted.epoch
+  assert _leaves_equal(resumed.state, uninterrupted.state)
+  # A time budget that ends the first call after one epoch, then a resumed second call.
+  chunked = str(tmp_path / 'chunked')
+  first = train.train(trainer, chunked, TOTAL_STEPS, max_minutes=1e-4)
+  assert not first.finished and first.epoch == 1
+  second = train.train(trainer, chunked, TOTAL_STEPS, resume=True)
+  assert second.finished
+  assert _leaves_equal(second.state.policy_params, uninterrupted.state.policy_params)
+  assert _leaves_equal(second.state, uninterrupted.state)
+
+
+def test_restored_state_compiles_like_the_live_one(trainer, trained):
+  """A restored state must lower to the same program as the in-memory state (same shardings,
+  dtypes, structure); a different program may round differently on a GPU."""
+  run_dir, result = trained
+  ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, train.STATE_SUBDIR))
+  restored = ckpts.restore(ckpts.latest_epoch(), jax.eval_shape(trainer.init))
+  ckpts.close()
+  assert _leaves_equal(restored, result.state)
+  assert trainer.epoch.lower(restored).as_text() == trainer.epoch.lower(result.state).as_text()
+
+
+def test_resume_guards(env, trainer, trained):
+  run_dir, _ = trained
+  with pytest.raises(ValueError, match='already holds training checkpoints'):
+    train.train(trainer, run_dir, TOTAL_STEPS)
+  other = make_trainer(env, dataclasses.replace(trainer.config, seed=5))
+  with pytest.raises(ValueError, match='seed'):
+    train.train(other, run_dir, TOTAL_STEPS, resume=True)
+  with pytest.raises(ValueError, match="trained on task 'point-mass'"):
+    class Renamed(PointMassEnv):
+      name = 'other-task'
+    train.train(make_trainer(Renamed(), trainer.config), run_dir, TOTAL_STEPS, resume=True)
+
+
+def test_cli_refuses_conflicts(trained):
+  run_dir, _ = trained
+  spec = importlib.util.spec_from_file_location('train_cli',
+                                                os.path.join(REPO, 'experiments', 'train.py'))
+  cli = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(cli)
+  args = ['--task', 'point-mass', '--steps', str(TOTAL_STEPS), '--out', run_dir,
+          '--progress', 'none', '--nondeterministic']
+  with pytest.raises(SystemExit, match='pass --resume'):
+    cli.main(args)
+  with pytest.raises(SystemExit, match='seed stored 0 vs flag 3'):
+    cli.main(args + ['--resume', '--seed', '3'])
+  assert cli.overrides(cli.parse_args(args + ['--hidden', '64,64', '--lr', '1e-3'])) == {
+      'actor_hidden': (64, 64), 'critic_hidden': (64, 64), 'actor_learning_rate': 1e-3,
+      'critic_learning_rate': 1e-3, 'alpha_learning_rate': 1e-3}
+
+
+# ------------------------------------------------------------------------ evaluator ----
+
+class _AlwaysInvalid(PointMassEnv):
+  def transition(self, node, action):
+    out = super().transition(node, action)
+    return out.replace(is_valid=jnp.zeros((), bool), is_goal=jnp.zeros((), bool))
+
+
+def test_evaluator_stops_at_success_or_invalid(env, trained, eval_nodes):
+  ac = trained[1].actor_critic
+  # The first instance starts on its goal: success after zero edges.
+  at_goal = eval_nodes.replace(goal=eval_nodes.goal.at[0].set(eval_nodes.qpos[0]))
+  res = evaluator.make_rollout_fn(env)(ac, at_goal, jax.random.PRNGKey(0))
+  assert bool(res.success[0]) and int(res.steps[0]) == 0 and float(res.cost[0]) == 0.0
+  assert bool(jnp.all(env.is_goal(res.final_node) == res.success))
+  assert bool(jnp.all(res.steps <= env.episode_length))
+  # The rollout stops at the first success: compare with a plain step-by-step rollout.
+  step = jax.jit(lambda n: env.evaluate(n, ac.deterministic_action(env.observe(n))))
+  node, first = at_goal, jnp.full((256,), -1)
+  for t in range(env.episode_length):
+    out = step(node)
+    node = out.next_node
+    first = jnp.where((first < 0) & out.is_goal, t + 1, first)
+  first = first.at[0].set(0)
+  expected = jnp.where(first >= 0, first, env.episode_length)
+  assert float(jnp.mean(res.success == (first >= 0))) >= 0.95
+  assert float(jnp.mean(res.steps == expected)) >= 0.95
+  bad = evaluator.make_rollout_fn(_AlwaysInvalid())(ac, eval_nodes, jax.random.PRNGKey(0))
+  start_goal = env.is_goal(eval_nodes)  # a few random starts lie within the goal radius
+  np.testing.assert_array_equal(bad.invalid, ~start_goal)
+  np.testing.assert_array_equal(bad.success, start_goal)
+  np.testing.assert_array_equal(bad.steps, jnp.where(start_goal, 0, 1))
+  np.testing.assert_array_equal(bad.final_node.qpos, eval_nodes.qpos)  # invalid edge not taken
