@@ -136,8 +136,17 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
   if not os.path.isdir(params_path):
     raise ValueError(f'{path!r}: missing {PARAMS_DIR}/ directory')
   expected = _expected_params(config)
-  restored = ocp.StandardCheckpointer().restore(params_path)
-  _check_params(path, restored, expected)
+  checkpointer = ocp.StandardCheckpointer()
+  # Check names and shapes from the metadata first (a clear error instead of orbax's), then
+  # restore onto this process's default device, whatever device the checkpoint was saved on.
+  stored = checkpointer.metadata(params_path)
+  stored = getattr(stored, 'item_metadata', stored)
+  stored = getattr(stored, 'tree', stored)
+  _check_params(path, jax.tree.map(lambda m: np.zeros(m.shape, np.uint8), stored), expected)
+  device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+  target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device),
+                        expected)
+  restored = checkpointer.restore(params_path, target)
   restored = jax.tree.map(lambda x, s: jnp.asarray(np.asarray(x), s.dtype), restored, expected)
   params = ActorCriticParams(normalizer=restored['normalizer'], policy=restored['policy'],
                              q=restored['q'])
