@@ -40,8 +40,9 @@ PRESETS: Dict[str, SACConfig] = {
                                       critic_hidden=(512, 512, 512)),
     'shelf': SACConfig(
         num_envs=1024, batch_size=2048, grad_updates_per_step=4, steps_per_epoch=50,
-        discount=0.9, replay_capacity=1_000_000, min_replay_size=32_768,
-        actor_hidden=(64, 64), critic_hidden=(64, 64), init_alpha=0.2, eval_instances=256),
+        discount=0.97, replay_capacity=1_000_000, min_replay_size=32_768,
+        actor_hidden=(256, 256, 256), critic_hidden=(256, 256, 256), init_alpha=0.2,
+        eval_instances=256),
 }
 
 
