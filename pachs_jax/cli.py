@@ -15,6 +15,55 @@ def _demo(args: argparse.Namespace) -> int:
   return 0
 
 
+def _plan(args: argparse.Namespace) -> int:
+  import time
+
+  import jax
+  import numpy as np
+
+  from pachs_jax import planner
+  from pachs_jax.search import pachs
+
+  on_cpu = jax.default_backend() == 'cpu'
+  env, model = planner.load_model(args.task, args.checkpoint)
+  num_available = 100 if args.task == 'shelf' else 30
+  if args.instances is None:
+    args.instances = '0' if on_cpu else f'0-{num_available - 1}'
+  instances = planner.parse_instances(args.instances, num_available)
+  budget = args.budget if args.budget is not None else (
+      planner.CPU_BUDGET if on_cpu else planner.default_config(args.task).max_evaluations)
+  config = planner.default_config(args.task, weight=args.weight, num_actions=args.num_actions,
+                                  pop_size=args.pop_size, max_evaluations=budget,
+                                  lattice_resolution=args.lattice_resolution)
+  if on_cpu:
+    print('note: JAX runs on the CPU here; MJX physics on the CPU is slow (a few ms per world '
+          'and step). A GPU is 100x faster: pip install -e .[cuda]', flush=True)
+  starts_all = env.canonical_instances(num_available)
+  starts = jax.tree.map(lambda x: x[np.asarray(instances)], starts_all)
+  print(f'planning {args.task} instances {args.instances} with {planner.checkpoint_path(args.task) if args.checkpoint is None else args.checkpoint}: '
+        f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
+        f'on {jax.devices()[0].platform}', flush=True)
+  start = time.perf_counter()
+  result = pachs.plan(env, model, starts, config, jax.random.PRNGKey(args.seed),
+                      time_limit_s=args.time_limit)
+  total = time.perf_counter() - start
+  rows = planner.result_rows(result, instances)
+  print(planner.format_table(rows, ['instance', 'found', 'cost', 'path_length', 'expanded', 'evaluated',
+                            'stop', 'overflow']))
+  found = sum(r['found'] for r in rows)
+  print(f'found {found}/{len(rows)}; search time {float(result.wall_time_s):.2f} s '
+        f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
+  if args.render:
+    path = planner.draw_result(env, result, instances, args.render)
+    print(f'drew instance {instances[0]} to {path}')
+  if args.json:
+    import json
+    with open(args.json, 'w') as f:
+      json.dump({'task': args.task, 'config': repr(config), 'rows': rows,
+                 'search_time_s': float(result.wall_time_s)}, f, indent=1)
+  return 0
+
+
 def main(argv=None) -> int:
   os.environ.setdefault('MUJOCO_GL', 'egl')
   parser = argparse.ArgumentParser(prog='pachs', description='PACHS in JAX')
@@ -27,10 +76,34 @@ def main(argv=None) -> int:
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
+  plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
+  plan.add_argument('--task', default='pusht-obs',
+                    choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
+  plan.add_argument('--instances', default=None,
+                    help="canonical instances, e.g. '0-29' or '0,4' (default: all on a GPU, "
+                         "'0' on a CPU)")
+  plan.add_argument('--budget', type=int, default=None,
+                    help='edge evaluations per instance (default: 100000 on a GPU, '
+                         f'small on a CPU)')
+  plan.add_argument('--seed', type=int, default=0)
+  plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
+  plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
+  plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
+  plan.add_argument('--lattice-resolution', type=lambda s: tuple(float(x) for x in s.split(',')),
+                    default=None, help='lattice cell sizes, comma separated')
+  plan.add_argument('--time-limit', type=float, default=None,
+                    help='anytime mode: wall-clock seconds, then the path to the best state')
+  plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
+  plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')
+  plan.add_argument('--json', default=None, help='write the result rows as JSON')
+  plan.set_defaults(func=_plan)
   args = parser.parse_args(argv)
-  if getattr(args, 'instance', 0) < 0 or not 0 <= args.instance < 30:
+  if args.command == 'demo' and not 0 <= args.instance < 30:
     parser.error(f'--instance must be in 0..29, got {args.instance}')
-  return args.func(args)
+  try:
+    return args.func(args)
+  except (ValueError, FileNotFoundError) as err:
+    parser.exit(2, f'pachs {args.command}: error: {err}\n')
 
 
 if __name__ == '__main__':

@@ -39,6 +39,10 @@ TASK_DEFAULTS: Dict[str, search_types.SearchConfig] = {
 }
 
 
+# Default budget on a CPU-only machine, where MJX physics costs milliseconds per world and step.
+CPU_BUDGET = 2_000
+
+
 def default_config(task: str, **overrides) -> search_types.SearchConfig:
   """The tuned SearchConfig of a task with fields replaced by the non-None overrides."""
   if task not in TASK_DEFAULTS:
@@ -62,11 +66,16 @@ def load_model(task: str, path: Optional[str] = None):
   if not os.path.exists(path):
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
                             f'--task {MODEL_FOR_TASK.get(task, task)}')
-  model_env = envs.make(MODEL_FOR_TASK[task]) if path == checkpoint_path(task) else env
-  model = checkpoint.load_actor_critic(path, task=model_env.name)
-  if model.config.observation_size != env.observation_size:
-    raise ValueError(f'{path!r}: observation size {model.config.observation_size} does not fit '
-                     f'task {task!r} ({env.observation_size})')
+  model = checkpoint.load_actor_critic(path)
+  allowed = {task, MODEL_FOR_TASK[task]}
+  if model.config.task not in allowed:
+    raise ValueError(f'{path!r} holds a model of task {model.config.task!r}; task {task!r} '
+                     f'plans with a model of {" or ".join(sorted(allowed))}')
+  if (model.config.observation_size, model.config.action_size) != (env.observation_size,
+                                                                    env.action_size):
+    raise ValueError(f'{path!r}: model sizes (observation {model.config.observation_size}, '
+                     f'action {model.config.action_size}) do not fit task {task!r} '
+                     f'({env.observation_size}, {env.action_size})')
   return env, model
 
 
@@ -100,3 +109,32 @@ def result_rows(result: search_types.SearchResult, instances: Sequence[int]) -> 
         'stop': search_types.StopReason.name(r.stop_reason[i]),
         'overflow': int(r.heap_overflow[i] + r.pool_overflow[i] + r.table_overflow[i])})
   return rows
+
+
+def format_table(rows: List[dict], columns: Sequence[str]) -> str:
+  """A plain-text table of the given columns."""
+  def fmt(v):
+    return f'{v:.3f}' if isinstance(v, float) else str(v)
+  cells = [[c for c in columns]] + [[fmt(r[c]) for c in columns] for r in rows]
+  widths = [max(len(row[i]) for row in cells) for i in range(len(columns))]
+  lines = ['  '.join(x.rjust(w) for x, w in zip(row, widths)) for row in cells]
+  lines.insert(1, '  '.join('-' * w for w in widths))
+  return '\n'.join(lines)
+
+
+def draw_result(env, result: search_types.SearchResult, instances: Sequence[int],
+                path: str) -> str:
+  """Draws the first instance's path (PushT: T poses, goal, obstacles, pusher trace)."""
+  from pachs_jax.envs import pusht, render
+  if not isinstance(env, pusht.PushTEnv):
+    raise ValueError(f'drawing a path is implemented for the PushT tasks, not {env.name!r}')
+  length = int(min(result.path_length[0], result.path_actions.shape[1]))
+  nodes = jax.tree.map(lambda x: x[0, :length + 1], result.path_nodes)
+  tips = np.asarray(jax.jit(jax.vmap(env.tip_position))(nodes))[:, :2]
+  found = 'reached the goal' if bool(result.found[0]) else 'partial path'
+  render.save_pusht_figure(path, np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal[0]),
+                           pusher_xy=tips, obstacles=env.obstacles if len(env.obstacles) else None,
+                           every=max(1, length // 12),
+                           title=f'{env.name} instance {instances[0]}: PACHS path of {length} '
+                                 f'steps, cost {float(result.cost[0]):.2f}, {found}')
+  return path

@@ -1,0 +1,44 @@
+"""The `pachs plan` command end to end on the CPU, with a tiny budget, and its input errors."""
+
+import json
+
+import pytest
+
+from pachs_jax import cli, planner
+
+
+def test_short_pusht_plan_runs_end_to_end(tmp_path, capsys):
+  out = tmp_path / 'rows.json'
+  png = tmp_path / 'path.png'
+  code = cli.main(['plan', '--task', 'pusht-fixed', '--instances', '0', '--budget', '24',
+                   '-K', '4', '-N', '4', '--json', str(out), '--render', str(png)])
+  assert code == 0
+  rows = json.loads(out.read_text())['rows']
+  assert len(rows) == 1 and rows[0]['instance'] == 0
+  row = rows[0]
+  assert 0 < row['evaluated'] <= 24
+  assert row['stop'] in ('goal', 'budget')
+  assert row['found'] == (row['stop'] == 'goal')
+  assert png.stat().st_size > 10_000
+  assert 'found' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['plan', '--task', 'pusht-fixed', '--instances', '40'], 'instances must lie in 0..29'),
+    (['plan', '--task', 'pusht-fixed', '--budget', '0'], 'max_evaluations must be a positive'),
+    (['plan', '--task', 'pusht-fixed', '-w', '-1'], 'weight must be a finite number >= 0'),
+    (['plan', '--task', 'pusht-fixed', '--checkpoint', planner.checkpoint_path('shelf')],
+     "model of task 'shelf'"),
+    (['plan', '--task', 'pusht-fixed', '--checkpoint', '/nonexistent'], 'no checkpoint'),
+])
+def test_bad_plan_arguments_give_clear_errors(argv, message, capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(argv)
+  assert exit_info.value.code == 2
+  assert message in capsys.readouterr().err
+
+
+def test_unknown_task_is_rejected(capsys):
+  with pytest.raises(SystemExit):
+    cli.main(['plan', '--task', 'pusht'])
+  assert "invalid choice: 'pusht'" in capsys.readouterr().err
