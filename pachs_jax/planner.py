@@ -136,5 +136,5 @@ def draw_result(env, result: search_types.SearchResult, instances: Sequence[int]
                            pusher_xy=tips, obstacles=env.obstacles if len(env.obstacles) else None,
                            every=max(1, length // 12),
                            title=f'{env.name} instance {instances[0]}: PACHS path of {length} '
-                                 f'steps, cost {float(result.cost[0]):.2f}, {found}')
+                                 f'steps\ncost {float(result.cost[0]):.2f}, {found}')
   return path
