@@ -80,7 +80,7 @@ def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None
              float(cov[-1]), 'best_coverage': float(cov.max()), 'seconds': elapsed, 'figure': out}
   if gif:
     try:
-      frames = render.render_mujoco_frames(env.mj_model, qposes, 320, 240)
+      frames = render.render_mujoco_frames(env.mj_model, qposes, 480, 360, camera='overview')
       summary['gif'] = render.save_gif(gif, frames, fps=20)
     except RuntimeError as err:
       summary['gif_error'] = str(err)

@@ -115,6 +115,7 @@ def model_xml(config: PushTConfig) -> str:
   <default>{panda.arm_defaults_xml()}</default>
   <worldbody>
     <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
+    <camera name="overview" mode="targetbody" target="goal" pos="0.25 -0.95 0.85"/>
     <geom name="table" type="plane" size="1 1 0.01" rgba="0.8 0.75 0.65 1"
           contype="0" conaffinity="0"/>
     <body name="goal" pos="{gx} {gy} 0.0005" euler="0 0 {gyaw}">{goal_geoms}</body>
