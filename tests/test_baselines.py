@@ -1,0 +1,324 @@
+"""Planning baselines on the analytic grid world (and ePA*SE end to end on Panda-Shelf)."""
+
+import collections
+import heapq
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import gridworld
+from pachs_jax.search import StopReason
+from pachs_jax.search import baselines as bl
+from pachs_jax.search.baselines import common
+
+SIZE = 10
+
+
+def _obstacles():
+  obstacles = np.zeros((SIZE, SIZE), bool)
+  obstacles[5, 2:8] = True  # a wall across the middle
+  return obstacles
+
+
+def _octile(a, b):
+  d = np.abs(np.asarray(a, float) - np.asarray(b, float))
+  return d.max() + (math.sqrt(2.0) - 1.0) * d.min()
+
+
+def _dijkstra(obstacles, start, goal):
+  dist = {start: 0.0}
+  queue = [(0.0, start)]
+  while queue:
+    d, (r, c) = heapq.heappop(queue)
+    if (r, c) == goal:
+      return d
+    if d > dist[(r, c)]:
+      continue
+    for dr, dc in gridworld.MOVES_8:
+      nr, nc = r + dr, c + dc
+      if 0 <= nr < SIZE and 0 <= nc < SIZE and not obstacles[nr, nc]:
+        nd = d + math.hypot(dr, dc)
+        if nd < dist.get((nr, nc), math.inf):
+          dist[(nr, nc)] = nd
+          heapq.heappush(queue, (nd, (nr, nc)))
+  return math.inf
+
+
+class Greedy(gridworld.GridActorCritic):
+  """The stand-in actor-critic with a deterministic policy: the move of the best Q."""
+
+  def deterministic_action(self, obs):
+    moves = jnp.asarray(self.env.moves)
+    q = self.q_values(obs, jnp.broadcast_to(moves, obs.shape[:1] + moves.shape))
+    return moves[jnp.argmax(q, axis=1)]
+
+
+class Oscillating(gridworld.GridActorCritic):
+  """A policy that walks right on even columns and left on odd ones: valid forever, never
+  reaching a goal in another row."""
+
+  def sample_actions(self, key, obs, num):
+    del key
+    right = (obs[:, 1] % 2 == 0)[:, None, None]
+    return jnp.broadcast_to(jnp.where(right, jnp.array([0.0, 1.0]), jnp.array([0.0, -1.0])),
+                            (obs.shape[0], num, 2))
+
+
+@pytest.fixture(scope='module')
+def env():
+  return gridworld.GridWorld(_obstacles(), connectivity=8, episode_length=30)
+
+
+STARTS = np.array([[0, 0], [9, 9], [0, 5], [2, 2]], np.float32)
+GOALS = np.array([[3, 7], [0, 0], [9, 5], [2, 2]], np.float32)  # the last: start == goal
+
+
+@pytest.fixture(scope='module')
+def start(env):
+  return env.node(STARTS, GOALS)
+
+
+def _take(tree, i):
+  return jax.tree.map(lambda x: x[i:i + 1] if jnp.ndim(x) else x, tree)
+
+
+# ---------------------------------------------------------------- single rollout
+
+
+def test_single_rollout_walks_straight_to_goal(env, start):
+  result = bl.make_single_rollout(env, Greedy(env))(start)
+  # instance 0: an open straight line; 1: the policy walks into the wall; 3: start is the goal
+  assert bool(result.found[0]) and int(result.stop_reason[0]) == StopReason.GOAL
+  np.testing.assert_allclose(float(result.cost[0]), _octile(STARTS[0], GOALS[0]), rtol=1e-6)
+  assert int(result.path_length[0]) == 7 and int(result.evaluated[0]) == 7
+  assert not bool(result.found[1]) and int(result.stop_reason[1]) == StopReason.OPEN_EMPTY
+  assert int(result.invalid[1]) == 1 and int(result.evaluated[1]) == int(result.path_length[1]) + 1
+  assert bool(result.found[3]) and int(result.path_length[3]) == 0
+  nodes, cost, valid, is_goal = common.replay(env, start, result.path_actions, result.path_length)
+  np.testing.assert_allclose(np.asarray(cost), np.asarray(result.cost), rtol=1e-6)
+  assert bool(jnp.all(valid)) and np.array_equal(np.asarray(is_goal), np.asarray(result.found))
+  np.testing.assert_array_equal(np.asarray(nodes.qpos), np.asarray(result.path_nodes.qpos))
+
+
+def test_single_rollout_stops_at_episode_length(env, start):
+  result = bl.make_single_rollout(env, Greedy(env), bl.SingleRolloutConfig(max_steps=3))(start)
+  assert int(result.stop_reason[0]) == StopReason.BUDGET and int(result.path_length[0]) == 3
+  assert result.path_actions.shape == (4, 3, 2)
+
+
+# ---------------------------------------------------------------- parallel rollout
+
+
+def test_parallel_rollout_budget_and_restarts(env, start):
+  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  rollout = bl.make_parallel_rollout(env, Oscillating(env), config)
+  state = rollout.init(_take(start, 0), jax.random.PRNGKey(0))
+  for i in range(1, 6):
+    state = rollout.step(state)
+    expected = i % 5
+    assert np.all(np.asarray(state.episode_step) == expected), (i, state.episode_step)
+  # after 5 steps every copy restarted from the start
+  np.testing.assert_array_equal(np.asarray(state.node.qpos)[0], np.repeat(STARTS[:1], 3, 0))
+  assert int(state.restarts[0]) == 3
+  result = rollout.result(rollout.run(state))
+  assert int(result.evaluated[0]) == 40 and int(result.stop_reason[0]) == StopReason.BUDGET
+  assert int(result.iterations[0]) == math.ceil(40 / 3)
+  assert not bool(result.found[0]) and int(result.path_length[0]) == 5
+  # the returned best-reward rollout replays validly
+  _, cost, valid, _ = common.replay(env, _take(start, 0), result.path_actions, result.path_length)
+  assert bool(valid[0]) and np.isclose(float(cost[0]), float(result.cost[0]))
+
+
+def test_parallel_rollout_finds_goal_and_batches(env):
+  # the stand-in actor always proposes its first move (down): goals below the start are reached
+  ac = gridworld.GridActorCritic(env)
+  start = env.node(np.array([[0, 1], [6, 3], [1, 9]], np.float32),
+                   np.array([[4, 1], [9, 3], [0, 0]], np.float32))
+  config = bl.ParallelRolloutConfig(num_copies=4, max_evaluations=50, episode_length=6)
+  rollout = bl.make_parallel_rollout(env, ac, config)
+  result = rollout.plan(start, jax.random.PRNGKey(1))
+  np.testing.assert_array_equal(np.asarray(result.found), [True, True, False])
+  np.testing.assert_array_equal(np.asarray(result.path_length)[:2], [4, 3])
+  np.testing.assert_allclose(np.asarray(result.cost)[:2], [4.0, 3.0])
+  assert bool(jnp.all(result.path_is_goal[:2]))
+  assert int(result.evaluated[0]) == 16 and int(result.evaluated[2]) == 50
+  keys = common.instance_keys(jax.random.PRNGKey(1), 3)
+  for i in range(3):
+    one = rollout.plan(_take(start, i), keys[i:i + 1])
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(_take(result, i))):
+      if a.ndim:
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+# ---------------------------------------------------------------- beam search
+
+
+@pytest.fixture(scope='module')
+def beam_search(env):
+  config = bl.BeamConfig(beam_width=4, num_actions=8, max_evaluations=1000)
+  return bl.make_beam_search(env, gridworld.GridActorCritic(env), config)
+
+
+def test_beam_finds_replayable_paths(env, start, beam_search):
+  result = beam_search(start, jax.random.PRNGKey(0))
+  assert bool(jnp.all(result.found))
+  for i in range(4):
+    assert float(result.cost[i]) >= _dijkstra(_obstacles(), tuple(STARTS[i].astype(int)),
+                                              tuple(GOALS[i].astype(int))) - 1e-5
+  node, total = start, np.zeros(4)
+  for t in range(int(jnp.max(result.path_length))):
+    out = env.evaluate(node, result.path_actions[:, t])
+    live = t < np.asarray(result.path_length)
+    assert np.all(np.asarray(out.is_valid)[live])
+    total += np.where(live, np.asarray(out.cost), 0.0)
+    node = jax.tree.map(lambda n, o: jnp.where(
+        live.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), out.next_node, node)
+  assert bool(jnp.all(env.is_goal(node)))
+  np.testing.assert_allclose(total, np.asarray(result.cost), rtol=1e-6)
+  assert np.all(np.asarray(result.evaluated) <= 1000)
+
+
+def test_beam_batch_equals_one_by_one(env, start, beam_search):
+  keys = common.instance_keys(jax.random.PRNGKey(0), 4)
+  result = beam_search(start, keys)
+  for i in range(4):
+    one = beam_search(_take(start, i), keys[i:i + 1])
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(_take(result, i))):
+      if a.ndim:
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_beam_budget_is_exact(env, start):
+  config = bl.BeamConfig(beam_width=2, num_actions=8, max_evaluations=21, score='next')
+  result = bl.make_beam_search(env, Greedy(env), config)(start, jax.random.PRNGKey(0))
+  # instance 1 needs more than 21 evaluations (2 beam states x 8 moves per step)
+  assert int(result.stop_reason[1]) == StopReason.BUDGET and int(result.evaluated[1]) == 21
+  assert int(result.stop_reason[3]) == StopReason.GOAL and int(result.evaluated[3]) == 0
+
+
+# ---------------------------------------------------------------- ePA*SE
+
+
+@pytest.fixture(scope='module')
+def grid_epase(env):
+  ac = gridworld.GridActorCritic(env)
+  heuristic = bl.Heuristic(init=lambda s: jnp.zeros((s.t.shape[0],)),
+                           value=lambda data, n: ac.heuristic(n.qpos, n.goal))
+  return bl.make_epase(env, env.moves, heuristic, bl.EpaseConfig(pop_size=1,
+                                                                 max_evaluations=3000))
+
+
+def test_epase_k1_is_optimal_and_batches(env, start, grid_epase):
+  result = grid_epase.plan(start)
+  assert bool(jnp.all(result.found)) and bool(jnp.all(result.path_is_goal))
+  for i in range(4):
+    want = _dijkstra(_obstacles(), tuple(STARTS[i].astype(int)), tuple(GOALS[i].astype(int)))
+    np.testing.assert_allclose(float(result.cost[i]), want, rtol=1e-5)
+  _, cost, valid, is_goal = common.replay(env, start, result.path_actions, result.path_length)
+  assert bool(jnp.all(valid & is_goal))
+  np.testing.assert_allclose(np.asarray(cost), np.asarray(result.cost), rtol=1e-5)
+  one = grid_epase.plan(_take(start, 1))
+  for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(_take(result, 1))):
+    if a.ndim:
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def _python_bfs(blocked, goal, connectivity):
+  blocked = blocked.copy()
+  blocked[goal] = False
+  if connectivity == 6:
+    moves = [m for m in np.ndindex(3, 3, 3) if sum(abs(v - 1) for v in m) == 1]
+  else:
+    moves = [m for m in np.ndindex(3, 3, 3) if m != (1, 1, 1)]
+  dist = np.full(blocked.shape, np.inf)
+  dist[goal] = 0
+  queue = collections.deque([goal])
+  while queue:
+    c = queue.popleft()
+    for m in moves:
+      n = tuple(c[i] + m[i] - 1 for i in range(3))
+      if all(0 <= n[i] < blocked.shape[i] for i in range(3)) and not blocked[n] and \
+          dist[n] == np.inf:
+        dist[n] = dist[c] + 1
+        queue.append(n)
+  return dist
+
+
+@pytest.mark.parametrize('connectivity', [6, 26])
+def test_bfs_matches_python_bfs(connectivity):
+  rng = np.random.default_rng(3)
+  blocked = rng.random((7, 6, 5)) < 0.3
+  blocked[:, 3, :] = True
+  blocked[3, 3, 2] = False  # one hole in a wall
+  goal = (1, 1, 1)
+  got = np.asarray(bl.bfs_distance(blocked, jnp.array(goal), connectivity))
+  want = _python_bfs(blocked, goal, connectivity)
+  np.testing.assert_array_equal(got, want)
+  assert np.isinf(want).any() and np.isfinite(want[:, 5]).any()
+
+
+def test_box_occupancy_inflates():
+  grid = bl.VoxelGrid((0.0, 0.0, 0.0), 0.1, (5, 5, 5))
+  occ = bl.box_occupancy(grid, [[0.25, 0.25, 0.25]], [[0.05, 0.05, 0.05]], 0.06)
+  assert occ[2, 2, 2] and occ[1, 2, 2] and not occ[0, 2, 2] and not occ[1, 1, 1]
+
+
+def test_epase_runs_on_the_shelf():
+  from pachs_jax.envs import shelf
+  env = shelf.ShelfEnv()
+  setup = bl.shelf_setup(env)
+  start = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), 1))
+  config = bl.EpaseConfig(weight=10.0, pop_size=8, max_evaluations=96,
+                          lattice_resolution=setup.lattice_resolution)
+  search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
+  state = search.init(start)
+  result = search.result(search.run(state))
+  assert int(result.stop_reason[0]) in (StopReason.GOAL, StopReason.BUDGET)
+  assert 0 < int(result.evaluated[0]) <= 96 and int(result.expanded[0]) > 0
+  length = int(result.path_length[0])
+  assert length >= 1
+  _, cost, valid, _ = common.replay(env, start, result.path_actions, result.path_length,
+                                    edge_fn=setup.edge_fn)
+  assert bool(valid[0])
+  np.testing.assert_allclose(float(cost[0]), float(result.cost[0]), rtol=1e-5)
+  # each step moves one joint by +-7 degrees
+  steps = np.asarray(result.path_actions[0, :length])
+  assert np.all(np.sum(np.abs(steps) > 0, axis=1) == 1)
+  np.testing.assert_allclose(np.abs(steps).max(axis=1), math.radians(7.0), rtol=1e-6)
+  # the heuristic at the start is below the straight-line tip distance (26-connected BFS)
+  h = float(setup.heuristic.value(state.heuristic,
+                                  jax.tree.map(lambda x: x[:, None], start))[0, 0])
+  tip = np.asarray(env.tip_position(start.qpos[0]))
+  assert 0 < h <= np.linalg.norm(tip - np.asarray(start.goal[0])) + 1e-6
+
+
+# ---------------------------------------------------------------- validation
+
+
+@pytest.mark.parametrize('make, match', [
+    (lambda: bl.ParallelRolloutConfig(num_copies=0), 'num_copies'),
+    (lambda: bl.ParallelRolloutConfig(fallback='mean'), 'fallback'),
+    (lambda: bl.SingleRolloutConfig(max_steps=-1), 'max_steps'),
+    (lambda: bl.BeamConfig(score='value'), 'score'),
+    (lambda: bl.BeamConfig(weight=float('nan')), 'weight'),
+    (lambda: bl.EpaseConfig(table_capacity=100), 'power of two'),
+    (lambda: bl.EpaseConfig(heap_kind='fib'), 'heap_kind'),
+    (lambda: bl.VoxelGrid((0.0, 0.0, 0.0), -1.0, (2, 2, 2)), 'cell'),
+])
+def test_bad_configs_raise(make, match):
+  with pytest.raises(ValueError, match=match):
+    make()
+
+
+def test_bad_inputs_raise(env, start):
+  with pytest.raises(ValueError, match='deterministic_action'):
+    bl.make_single_rollout(env, gridworld.GridActorCritic(env))
+  with pytest.raises(ValueError, match='motion_primitives'):
+    bl.make_epase(env, np.zeros((3, 5)), bl.Heuristic(lambda s: None, lambda d, n: 0.0))
+  with pytest.raises(ValueError, match='start_nodes'):
+    bl.make_single_rollout(env, Greedy(env))(jax.tree.map(lambda x: x[0], start))
+  with pytest.raises(ValueError, match='connectivity'):
+    bl.bfs_distance(np.zeros((2, 2, 2), bool), jnp.zeros(3, jnp.int32), 8)
