@@ -19,7 +19,6 @@ the T (m), weighted by `PushTConfig`. Success: the T covers >= 90% of the goal T
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -320,8 +319,3 @@ class PushTEnv(base.Env):
 
   def goal_reached(self, node: base.NodeState) -> jax.Array:
     return coverage.coverage(node.qpos[7:10], node.goal) >= self.config.success_coverage
-
-
-@functools.lru_cache(maxsize=None)
-def make_pusht(variant: str) -> PushTEnv:
-  return PushTEnv(PushTConfig(variant=variant))
