@@ -1,0 +1,271 @@
+"""MuJoCo C bridge: exact state conversion, C vs MJX physics, the CPU backend, the world."""
+
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from pachs_jax import envs
+from pachs_jax.envs import panda, pusht
+from pachs_jax.envs import mujoco_c
+
+BATCH = 64
+
+
+@pytest.fixture(scope='module')
+def env():
+  return envs.make('pusht-fixed')
+
+
+@pytest.fixture(scope='module')
+def cenv(env):
+  c = mujoco_c.MujocoCEnv(env)
+  yield c
+  c.close()
+
+
+@pytest.fixture(scope='module')
+def mjx_evaluate(env):
+  return jax.jit(env.evaluate)
+
+
+@pytest.fixture(scope='module')
+def c_evaluate(cenv):
+  return jax.jit(cenv.evaluate)
+
+
+def _random_node(env, seed):
+  """A single node with random (finite) velocities and warm start, float32 leaves."""
+  rng = np.random.default_rng(seed)
+  node = env.sample_instance(jax.random.PRNGKey(seed))
+  nv = env.mj_model.nv
+  return node.replace(qvel=jnp.asarray(rng.normal(size=nv), jnp.float32),
+                      qacc_warmstart=jnp.asarray(rng.normal(size=nv) * 10, jnp.float32),
+                      ctrl=node.ctrl + jnp.float32(0.01), t=jnp.int32(7))
+
+
+def _push(env, num_steps=30):
+  """A Jacobian-controlled push in MuJoCo C: (nodes [num_steps] float32, actions [num_steps, 7]).
+
+  The tip first goes below the T, then pushes it in +y.
+  """
+  m = env.mj_model
+  d = mujoco.MjData(m)
+  d.qpos[:7] = pusht.HOME_QPOS
+  d.qpos[7:] = [-0.25, -0.18, 0.3]
+  d.ctrl[:] = d.qpos[:7]
+  tip = m.site('tip').id
+  nodes, actions = [], []
+  for k in range(num_steps):
+    mujoco.mj_forward(m, d)
+    nodes.append(mujoco_c.mjdata_to_node(env, d, pusht.FIXED_GOAL, k))
+    jac = np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jac, None, tip)
+    goal = np.array([-0.25, -0.32, 0.015]) if k < 8 else np.array([-0.22, 0.05, 0.015])
+    dx = np.clip(goal - d.site_xpos[tip], -0.02, 0.02)
+    j = jac[:, :7]
+    a = np.clip(j.T @ np.linalg.solve(j @ j.T + 1e-4 * np.eye(3), dx) / 0.1, -1, 1)
+    actions.append(a.astype(np.float32))
+    d.ctrl[:] = np.clip(d.qpos[:7] + 0.1 * a, panda.JOINT_LOWER, panda.JOINT_UPPER)
+    mujoco.mj_step(m, d, nstep=env.config.substeps)
+  return mujoco_c.stack_nodes(nodes), np.stack(actions)
+
+
+@pytest.fixture(scope='module')
+def push(env):
+  return _push(env)
+
+
+# ---- conversions ----
+
+def test_single_node_round_trip_is_exact(env):
+  node = _random_node(env, 0)
+  data = mujoco.MjData(env.mj_model)
+  mujoco_c.node_to_mjdata(env, node, data)
+  back = mujoco_c.mjdata_to_node(env, data, node.goal, node.t)
+  for a, b in zip(jax.tree.leaves(node), jax.tree.leaves(back)):
+    np.testing.assert_array_equal(np.asarray(a), b)
+    assert np.asarray(a).dtype == b.dtype
+  with pytest.raises(ValueError, match='qpos'):
+    mujoco_c.node_to_mjdata(env, node.replace(qpos=node.qpos[:5]), data)
+
+
+def test_batched_round_trip_is_exact_and_matches_mj_get_state(env):
+  nodes = mujoco_c.stack_nodes([_random_node(env, s) for s in range(3)])
+  state, warm, ctrl = mujoco_c.batch_to_rollout(env, nodes)
+  m = env.mj_model
+  assert state.shape == (3, mujoco.mj_stateSize(m, mujoco_c.FULLPHYSICS))
+  # The vectorised layout agrees with MuJoCo's own mj_getState.
+  data = mujoco.MjData(m)
+  for i in range(3):
+    mujoco_c.node_to_mjdata(env, jax.tree.map(lambda x: x[i], nodes), data)
+    want = np.zeros(state.shape[1])
+    mujoco.mj_getState(m, data, want, mujoco_c.FULLPHYSICS)
+    np.testing.assert_array_equal(state[i], want)
+  back = mujoco_c.rollout_to_batch(env, state, warm, ctrl, nodes.goal, nodes.t)
+  for a, b in zip(jax.tree.leaves(nodes), jax.tree.leaves(back)):
+    np.testing.assert_array_equal(np.asarray(a), b)
+  with pytest.raises(ValueError, match='qpos'):
+    mujoco_c.batch_to_rollout(env, nodes.replace(qpos=nodes.qpos[:, :4]))
+
+
+# ---- physics: MuJoCo C against MJX ----
+
+def _pad(tree, size):
+  return jax.tree.map(lambda x: jnp.concatenate(
+      [jnp.asarray(x)] + [jnp.asarray(x)[-1:]] * (size - len(x))), tree)
+
+
+def test_c_step_matches_mjx_step_along_a_push(env, push, mjx_evaluate, c_evaluate):
+  nodes, actions = push
+  num = len(actions)
+  # The push moves the T (so contacts are exercised).
+  assert np.linalg.norm(nodes.qpos[-1, 7:9] - nodes.qpos[0, 7:9]) > 0.02
+  padded, padded_actions = _pad(nodes, BATCH), _pad(actions, BATCH)
+  mjx_out = jax.tree.map(lambda x: np.asarray(x)[:num], mjx_evaluate(padded, padded_actions))
+  c_out = jax.tree.map(lambda x: np.asarray(x)[:num], c_evaluate(padded, padded_actions))
+  assert mjx_out.is_valid.all() and c_out.is_valid.all()
+  dq = np.abs(mjx_out.next_node.qpos - c_out.next_node.qpos).max(0)
+  dv = np.abs(mjx_out.next_node.qvel - c_out.next_node.qvel).max(0)
+  print(f'\nC vs MJX, one control step: max |dqpos| arm {dq[:7].max():.2e} rad, '
+        f'T {dq[7:].max():.2e}; max |dqvel| {dv.max():.2e}; '
+        f'|dcost| {np.abs(mjx_out.cost - c_out.cost).max():.2e}')
+  assert dq.max() < 1e-3
+  assert dv.max() < 0.1
+  np.testing.assert_allclose(c_out.cost, mjx_out.cost, atol=5e-3)
+  np.testing.assert_array_equal(c_out.next_node.ctrl, mjx_out.next_node.ctrl)
+  np.testing.assert_array_equal(c_out.next_node.t, nodes.t[:num] + 1)
+
+
+# ---- the CPU backend ----
+
+def test_evaluate_under_jit(env, cenv, c_evaluate):
+  """B = 3 under jit: validity, cost = cost of the successor, NaN action / state -> invalid."""
+  nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(3), 3))
+  actions = jax.random.uniform(jax.random.PRNGKey(4), (3, 7), minval=-1, maxval=1)
+  actions = actions.at[1, 2].set(jnp.nan)
+  out = c_evaluate(nodes, actions)
+  np.testing.assert_array_equal(out.is_valid, [True, False, True])
+  assert not out.is_goal[1]
+  assert np.isfinite(np.asarray(out.next_node.qpos)).all()
+  # The cost is the env's cost of the successor (tip by MJX forward kinematics).
+  mjx_tip = jax.jit(jax.vmap(env.tip_position))(out.next_node)
+  np.testing.assert_allclose(cenv.tip_position(out.next_node), mjx_tip, atol=1e-5)
+  want = jax.vmap(env._cost)(out.next_node, mjx_tip[:, :2])
+  np.testing.assert_allclose(np.asarray(out.cost)[[0, 2]], np.asarray(want)[[0, 2]], atol=1e-5)
+  obs = jax.jit(cenv.observe)(out.next_node)  # PushT's observation with the C tip
+  np.testing.assert_allclose(obs[:, 14:17], mjx_tip, atol=1e-5)
+  np.testing.assert_array_equal(out.is_goal, jax.vmap(env.goal_reached)(out.next_node)
+                                & out.is_valid)
+  # The arm moved toward its targets.
+  assert np.abs(np.asarray(out.next_node.qpos[0, :7] - nodes.qpos[0, :7])).max() > 1e-3
+  # A non-finite node is invalid and its successor stays finite.
+  bad = nodes.replace(qvel=nodes.qvel.at[2, 0].set(jnp.inf))
+  out_bad = c_evaluate(bad, jnp.zeros((3, 7)))
+  np.testing.assert_array_equal(out_bad.is_valid, [True, True, False])
+  assert np.isfinite(np.asarray(out_bad.next_node.qvel)).all()
+  # vmap makes one batched call with the same results; transition = batched path with B = 1.
+  twice = jax.jit(jax.vmap(cenv.evaluate))(jax.tree.map(lambda x: jnp.stack([x, x]), nodes),
+                                           jnp.stack([actions, actions]))
+  np.testing.assert_array_equal(twice.cost[1], out.cost)
+  single = jax.jit(cenv.transition)(jax.tree.map(lambda x: x[0], nodes), actions[0])
+  np.testing.assert_array_equal(single.next_node.qpos, out.next_node.qpos[0])
+  with pytest.raises(ValueError, match='actions'):
+    cenv.evaluate(nodes, actions[:, :3])
+
+
+def test_delegation_and_make_backend(env, cenv):
+  assert cenv.config is env.config and cenv.mj_model is env.mj_model
+  assert cenv.observation_size == env.observation_size
+  assert cenv.action_size == 7
+  assert mujoco_c.make_backend(env, 'mjx') is env
+  with pytest.raises(ValueError, match='backend'):
+    mujoco_c.make_backend(env, 'gpu')
+  auto = mujoco_c.make_backend(env, 'auto', nthread=1)
+  assert isinstance(auto, mujoco_c.MujocoCEnv) == (jax.default_backend() == 'cpu')
+  if isinstance(auto, mujoco_c.MujocoCEnv):
+    auto.close()
+  with pytest.raises(ValueError, match='nthread'):
+    mujoco_c.MujocoCEnv(env, nthread=0)
+
+
+def test_speed_against_mjx_at_b64(env, mjx_evaluate, c_evaluate):
+  nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(5), BATCH))
+  actions = jax.random.uniform(jax.random.PRNGKey(6), (BATCH, 7), minval=-1, maxval=1)
+
+  def rate(fn, repeats=3):
+    jax.block_until_ready(fn(nodes, actions))
+    times = []
+    for _ in range(repeats):
+      start = time.perf_counter()
+      jax.block_until_ready(fn(nodes, actions))
+      times.append(time.perf_counter() - start)
+    return BATCH / np.median(times)
+
+  mjx_rate, c_rate = rate(mjx_evaluate, repeats=1), rate(c_evaluate, repeats=5)
+  print(f'\nB={BATCH}: MJX-on-CPU {mjx_rate:.0f} edges/s, MuJoCo C {c_rate:.0f} edges/s, '
+        f'speed-up {c_rate / mjx_rate:.1f}x')
+  assert mjx_rate > 0 and c_rate > 0
+
+
+# ---- the world ----
+
+def test_world_executes_and_perturbations_change_the_outcome(env, push):
+  nodes, actions = push
+  start = jax.tree.map(lambda x: x[0], nodes)
+  world = mujoco_c.World(env)
+  assert np.array_equal(world.reset(start).qpos, np.asarray(start.qpos))
+  path = world.execute(actions)
+  assert len(path) == len(actions) and int(path[-1].t) == len(actions)
+  # The unperturbed world replays the closed-loop push that generated the actions.
+  np.testing.assert_allclose(path[-2].qpos, nodes.qpos[-1], atol=1e-6)
+  ref = mujoco_c.World(env)
+  ref.reset(start)
+  np.testing.assert_array_equal(ref.execute(actions)[-1].qpos, path[-1].qpos)
+  moved = np.linalg.norm(path[-1].qpos[7:9] - start.qpos[7:9])
+  slippery = mujoco_c.World(env, mujoco_c.Perturbation(friction=0.3))
+  slippery.reset(start)
+  moved_slippery = np.linalg.norm(slippery.execute(actions)[-1].qpos[7:9] - start.qpos[7:9])
+  print(f'\nT displacement: nominal {moved:.4f} m, friction x0.3 {moved_slippery:.4f} m')
+  assert moved > 0.02 and moved_slippery > moved + 1e-3
+  # The env's model is untouched by the perturbed copy.
+  assert slippery.model.dof_frictionloss[7] == pytest.approx(0.3 * env.mj_model.dof_frictionloss[7])
+  assert env.mj_model.dof_frictionloss[7] == pytest.approx(0.5 * pusht.T_MASS * 9.81)
+  heavy = mujoco_c.Perturbation(t_mass=2.0, actuator_gain=0.5)
+  m = heavy.apply(env.mj_model)
+  t_body = env.mj_model.body('tblock').id
+  assert m.body_mass[t_body] == pytest.approx(2 * env.mj_model.body_mass[t_body])
+  np.testing.assert_allclose(m.actuator_gainprm[:, 0], 0.5 * env.mj_model.actuator_gainprm[:, 0])
+  with pytest.raises(ValueError, match='friction'):
+    mujoco_c.Perturbation(friction=-1.0)
+  with pytest.raises(ValueError, match='actions'):
+    world.execute(actions[:, :3])
+
+
+# ---- the search end to end ----
+
+class _RandomActorCritic:
+  """Zero-mean uniform random actions, zero Q."""
+
+  def sample_actions(self, key, obs, num):
+    return jax.random.uniform(key, (obs.shape[0], num, 7), minval=-1.0, maxval=1.0)
+
+  def q_values(self, obs, actions):
+    return jnp.zeros(actions.shape[:2], jnp.float32)
+
+
+def test_search_runs_on_the_cpu_backend(env, cenv):
+  from pachs_jax.search import pachs
+  from pachs_jax.search.types import SearchConfig, StopReason
+  starts = env.canonical_instances(2)
+  config = SearchConfig(num_actions=4, pop_size=4, max_evaluations=64, max_iterations=2)
+  result = pachs.plan(cenv, _RandomActorCritic(), starts, config, jax.random.PRNGKey(0))
+  reasons = np.asarray(result.stop_reason)
+  assert reasons.shape == (2,)
+  assert all(StopReason.name(r) in ('iterations', 'goal', 'budget', 'open_empty') for r in reasons)
+  assert (np.asarray(result.iterations) >= 1).all()
+  assert (np.asarray(result.evaluated) >= 1).all()
+  assert (np.asarray(result.generated) > 1).all()  # successors from MuJoCo C entered the pool
