@@ -25,22 +25,29 @@ def _plan(args: argparse.Namespace) -> int:
   from pachs_jax.search import pachs
 
   on_cpu = jax.default_backend() == 'cpu'
-  env, model = planner.load_model(args.task, args.checkpoint)
+  env, model = planner.load_model(args.task, args.checkpoint, args.backend)
   num_available = 100 if args.task == 'shelf' else 30
+  cpu_instances, cpu_budget = planner.CPU_DEFAULTS[
+      'mujoco-c' if env.__class__.__name__ == 'MujocoCEnv' else 'other']
   if args.instances is None:
-    args.instances = '0' if on_cpu else f'0-{num_available - 1}'
+    args.instances = cpu_instances if on_cpu else 'all'
+  if args.instances == 'all':
+    args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
   budget = args.budget if args.budget is not None else (
-      planner.CPU_BUDGET if on_cpu else planner.default_config(args.task).max_evaluations)
+      cpu_budget if on_cpu else planner.default_config(args.task).max_evaluations)
   config = planner.default_config(args.task, weight=args.weight, num_actions=args.num_actions,
                                   pop_size=args.pop_size, max_evaluations=budget,
                                   lattice_resolution=args.lattice_resolution)
   if on_cpu:
-    print('note: JAX runs on the CPU here; MJX physics on the CPU is slow (a few ms per world '
-          'and step). A GPU is 100x faster: pip install -e .[cuda]', flush=True)
+    physics = ('MuJoCo C on all CPU threads' if env.__class__.__name__ == 'MujocoCEnv'
+               else 'MJX on the CPU (slow: milliseconds per world and step)')
+    print(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
+          f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
   starts_all = env.canonical_instances(num_available)
   starts = jax.tree.map(lambda x: x[np.asarray(instances)], starts_all)
-  print(f'planning {args.task} instances {args.instances} with {planner.checkpoint_path(args.task) if args.checkpoint is None else args.checkpoint}: '
+  model_path = args.checkpoint or planner.checkpoint_path(args.task)
+  print(f'planning {args.task} instances {args.instances} with {model_path}: '
         f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
         f'on {jax.devices()[0].platform}', flush=True)
   start = time.perf_counter()
@@ -80,11 +87,11 @@ def main(argv=None) -> int:
   plan.add_argument('--task', default='pusht-obs',
                     choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
   plan.add_argument('--instances', default=None,
-                    help="canonical instances, e.g. '0-29' or '0,4' (default: all on a GPU, "
-                         "'0' on a CPU)")
+                    help="canonical instances, e.g. '0-29', '0,4' or 'all' (default: all; "
+                         "on a CPU with MJX physics, '0')")
   plan.add_argument('--budget', type=int, default=None,
-                    help='edge evaluations per instance (default: 100000 on a GPU, '
-                         f'small on a CPU)')
+                    help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
+                         '20000 with MuJoCo C physics, 2000 with MJX)')
   plan.add_argument('--seed', type=int, default=0)
   plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
   plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
@@ -94,6 +101,8 @@ def main(argv=None) -> int:
   plan.add_argument('--time-limit', type=float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
   plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
+  plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
+                    help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator')
   plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')
   plan.add_argument('--json', default=None, help='write the result rows as JSON')
   plan.set_defaults(func=_plan)
