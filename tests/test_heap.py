@@ -53,15 +53,19 @@ class Model:
         heapq.heappush(self.queues[i], (float(key), self.seq[i], int(value)))
         self.seq[i] += 1
 
-  def pop(self, k, active):
+  def pop(self, k, active, limit=None):
     out = []
     for i in range(NUM_INSTANCES):
       got = []
-      while active[i] and self.queues[i] and len(got) < k:
+      bound = np.inf if limit is None else limit[i]
+      while active[i] and self.queues[i] and len(got) < k and self.queues[i][0][0] <= bound:
         key, _, value = heapq.heappop(self.queues[i])
         got.append((key, value))
       out.append(got)
     return out
+
+  def kth_key(self, k):
+    return [sorted(q)[k - 1][0] if len(q) >= k else np.inf for q in self.queues]
 
 
 def _random_push(rng):
@@ -74,8 +78,8 @@ def _random_push(rng):
   return keys, values, mask
 
 
-def _check_pop(model, got_keys, got_values, got_mask, active):
-  want = model.pop(K, active)
+def _check_pop(model, got_keys, got_values, got_mask, active, limit=None):
+  want = model.pop(K, active, limit)
   for i in range(NUM_INSTANCES):
     n = int(got_mask[i].sum())
     assert n == len(want[i]), (i, n, want[i])
@@ -113,6 +117,43 @@ def test_matches_heapq(kind, capacity, segment):
   heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
   assert not np.asarray(m).any()  # empty
   np.testing.assert_array_equal(np.asarray(heap_lib.overflow(heap)), model.overflow)
+
+
+@pytest.mark.parametrize('kind,capacity,segment', DESIGNS)
+def test_limited_pop_and_kth_key_match_heapq(kind, capacity, segment):
+  # A pop up to a key limit takes only the entries <= limit and leaves the others in place:
+  # later pops see them in the same (key, insertion) order.
+  init, push, _ = _ops(kind, capacity, segment)
+  pop_limited = _limited_pop(kind, capacity, segment)
+  rng = np.random.default_rng(3)
+  model = Model(capacity, append_only=kind != 'blocked')
+  heap = init()
+  limited = 0
+  for step in range(50):
+    np.testing.assert_array_equal(np.asarray(_kth_key(heap)), model.kth_key(K))
+    if rng.random() < 0.5 or step < 3:
+      keys, values, mask = _random_push(rng)
+      heap = push(heap, jnp.asarray(keys), jnp.asarray(values), jnp.asarray(mask))
+      model.push(keys, values, mask)
+    else:
+      active = rng.random(NUM_INSTANCES) < 0.8
+      limit = rng.choice([0.0, 1.0, 2.0, 2.5, 5.0, np.inf], size=NUM_INSTANCES).astype(np.float32)
+      heap, k, v, m = pop_limited(heap, jnp.asarray(active), jnp.asarray(limit))
+      limited += int(np.sum(active & (np.asarray(m).sum(axis=1) < np.minimum(
+          K, [len(q) for q in model.queues]))))
+      _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), active, limit)
+    np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)),
+                                  [len(q) for q in model.queues])
+  assert limited >= 5  # the limit held entries back in several pops
+  np.testing.assert_array_equal(np.asarray(heap_lib.overflow(heap)), model.overflow)
+
+
+@functools.lru_cache(maxsize=None)
+def _limited_pop(kind, capacity, segment):
+  return jax.jit(lambda h, active, limit: heap_lib.pop(h, K, active, limit))
+
+
+_kth_key = jax.jit(lambda h: heap_lib.kth_key(h, K))
 
 
 @pytest.mark.parametrize('kind', ['flat', 'segmented'])
@@ -189,3 +230,7 @@ def test_bad_arguments():
     heap_lib.init('flat', 1, 0, 2)
   with pytest.raises(ValueError, match='block size'):
     heap_lib.pop(heap_lib.init('blocked', 1, 16, 4), 3)
+  with pytest.raises(ValueError, match='block size'):
+    heap_lib.kth_key(heap_lib.init('blocked', 1, 16, 4), 5)
+  with pytest.raises(ValueError, match='k >= 1'):
+    heap_lib.kth_key(heap_lib.init('flat', 1, 16, 4), 0)

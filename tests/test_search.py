@@ -12,6 +12,7 @@ import pytest
 
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search, plan
+from pachs_jax.search import heap as heap_lib
 
 SIZE = 14
 POCKET = (1, 12)  # a free cell walled in: unreachable from outside
@@ -80,6 +81,7 @@ class Problem:
 
 BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, max_evaluations=3000,
                     heap_kind='flat')
+LOOPS = ('split', 'mixed')
 
 
 @pytest.fixture(scope='module')
@@ -87,14 +89,20 @@ def problem():
   return Problem(seed=4)
 
 
-@pytest.fixture(scope='module')
-def search(problem):
-  return make_search(problem.env, problem.actor_critic, BASE)
+@pytest.fixture(scope='module', params=LOOPS)
+def config(request):
+  return dataclasses.replace(BASE, loop=request.param)
 
 
 @pytest.fixture(scope='module')
-def base_result(problem, search):
-  return plan(problem.env, problem.actor_critic, problem.nodes, BASE, problem.keys, search=search)
+def search(problem, config):
+  return make_search(problem.env, problem.actor_critic, config)
+
+
+@pytest.fixture(scope='module')
+def base_result(problem, config, search):
+  return plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys,
+              search=search)
 
 
 def _np(tree):
@@ -161,24 +169,28 @@ def test_unreachable_goal_empties_open(problem, base_result):
   assert res.expanded[i] == reachable
 
 
-def test_replay_reproduces_path_states(problem, search, base_result):
+def test_replay_reproduces_path_states(problem, config, search, base_result):
   # The run replaced the state of some open node by a cheaper one found later (its dummy
   # edges: one per new node and one per improvement), so replay covers that case too.
   state = search.run(search.init(problem.nodes, problem.keys))
-  dummy_pushes = np.asarray(state.heap.size) - 1 - BASE.num_actions * np.asarray(state.expanded)
+  if config.loop == 'split':  # the flat heaps' size counts every push
+    dummy_pushes = np.asarray(state.dummy_heap.size) - 1
+    np.testing.assert_array_equal(state.heap.size, BASE.num_actions * np.asarray(state.expanded))
+  else:
+    dummy_pushes = (np.asarray(state.heap.size) - 1
+                    - BASE.num_actions * np.asarray(state.expanded))
   improvements = dummy_pushes - (np.asarray(state.pool.size) - 1)
-  assert improvements[:NUM_FOUND].sum() > 0
-  for i in range(NUM_FOUND):
+  assert improvements.sum() > 0
+  for i in range(NUM_FOUND + 1):  # the goal paths and the unreachable goal's best-state path
     cost, node = _replay(problem.env, base_result, i)
     np.testing.assert_allclose(cost, np.asarray(base_result.cost)[i], rtol=1e-6)
-    assert bool(problem.env.is_goal(node)[0])
+    assert bool(problem.env.is_goal(node)[0]) == (i < NUM_FOUND)
 
 
-def test_batch_equals_one_by_one(problem, base_result):
-  search1 = make_search(problem.env, problem.actor_critic, BASE)
+def test_batch_equals_one_by_one(problem, config, search, base_result):
   for i in (0, 3, NUM_FOUND):
     nodes, keys = problem.subset(i)
-    single = plan(problem.env, problem.actor_critic, nodes, BASE, keys, search=search1)
+    single = plan(problem.env, problem.actor_critic, nodes, config, keys, search=search)
     for got, want in zip(_leaves(single), _leaves(base_result)):
       np.testing.assert_array_equal(np.asarray(got)[0], np.asarray(want)[i])
 
@@ -187,7 +199,7 @@ def test_anytime_chunks_equal_one_run(problem, search, base_result):
   state = search.init(problem.nodes, problem.keys)
   partial = None
   for chunk in range(1000):
-    state = search.run_chunk(state, jnp.int32(7))
+    state = search.run_chunk(state, jnp.int32(4))
     if chunk == 1:
       partial = _np(search.result(state))
     if not bool(jnp.any(state.active)):
@@ -195,7 +207,7 @@ def test_anytime_chunks_equal_one_run(problem, search, base_result):
   chunked = search.result(state)
   for got, want in zip(_leaves(chunked), _leaves(base_result)):
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
-  # Mid-run (14 iterations): unfinished instances return a replayable path to an open node.
+  # Mid-run (8 iterations): unfinished instances return a replayable path to an open node.
   running = partial.stop_reason == StopReason.RUNNING
   assert running[:NUM_FOUND - 1].all()
   assert not partial.found[running].any()
@@ -205,8 +217,8 @@ def test_anytime_chunks_equal_one_run(problem, search, base_result):
     np.testing.assert_allclose(cost, partial.cost[i], rtol=1e-6)
 
 
-def test_time_limit_returns_best_open_paths(problem, search):
-  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, BASE, problem.keys,
+def test_time_limit_returns_best_open_paths(problem, config, search):
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys,
                  time_limit_s=1e-6, chunk_iterations=5, search=search))
   assert res.stop_reason[NUM_FOUND - 1] == StopReason.GOAL  # found in the first iteration
   timed_out = res.stop_reason == StopReason.TIME_LIMIT
@@ -219,10 +231,11 @@ def test_time_limit_returns_best_open_paths(problem, search):
     np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
 
 
-@pytest.mark.parametrize('kind,pop_size,weight', [('segmented', 1, 2.0), ('blocked', 1, 1.5)])
-def test_weighted_within_bound(problem, kind, pop_size, weight):
-  config = dataclasses.replace(BASE, heap_kind=kind, pop_size=pop_size, weight=weight,
-                               segment_size=16)
+@pytest.mark.parametrize('kind,weight,loop', [('segmented', 2.0, 'split'),
+                                              ('blocked', 1.5, 'split'),
+                                              ('segmented', 2.0, 'mixed')])
+def test_weighted_within_bound(problem, kind, weight, loop):
+  config = dataclasses.replace(BASE, heap_kind=kind, weight=weight, segment_size=16, loop=loop)
   res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
   reachable = np.isfinite(problem.optimal)
   np.testing.assert_array_equal(np.asarray(res.found), reachable)
@@ -234,8 +247,9 @@ def test_weighted_within_bound(problem, kind, pop_size, weight):
     np.testing.assert_allclose(replayed, cost[i], rtol=1e-6)
 
 
-def test_pop_many_finds_paths_with_correct_cost(problem):
-  config = dataclasses.replace(BASE, heap_kind='blocked', pop_size=6)
+@pytest.mark.parametrize('loop', LOOPS)
+def test_pop_many_finds_paths_with_correct_cost(problem, loop):
+  config = dataclasses.replace(BASE, heap_kind='blocked', pop_size=6, loop=loop)
   res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
   reachable = np.isfinite(problem.optimal)
   np.testing.assert_array_equal(np.asarray(res.found), reachable)
@@ -248,8 +262,10 @@ def test_pop_many_finds_paths_with_correct_cost(problem):
     assert bool(problem.env.is_goal(node)[0])
 
 
-def test_tiny_budget_stops_on_budget(problem):
-  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6, heap_kind='segmented')
+@pytest.mark.parametrize('loop', LOOPS)
+def test_tiny_budget_stops_on_budget(problem, loop):
+  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6, heap_kind='segmented',
+                               loop=loop)
   res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
   hit = res.stop_reason == StopReason.BUDGET
   assert hit[:NUM_FOUND - 1].all()
@@ -267,13 +283,81 @@ def test_tiny_pool_stops_on_capacity(problem):
   np.testing.assert_array_equal(res.generated[hit], 6)
 
 
-def test_iteration_limit(problem):
-  config = dataclasses.replace(BASE, max_iterations=3)
+def test_tiny_heap_stops_on_capacity(problem):
+  config = dataclasses.replace(BASE, heap_capacity=20)  # R: two expansions' edges and 4 more
   res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
-  np.testing.assert_array_equal(res.stop_reason[:NUM_FOUND - 1], StopReason.ITERATIONS)
-  np.testing.assert_array_equal(res.iterations[:NUM_FOUND - 1], 3)
-  # K = 1: the first iteration expands the start, the others evaluate or expand one edge each.
-  np.testing.assert_array_equal((res.evaluated + res.expanded)[:NUM_FOUND - 1], 3)
+  hit = res.stop_reason == StopReason.CAPACITY
+  assert hit[:NUM_FOUND - 1].all() and hit[NUM_FOUND]
+  np.testing.assert_array_equal(res.heap_overflow[hit], 4)  # the third expansion's last 4
+  np.testing.assert_array_equal(res.expanded[hit], 3)
+  assert (res.evaluated[hit] <= 20).all() and not res.found[hit].any()
+
+
+@pytest.mark.parametrize('loop', LOOPS)
+def test_iteration_limit(problem, loop):
+  config = dataclasses.replace(BASE, max_iterations=3, loop=loop)
+  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  running = slice(0, NUM_FOUND - 1)
+  np.testing.assert_array_equal(res.stop_reason[running], StopReason.ITERATIONS)
+  np.testing.assert_array_equal(res.iterations[running], 3)
+  if loop == 'mixed':
+    # K = 1: the first iteration expands the start, the others evaluate or expand one edge.
+    np.testing.assert_array_equal((res.evaluated + res.expanded)[running], 3)
+  else:
+    # Each iteration evaluates one edge (R is never empty), after expanding at most one node.
+    np.testing.assert_array_equal(res.evaluated[running], 3)
+    assert ((res.expanded[running] >= 1) & (res.expanded[running] <= 3)).all()
+    np.testing.assert_allclose(res.lane_utilization[running], 1.0)
+
+
+LANES = dataclasses.replace(BASE, pop_size=8, heap_kind='segmented')
+
+
+@pytest.fixture(scope='module')
+def lane_searches(problem):
+  """Searches with K = 8 per loop mode (sharing their compiled functions between tests)."""
+  return {loop: make_search(problem.env, problem.actor_critic,
+                            dataclasses.replace(LANES, loop=loop)) for loop in LOOPS}
+
+
+def test_split_fills_more_lanes_than_mixed(problem, lane_searches):
+  out = {}
+  for loop, search in lane_searches.items():
+    out[loop] = _np(search.result(search.run(search.init(problem.nodes, problem.keys))))
+    np.testing.assert_array_equal(out[loop].found, np.isfinite(problem.optimal))
+    lanes = LANES.pop_size * out[loop].iterations
+    np.testing.assert_allclose(out[loop].lane_utilization,
+                               np.where(lanes > 0, out[loop].evaluated / np.maximum(lanes, 1), 0))
+  searched = np.arange(len(problem.optimal)) != NUM_FOUND - 1  # all but start == goal
+  split, mixed = out['split'].lane_utilization, out['mixed'].lane_utilization
+  assert (split[searched] > mixed[searched]).all(), (split, mixed)
+  # Here the lanes idle only in the last iteration (goal popped or OPEN empty).
+  np.testing.assert_array_equal(out['split'].evaluated[searched],
+                                LANES.pop_size * (out['split'].iterations[searched] - 1))
+  # The goal dummy edges wait for fewer real-edge pops: fewer iterations.
+  assert (out['split'].iterations[searched] < out['mixed'].iterations[searched]).all()
+
+
+def test_split_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_searches):
+  # Every iteration evaluates min(K, edges in R after the expansion phase) edges, and none in
+  # the iteration that pops a goal.
+  k, n = LANES.pop_size, LANES.num_actions
+  search = lane_searches['split']
+  state = search.init(problem.nodes, problem.keys)
+  full = 0
+  while bool(jnp.any(state.active)):
+    before = _np((state.active, state.evaluated, state.expanded, heap_lib.size(state.heap)))
+    state = search.run_chunk(state, jnp.int32(1))
+    active, evaluated, expanded, r_size = before
+    found = active & (np.asarray(state.stop_reason) == StopReason.GOAL)
+    in_r = r_size + n * (np.asarray(state.expanded) - expanded)
+    want = np.where(found, 0, np.minimum(k, in_r))
+    delta = np.asarray(state.evaluated) - evaluated
+    np.testing.assert_array_equal(delta[active], want[active])
+    np.testing.assert_array_equal(delta[~active], 0)
+    full += int(np.sum(active & (delta == k)))
+  assert full >= 100  # the pocket instance alone runs > 100 full iterations
+  assert not np.asarray(state.heap.overflow + state.dummy_heap.overflow).any()
 
 
 @pytest.mark.parametrize('changes,match', [
@@ -281,7 +365,8 @@ def test_iteration_limit(problem):
     (dict(num_actions=0), 'num_actions'), (dict(weight=-1.0), 'weight'),
     (dict(weight=float('nan')), 'weight'), (dict(heap_kind='pairing'), 'heap_kind'),
     (dict(table_capacity=100), 'power of two'), (dict(lattice_resolution=(1.0, 0.0)), 'lattice'),
-    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations')])
+    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations'),
+    (dict(loop='both'), 'loop')])
 def test_config_validation(changes, match):
   with pytest.raises(ValueError, match=match):
     dataclasses.replace(BASE, **changes)

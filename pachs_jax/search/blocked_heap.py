@@ -16,7 +16,7 @@ entries ceil((M + B - 1) / B) block insertions of D sorts each. Memory: 12 bytes
 
 from __future__ import annotations
 
-from typing import Tuple
+from typing import Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -150,6 +150,15 @@ def push(heap: BlockedHeap, keys: jax.Array, values: jax.Array, mask: jax.Array)
   keys, valid = storable(keys, mask)
   num_new = jnp.sum(valid, axis=1, dtype=jnp.int32)
   seqs = heap.next_seq[:, None] + jnp.cumsum(valid, axis=1, dtype=jnp.int32) - 1
+  heap = heap.replace(next_seq=heap.next_seq + num_new)
+  return _push_entries(heap, (keys, seqs, values), valid)
+
+
+def _push_entries(heap: BlockedHeap, incoming: Entries, valid: jax.Array) -> BlockedHeap:
+  """Stores the entries (keys, seqs, values) [I, M] where valid, with the given sequence
+  numbers (next_seq is left to the caller)."""
+  keys, seqs, values = incoming
+  num_new = jnp.sum(valid, axis=1, dtype=jnp.int32)
   incoming = (jnp.where(valid, keys, INF), jnp.where(valid, seqs, NO_SEQ),
               jnp.where(valid, values.astype(jnp.int32), 0))
   pending = _sorted(tuple(jnp.concatenate([b, x], axis=1) for b, x in zip(
@@ -157,7 +166,7 @@ def push(heap: BlockedHeap, keys: jax.Array, values: jax.Array, mask: jax.Array)
   block = heap.block
   total = heap.buf_count + num_new
   num_full = total // block
-  heap = heap.replace(next_seq=heap.next_seq + num_new, count=heap.count + num_new)
+  heap = heap.replace(count=heap.count + num_new)
 
   max_full = pending[0].shape[1] // block
 
@@ -204,19 +213,27 @@ def _sift_down(heap: BlockedHeap, active: jax.Array) -> BlockedHeap:
   return heap
 
 
-def pop(heap: BlockedHeap, k: int, active: jax.Array
-        ) -> Tuple[BlockedHeap, jax.Array, jax.Array, jax.Array]:
-  """Removes the k = B best entries of each active instance (see `heap.pop`)."""
-  block = heap.block
-  if k != block:
-    raise ValueError(f'the blocked heap pops exactly its block size {block} entries, got k={k}')
+def _best(heap: BlockedHeap) -> Tuple[Entries, Entries]:
+  """(the B best entries, the rest of the partial block) of (root, partial block), sorted."""
   has_root = heap.num_blocks > 0
   root = _read(heap, jnp.zeros_like(heap.num_blocks))
   root = (jnp.where(has_root[:, None], root[0], INF),
           jnp.where(has_root[:, None], root[1], NO_SEQ), root[2])
-  best, rest = _merge(root, (heap.buf_keys, heap.buf_seqs, heap.buf_values))
-  mask = (best[0] < INF) & active[:, None]
-  popped = jnp.sum(mask, axis=1, dtype=jnp.int32)
+  return _merge(root, (heap.buf_keys, heap.buf_seqs, heap.buf_values))
+
+
+def pop(heap: BlockedHeap, k: int, active: jax.Array, limit: Optional[jax.Array] = None
+        ) -> Tuple[BlockedHeap, jax.Array, jax.Array, jax.Array]:
+  """Removes the k = B best entries of each active instance (see `heap.pop`); with a limit
+  [I], the best B are taken out and those with key > limit go back with their sequence
+  numbers (one more push of at most B entries)."""
+  block = heap.block
+  if k != block:
+    raise ValueError(f'the blocked heap pops exactly its block size {block} entries, got k={k}')
+  has_root = heap.num_blocks > 0
+  best, rest = _best(heap)
+  taken = (best[0] < INF) & active[:, None]
+  popped = jnp.sum(taken, axis=1, dtype=jnp.int32)
   act = active[:, None]
   heap = heap.replace(
       buf_keys=jnp.where(act, rest[0], heap.buf_keys),
@@ -231,7 +248,19 @@ def pop(heap: BlockedHeap, k: int, active: jax.Array
   heap = _write(heap, jnp.zeros_like(last), _read(heap, last), moves)
   heap = heap.replace(num_blocks=heap.num_blocks - moves.astype(jnp.int32))
   heap = _sift_down(heap, moves)
+  mask = taken
+  if limit is not None:
+    mask = taken & (best[0] <= limit[:, None])
+    heap = _push_entries(heap, best, taken & ~mask)
   return heap, jnp.where(mask, best[0], INF), jnp.where(mask, best[2], 0), mask
+
+
+def kth_key(heap: BlockedHeap, k: int) -> jax.Array:
+  """[I] the k-th smallest key (k <= B; +inf when fewer than k entries are stored)."""
+  if not 1 <= k <= heap.block:
+    raise ValueError(f'the blocked heap finds the k-th key for k <= its block size '
+                     f'{heap.block}, got k={k}')
+  return _best(heap)[0][0][:, k - 1]
 
 
 def peek(heap: BlockedHeap) -> Tuple[jax.Array, jax.Array, jax.Array]:

@@ -2,8 +2,8 @@
 
 Entries are (key float32, value int32); pops come in (key, insertion order) order, so ties
 break deterministically by insertion order. All operations are batched over a leading
-instance axis I and take masks; `init`, `push`, `pop` and `peek` are one API for three designs,
-picked by `kind`:
+instance axis I and take masks; `init`, `push`, `pop` (optionally only keys up to a limit),
+`peek` and `kth_key` are one API for three designs, picked by `kind`:
 
 - 'flat': an append-only buffer keys/values [I, C]; a pop is one `lax.top_k` over the whole
   buffer (`top_k` puts the lower index first on equal keys, and in an append-only buffer the
@@ -140,40 +140,65 @@ def _smallest(keys: jax.Array, k: int) -> Tuple[jax.Array, jax.Array]:
   return -neg, idx
 
 
-def pop(heap: Heap, k: int, active: Optional[jax.Array] = None
-        ) -> Tuple[Heap, jax.Array, jax.Array, jax.Array]:
+def _candidates(heap: FlatHeap, k: int):
+  """(keys [I, k], buffer indices [I, k], segments [I, k'] or None) of the k best entries of a
+  flat or segmented buffer, in (key, insertion) order (+inf padded)."""
+  num_instances = heap.keys.shape[0]
+  if not heap.segment:
+    keys, idx = _smallest(heap.keys, k)
+    return keys, idx, None
+  seg = heap.segment
+  num_segments = heap.seg_min.shape[1]
+  _, segs = _smallest(heap.seg_min, min(k, num_segments))
+  segs = jnp.sort(segs, axis=1)  # candidates in buffer order, so ties keep insertion order
+  cand = (segs[:, :, None] * seg + jnp.arange(seg)).reshape(num_instances, -1)
+  keys, j = _smallest(jnp.take_along_axis(heap.keys, cand, axis=1), k)
+  return keys, jnp.take_along_axis(cand, j, axis=1), segs
+
+
+def pop(heap: Heap, k: int, active: Optional[jax.Array] = None,
+        limit: Optional[jax.Array] = None) -> Tuple[Heap, jax.Array, jax.Array, jax.Array]:
   """Removes the k best entries of each active instance.
 
   active: [I] bool, instances that pop (None: all); the others are left unchanged.
+  limit: [I] float32, pop only entries with key <= limit (None: no limit); the k best entries
+    above it stay in the queue in their place (same order, same ties).
   Returns (heap, keys [I, k], values [I, k], mask [I, k]) in (key, insertion) order; mask is
-  False where an instance had fewer than k entries or is inactive (values 0 there).
+  False where an instance had fewer than k entries (within the limit) or is inactive (values 0
+  there). The masked entries come first.
   """
   num_instances = heap.keys.shape[0]
   if active is None:
     active = jnp.ones((num_instances,), bool)
   if isinstance(heap, blocked_heap.BlockedHeap):
-    return blocked_heap.pop(heap, k, active)
+    return blocked_heap.pop(heap, k, active, limit)
   rows = jnp.arange(num_instances)[:, None]
-  if heap.segment:
-    seg = heap.segment
-    num_segments = heap.seg_min.shape[1]
-    _, segs = _smallest(heap.seg_min, min(k, num_segments))
-    segs = jnp.sort(segs, axis=1)  # candidates in buffer order, so ties keep insertion order
-    cand = (segs[:, :, None] * seg + jnp.arange(seg)).reshape(num_instances, -1)
-    keys, j = _smallest(jnp.take_along_axis(heap.keys, cand, axis=1), k)
-    idx = jnp.take_along_axis(cand, j, axis=1)
-  else:
-    keys, idx = _smallest(heap.keys, k)
+  keys, idx, segs = _candidates(heap, k)
   mask = (keys < INF) & active[:, None]
+  if limit is not None:
+    mask = mask & (keys <= limit[:, None])
   values = jnp.where(mask, jnp.take_along_axis(heap.values, idx, axis=1), 0)
   new_keys = heap.keys.at[rows, jnp.where(mask, idx, heap.keys.shape[1])].set(INF, mode='drop')
   seg_min = heap.seg_min
   if heap.segment:
+    seg = heap.segment
+    cand = (segs[:, :, None] * seg + jnp.arange(seg)).reshape(num_instances, -1)
     fresh = jnp.take_along_axis(new_keys, cand, axis=1).reshape(num_instances, -1, seg)
     seg_min = seg_min.at[rows, segs].set(jnp.min(fresh, axis=2))
   popped = jnp.sum(mask, axis=1, dtype=jnp.int32)
   heap = heap.replace(keys=new_keys, seg_min=seg_min, count=heap.count - popped)
   return heap, jnp.where(mask, keys, INF), values, mask
+
+
+def kth_key(heap: Heap, k: int) -> jax.Array:
+  """[I] float32 the k-th smallest key of each instance (+inf when it holds fewer than k);
+  nothing is removed. Costs about what `pop` of k costs."""
+  if k < 1:
+    raise ValueError(f'kth_key needs k >= 1, got {k}')
+  if isinstance(heap, blocked_heap.BlockedHeap):
+    return blocked_heap.kth_key(heap, k)
+  keys, _, _ = _candidates(heap, k)
+  return keys[:, k - 1]
 
 
 def peek(heap: Heap) -> Tuple[jax.Array, jax.Array, jax.Array]:

@@ -2,32 +2,74 @@
 
 OPEN holds edges: a dummy edge (s, DUMMY) means "s is ready to be expanded", a real edge
 (s, a_j) names the j-th action sampled at s. Each heap entry's value is node * (N + 1) + slot,
-slot N for the dummy edge. One iteration (`step` in `make_search`) of the jitted while loop:
+slot N for the dummy edge. Two loop bodies (`SearchConfig.loop`) share the phases below:
 
-1. pop: the K best entries of every active instance.
-2. goal check: a fresh popped dummy edge of a goal state ends the instance (path to it).
-3. expand the fresh dummy edges: one actor call samples N actions at each (I * K states), one
-   critic call scores them; push (s, a_j) with f = g(s) + w q_j, q = max(-Q, 0); close s.
-4. evaluate the popped real edges: one `env.evaluate` over all I * K slots (masked), at most
-   the remaining budget per instance. Invalid edges are dropped.
-5. insert successors through the lattice: a new cell, or an open node with g(s) + c < g(s'),
-   takes (state s', g, parent s, action) and gets a dummy edge g(s') + w max(q - c, 0).
-   Closed nodes are never updated (no re-expansion): their children were generated from their
-   stored state, so keeping it keeps every returned path replayable bit for bit.
-6. push the N K real and K dummy edges in one batched push.
-7. stop: goal, open list empty, capacity overflow, budget, iterations (in that precedence).
+- goal check: a fresh popped dummy edge of a goal state ends the instance (path to it).
+- expand the fresh dummy edges: one actor call samples N actions at each (I * K states), one
+  critic call scores them; push (s, a_j) with f = g(s) + w q_j, q = max(-Q, 0); close s.
+- evaluate popped real edges: one `env.evaluate` over all I * K slots (masked), at most the
+  remaining budget per instance. Invalid edges are dropped.
+- insert successors through the lattice: a new cell, or an open node with g(s) + c < g(s'),
+  takes (state s', g, parent s, action) and gets a dummy edge g(s') + w max(q - c, 0).
+  Closed nodes are never updated (no re-expansion): their children were generated from their
+  stored state, so keeping it keeps every returned path replayable bit for bit.
+- stop: goal, open list empty, capacity overflow, budget, iterations (in that precedence).
+
+'split' (the default): OPEN is two heaps per instance, D (dummy edges, key g(s) + w h) and R
+(real edges, key g(s) + w q_j). One iteration:
+1. expansion phase: k_R = R's K-th best key (+inf when R holds fewer than K); pop up to K
+   entries of D with key <= k_R; goal check; expand the fresh ones and push their N K real
+   edges into R (one actor and one critic batch of I * K).
+2. evaluation phase: pop the K best entries of R (the new children included) and evaluate all
+   of them (one physics batch of I * K); insert the successors; push their dummy edges into D.
+A popped real edge is never stale (its source is closed and never changes), so every
+iteration in which R holds >= K entries after the expansion phase fills all K lanes.
+'mixed': one heap holds both kinds; one iteration pops the K best entries, goal-checks and
+expands the dummy edges among them and evaluates the real ones, then pushes all new entries
+in one push. Popped dummy and stale entries leave their evaluation lanes empty.
+`SearchResult.lane_utilization` reports evaluated / (K iterations) per instance. Measured
+side by side (CPU, PushT-Fixed with the shipped model, 3 instances, K = 16, N = 8, w = 2,
+all found): 'split' 0.72-0.81 of the lanes in 7-9 iterations, 'mixed' 0.50-0.66 in 13-17
+(these searches are short: 'split' idles half its lanes in the first iteration, N < K, and
+all in the last, the goal pop). On the grid-world tests (K = 8): 'split' fills every lane
+except in the last iteration.
+
+Why 'split' with K = 1, w = 1 stays optimal (as A* does, for a consistent cost-to-go estimate,
+e.g. the grid world's critic): a dummy edge leaves D only when its key is <= min D (it is D's
+best) and <= k_R = min R, i.e. when it is the minimum of OPEN = D u R, exactly as a pop of the
+mixed loop. The real edge evaluated in the same iteration may come before OPEN's minimum
+(a better dummy edge may remain in D): evaluating an edge early only generates or improves a
+node earlier, it never closes one. The A* invariant is about expansions: when s is expanded
+with the minimum key of OPEN, the first unfinished element of an optimal path to s (a real
+edge in R out of an expanded node, or the dummy edge of its successor in D) has a key
+<= f*(s) = g*(s) + h(s); key(s) is the minimum, so g(s) = g*(s), and no closed node would
+ever need an update (optimal over the graph of sampled edges and lattice cells). A goal is
+accepted only when its dummy edge is popped, i.e. at the minimum of OPEN, so its cost is
+optimal; the same argument with keys g + w h gives weighted A*'s bound of w x optimal. Ties
+between D and R go to D.
+For K > 1 neither loop keeps a guarantee: 'mixed' expands dummy edges among the K best of
+OPEN; 'split' those among the K best of D that are <= R's K-th best key, so among the 2K - 1
+best of OPEN, and it evaluates the K best real edges after the expansion (mixed: the real
+edges among the K best of OPEN, often fewer than K). Paths stay valid and replayable, costs
+are those of the returned path; 'split' tends to expand more states per evaluated edge.
+Even at K = 1 the two loops may evaluate different numbers of edges: 'split' evaluates one
+real edge every iteration, also while a better dummy edge waits in D, and breaks D-R ties
+toward D (on the grid-world tests: about as many evaluations in about half the iterations).
 
 Lazy deletion: a popped dummy edge is stale (dropped) when its node is closed or its key is not
-the node's latest dummy key (its g was improved since); a popped real edge is always evaluated
-(its source is closed and never changes). Finished instances are masked and stop changing.
+the node's latest dummy key (its g was improved since); a popped real edge is always evaluated.
+Finished instances are masked and stop changing.
 
-Per iteration: one heap pop (see `heap`: one top_k over the buffer for 'flat', two small ones
-for 'segmented', O(K log C) sorts for 'blocked'), one push of K (N + 1) entries, O(K^2) pairwise
-duplicate checks, a lattice probe of K keys, and O(K (N + 1)) gathers and scatters into the
-pool, all batched over I. Memory per instance: pool (see `pool`), table 4 L + 5 bytes per slot,
-heap 8 or 12 bytes per entry. Measured search overhead (grid world, whose edges cost nothing,
-NVIDIA H200, I = 30, budget 100,000 each, 'segmented' heap): about 0.3 ms per iteration at
-K = 16..256 and N = 8 or 16, e.g. 0.58 s for all 3 million evaluations at K = 64, N = 16.
+Per iteration of 'mixed': one heap pop (see `heap`: one top_k over the buffer for 'flat', two
+small ones for 'segmented', O(K log C) sorts for 'blocked'), one push of K (N + 1) entries,
+O(K^2) pairwise duplicate checks, a lattice probe of K keys, and O(K (N + 1)) gathers and
+scatters into the pool, all batched over I. 'split' adds a k-th key look-up on R (about a pop)
+and one more push ('blocked': a limited pop also pushes back up to K entries). Memory per
+instance: pool (see `pool`), table 4 L + 5 bytes per slot, heaps 8 or 12 bytes per entry
+('split': N * pool + budget + 1 entries, 'mixed': (N + 1) (budget + 1)). Measured search
+overhead of 'mixed' (grid world, whose edges cost nothing, NVIDIA H200, I = 30, budget 100,000
+each, 'segmented' heap): about 0.3 ms per iteration at K = 16..256 and N = 8 or 16, e.g.
+0.58 s for all 3 million evaluations at K = 64, N = 16.
 """
 
 from __future__ import annotations
@@ -54,7 +96,9 @@ NO_NODE = -1
 class SearchState:
   """Everything the loop carries, leading axis I.
 
-  heap: the OPEN list; pool: the nodes; table: lattice cell -> node index.
+  heap: the OPEN list ('mixed') or the real-edge heap R ('split').
+  dummy_heap: the dummy-edge heap D ('split'; None for 'mixed').
+  pool: the nodes; table: lattice cell -> node index.
   rng: [I, 2] uint32 per-instance PRNG keys (folded with the iteration count).
   active: [I] bool, still searching; stop_reason: [I] int32 `StopReason`.
   goal_node: [I] int32 the popped goal node (NO_NODE if none).
@@ -62,6 +106,7 @@ class SearchState:
   """
 
   heap: heap_lib.Heap
+  dummy_heap: Optional[heap_lib.Heap]
   pool: pool_lib.NodePool
   table: lattice_lib.LatticeTable
   rng: jax.Array
@@ -171,19 +216,20 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   resolution, key_size, action_size, node_spec = _check_config(env, actor_critic, config)
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   dummy = n  # the dummy edge's slot
+  split = config.loop == 'split'
+  count = lambda mask: jnp.sum(mask, axis=1, dtype=jnp.int32)
 
   def weighted(q):
     return q * w if w else jnp.zeros_like(q)  # w = 0: uniform cost (and no 0 * inf)
 
   # ---- the phases of one iteration ----
 
-  def pop(state):
-    heap, key, value, mask = heap_lib.pop(state.heap, k, state.active)
+  def pop(heap, active, limit=None):
+    heap, key, value, mask = heap_lib.pop(heap, k, active, limit)
     return heap, _Popped(key, value // (n + 1), value % (n + 1), mask)
 
-  def goal_check(state, popped):
+  def goal_check(pool, popped):
     """(fresh dummy edges [I, K], found [I], goal node [I])."""
-    pool = state.pool
     fresh = (popped.mask & (popped.slot == dummy) & ~pool_lib.gather(pool.closed, popped.node)
              & (popped.key == pool_lib.gather(pool.open_key, popped.node)))
     fresh = _first_of_node(popped.node, fresh)
@@ -191,9 +237,14 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     goal = jnp.take_along_axis(popped.node, jnp.argmax(at_goal, axis=1)[:, None], axis=1)[:, 0]
     return fresh & ~at_goal, jnp.any(at_goal, axis=1), goal
 
-  def expand(state, popped, obs, expand_mask):
+  def observe(sources):
+    """[I, K, O] observations of the nodes sources [I, K]."""
+    num_instances = jax.tree.leaves(sources)[0].shape[0]
+    return _unflat(env.observe(_flat(sources, num_instances * k)), num_instances)
+
+  def expand(state, pool, popped, obs, expand_mask):
     """Samples and scores N edges per expanded node; returns (pool, keys [I, K, N])."""
-    num_instances, pool = expand_mask.shape[0], state.pool
+    num_instances = expand_mask.shape[0]
     rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)  # per instance and step
     actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o, n))(rng, obs)
     actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
@@ -241,19 +292,15 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                               depth, outcome.is_goal, dummy_key)
     return pool, table, dummy_key, node, write
 
-  def push(heap, popped, edge_keys, expanding, dummy_keys, dummy_nodes, pushed):
-    """One push of the N K real edges and the K dummy edges of each instance."""
+  def edge_entries(popped, edge_keys, expanding):
+    """(keys, values, mask) [I, K N] of the real edges of the expanded nodes."""
     num_instances = expanding.shape[0]
-    edge_values = popped.node[:, :, None] * (n + 1) + jnp.arange(n)
-    return heap_lib.push(
-        heap,
-        jnp.concatenate([edge_keys.reshape(num_instances, -1), dummy_keys], axis=1),
-        jnp.concatenate([edge_values.reshape(num_instances, -1),
-                         dummy_nodes * (n + 1) + dummy], axis=1),
-        jnp.concatenate([jnp.repeat(expanding, n, axis=1), pushed], axis=1))
+    values = popped.node[:, :, None] * (n + 1) + jnp.arange(n)
+    return (edge_keys.reshape(num_instances, -1), values.reshape(num_instances, -1),
+            jnp.repeat(expanding, n, axis=1))
 
-  def stop(state, heap, pool, table, found, open_empty, out_of_budget, iterations):
-    overflow = heap_lib.overflow(heap) + pool.overflow + table.overflow
+  def stop(state, heaps, pool, table, found, open_empty, out_of_budget, iterations):
+    overflow = sum(heap_lib.overflow(h) for h in heaps) + pool.overflow + table.overflow
     reason = jnp.select(
         [found, open_empty, overflow > 0, out_of_budget, iterations >= config.iterations],
         [StopReason.GOAL, StopReason.OPEN_EMPTY, StopReason.CAPACITY, StopReason.BUDGET,
@@ -261,33 +308,70 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     reason = jnp.where(state.active, reason, state.stop_reason).astype(jnp.int32)
     return reason, state.active & (reason == StopReason.RUNNING)
 
+  def finish(state, heap, dummy_heap, pool, table, found, goal, open_empty, out_of_budget,
+             expanding, evaluated, usable):
+    """The state after an iteration: stop reasons and counters."""
+    iterations = state.iterations + state.active
+    heaps = (heap,) if dummy_heap is None else (heap, dummy_heap)
+    reason, active = stop(state, heaps, pool, table, found, open_empty, out_of_budget,
+                          iterations)
+    return state.replace(
+        heap=heap, dummy_heap=dummy_heap, pool=pool, table=table, active=active,
+        stop_reason=reason, goal_node=jnp.where(found & state.active, goal, state.goal_node),
+        iterations=iterations, expanded=state.expanded + count(expanding),
+        evaluated=state.evaluated + count(evaluated),
+        invalid=state.invalid + count(evaluated & ~usable))
+
   # ---- one iteration ----
 
-  def step(state: SearchState) -> SearchState:
-    num_instances = state.active.shape[0]
-    heap, popped = pop(state)
+  def step_mixed(state: SearchState) -> SearchState:
+    """Pops the K best entries of one OPEN heap; expands the dummy edges among them and
+    evaluates the real ones."""
+    heap, popped = pop(state.heap, state.active)
     open_empty = state.active & ~jnp.any(popped.mask, axis=1)
-    fresh, found, goal = goal_check(state, popped)
+    fresh, found, goal = goal_check(state.pool, popped)
     working = (state.active & ~found)[:, None]
     sources = pool_lib.gather_nodes(state.pool, popped.node)
-    obs = _unflat(env.observe(_flat(sources, num_instances * k)), num_instances)
     expanding = fresh & working
-    pool, edge_keys = expand(state, popped, obs, expanding)
+    pool, edge_keys = expand(state, state.pool, popped, observe(sources), expanding)
     real = popped.mask & (popped.slot != dummy) & working
     outcome, evaluated, out_of_budget, action, q = evaluate(state, pool, popped, sources, real)
     usable = evaluated & outcome.is_valid & jnp.isfinite(outcome.cost)
     pool, table, dummy_keys, dummy_nodes, pushed = insert(
         pool, state.table, popped, outcome, usable, action, q)
-    heap = push(heap, popped, edge_keys, expanding, dummy_keys, dummy_nodes, pushed)
-    count = lambda mask: jnp.sum(mask, axis=1, dtype=jnp.int32)
-    iterations = state.iterations + state.active
-    reason, active = stop(state, heap, pool, table, found, open_empty, out_of_budget, iterations)
-    return state.replace(
-        heap=heap, pool=pool, table=table, active=active, stop_reason=reason,
-        goal_node=jnp.where(found & state.active, goal, state.goal_node),
-        iterations=iterations, expanded=state.expanded + count(expanding),
-        evaluated=state.evaluated + count(evaluated),
-        invalid=state.invalid + count(evaluated & ~usable))
+    edges = edge_entries(popped, edge_keys, expanding)
+    heap = heap_lib.push(heap, *(jnp.concatenate([e, d], axis=1) for e, d in zip(
+        edges, (dummy_keys, dummy_nodes * (n + 1) + dummy, pushed))))
+    return finish(state, heap, None, pool, table, found, goal, open_empty, out_of_budget,
+                  expanding, evaluated, usable)
+
+  def step_split(state: SearchState) -> SearchState:
+    """Expansion phase on D (dummy edges before R's K-th key), then evaluation phase: the K
+    best edges of R in one full physics batch."""
+    # expand: one network batch
+    limit = heap_lib.kth_key(state.heap, k)
+    dummy_heap, popped = pop(state.dummy_heap, state.active, limit)
+    fresh, found, goal = goal_check(state.pool, popped)
+    working = state.active & ~found
+    expanding = fresh & working[:, None]
+    pool, edge_keys = expand(state, state.pool, popped, observe(
+        pool_lib.gather_nodes(state.pool, popped.node)), expanding)
+    heap = heap_lib.push(state.heap, *edge_entries(popped, edge_keys, expanding))
+    # evaluate: one physics batch
+    heap, edges = pop(heap, working)
+    sources = pool_lib.gather_nodes(pool, edges.node)
+    outcome, evaluated, out_of_budget, action, q = evaluate(state, pool, edges, sources,
+                                                            edges.mask)
+    usable = evaluated & outcome.is_valid & jnp.isfinite(outcome.cost)
+    # insert: successors into the lattice, their dummy edges into D
+    pool, table, dummy_keys, dummy_nodes, pushed = insert(
+        pool, state.table, edges, outcome, usable, action, q)
+    dummy_heap = heap_lib.push(dummy_heap, dummy_keys, dummy_nodes * (n + 1) + dummy, pushed)
+    open_empty = state.active & ~jnp.any(popped.mask | edges.mask, axis=1)
+    return finish(state, heap, dummy_heap, pool, table, found, goal, open_empty, out_of_budget,
+                  expanding, evaluated, usable)
+
+  step = step_split if split else step_mixed
 
   # ---- the public functions ----
 
@@ -301,13 +385,21 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     root = jnp.ones((num_instances, 1), bool)
     table, slot, _, _ = lattice_lib.insert(table, cell, root)
     table = lattice_lib.set_values(table, slot, jnp.zeros_like(slot), root)
-    heap = heap_lib.init(config.heap_kind, num_instances, config.heap, k, config.segment_size)
-    heap = heap_lib.push(heap, jnp.zeros((num_instances, 1), jnp.float32),
-                         jnp.full((num_instances, 1), dummy, jnp.int32), root)
+    new_heap = lambda capacity: heap_lib.init(config.heap_kind, num_instances, capacity, k,
+                                              config.segment_size)
+    heap = new_heap(config.heap)
+    dummy_heap = new_heap(config.dummy_heap) if split else None
+    start_entry = (jnp.zeros((num_instances, 1), jnp.float32),
+                   jnp.full((num_instances, 1), dummy, jnp.int32), root)
+    if split:
+      dummy_heap = heap_lib.push(dummy_heap, *start_entry)
+    else:
+      heap = heap_lib.push(heap, *start_entry)
     zeros = jnp.zeros((num_instances,), jnp.int32)
     return SearchState(
-        heap=heap, pool=pool, table=table, rng=keys, active=jnp.ones((num_instances,), bool),
-        stop_reason=zeros, goal_node=jnp.full((num_instances,), NO_NODE, jnp.int32),
+        heap=heap, dummy_heap=dummy_heap, pool=pool, table=table, rng=keys,
+        active=jnp.ones((num_instances,), bool), stop_reason=zeros,
+        goal_node=jnp.full((num_instances,), NO_NODE, jnp.int32),
         iterations=zeros, expanded=zeros, evaluated=zeros, invalid=zeros)
 
   def run_chunk(state: SearchState, num_iterations) -> SearchState:
@@ -322,25 +414,42 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     state, _ = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
     return state
 
+  def best_open(state: SearchState):
+    """(value [I], in OPEN [I]) of the best OPEN entry (of D and R: the smaller key, D on
+    ties)."""
+    key, value, in_open = heap_lib.peek(state.heap)
+    if state.dummy_heap is not None:
+      dummy_key, dummy_value, in_dummy = heap_lib.peek(state.dummy_heap)
+      use_dummy = in_dummy & (~in_open | (dummy_key <= key))
+      value = jnp.where(use_dummy, dummy_value, value)
+      in_open = in_open | in_dummy
+    return value, in_open
+
   def result(state: SearchState) -> SearchResult:
     pool = state.pool
     found = state.stop_reason == StopReason.GOAL
     # The real-time answer: the node of the best OPEN entry (a real edge names its source),
     # or with OPEN empty the node whose dummy edge had the smallest key.
-    _, value, in_open = heap_lib.peek(state.heap)
+    value, in_open = best_open(state)
     exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
     best = jnp.where(in_open, value // (n + 1),
                      jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
     final = jnp.where(found, state.goal_node, best).astype(jnp.int32)
     path = path_lib.extract(pool, final, config.max_path_length)
     rows = jnp.arange(final.shape[0])
+    heap_overflow = heap_lib.overflow(state.heap)
+    if state.dummy_heap is not None:
+      heap_overflow = heap_overflow + heap_lib.overflow(state.dummy_heap)
+    lanes = k * state.iterations
     return SearchResult(
         found=found, stop_reason=state.stop_reason, path_actions=path.actions,
         path_length=path.length, path_nodes=path.nodes, path_truncated=path.truncated,
         path_is_goal=pool.is_goal[rows, final], cost=pool.g[rows, final],
         expanded=state.expanded, evaluated=state.evaluated, invalid=state.invalid,
         generated=pool.size, iterations=state.iterations,
-        heap_overflow=heap_lib.overflow(state.heap), pool_overflow=pool.overflow,
+        lane_utilization=jnp.where(lanes > 0, state.evaluated / jnp.maximum(lanes, 1),
+                                   0.0).astype(jnp.float32),
+        heap_overflow=heap_overflow, pool_overflow=pool.overflow,
         table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan))
 
   run_chunk_jit = jax.jit(run_chunk, donate_argnums=0)

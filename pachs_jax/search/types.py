@@ -17,6 +17,7 @@ from flax import struct
 from pachs_jax.envs import base
 
 HEAP_KINDS = ('flat', 'segmented', 'blocked')
+LOOP_MODES = ('split', 'mixed')
 
 
 class StopReason:
@@ -63,17 +64,24 @@ class SearchConfig:
 
   weight: heuristic weight w >= 0 (f = g + w * q).
   num_actions: N actions sampled per expansion.
-  pop_size: K edges popped per instance and loop iteration.
+  pop_size: K edges popped per instance and loop iteration ('split': up to K dummy edges
+    expanded and K real edges evaluated).
   max_evaluations: edge-evaluation budget per instance.
   max_iterations: loop-iteration limit per instance (None: no limit beyond the budget).
   lattice_resolution: [L] lattice cell sizes (None: the environment's default).
   heap_kind: 'flat' (one top_k over the buffer), 'segmented' (flat buffer with per-segment
     minima, two small top_k) or 'blocked' (binary heap of sorted blocks of K entries).
-  heap_capacity: entries per instance; None: (N + 1) * (budget + 1), which never overflows.
-  segment_size: entries per segment of the 'segmented' heap (None: about sqrt(capacity)).
+  heap_capacity: entries per instance of the OPEN heap ('mixed') or of the real-edge heap R
+    ('split'); None: (N + 1) * (budget + 1) ('mixed') or N * pool ('split'), which never
+    overflow. The dummy-edge heap D ('split') holds budget + 1 entries (at most heap_capacity).
+  segment_size: entries per segment of the 'segmented' heaps (None: about sqrt(capacity)).
   pool_capacity: nodes per instance; None: budget + 1, which never overflows.
   table_capacity: lattice-table slots per instance, a power of two; None: >= 2 * pool.
   max_path_length: actions kept in a returned path (longer paths keep their first ones).
+  loop: 'split' (two OPEN heaps, dummy edges D and real edges R: every iteration expands the
+    dummy edges that come before R's K-th best key, then evaluates the K best real edges, so
+    the physics batch stays full) or 'mixed' (one heap; the K popped entries are split between
+    expansion and evaluation, which leaves evaluation lanes empty). See `pachs`.
   """
 
   weight: float = 1.0
@@ -88,6 +96,7 @@ class SearchConfig:
   pool_capacity: Optional[int] = None
   table_capacity: Optional[int] = None
   max_path_length: int = 1024
+  loop: str = 'split'
 
   def __post_init__(self):
     def positive_int(name, allow_none=False):
@@ -105,6 +114,8 @@ class SearchConfig:
     for name in ('max_iterations', 'heap_capacity', 'segment_size', 'pool_capacity',
                  'table_capacity'):
       positive_int(name, allow_none=True)
+    if self.loop not in LOOP_MODES:
+      raise ValueError(f'SearchConfig.loop must be one of {LOOP_MODES}, got {self.loop!r}')
     if self.heap_kind not in HEAP_KINDS:
       raise ValueError(f'SearchConfig.heap_kind must be one of {HEAP_KINDS}, '
                        f'got {self.heap_kind!r}')
@@ -130,10 +141,21 @@ class SearchConfig:
 
   @property
   def heap(self) -> int:
-    """Heap capacity (entries per instance)."""
+    """Capacity of the OPEN heap ('mixed') or the real-edge heap ('split'), entries per
+    instance."""
     if self.heap_capacity is not None:
       return self.heap_capacity
+    if self.loop == 'split':  # N edges per expansion, each node expanded at most once
+      return self.num_actions * self.pool
     return (self.num_actions + 1) * (self.max_evaluations + 1)
+
+  @property
+  def dummy_heap(self) -> int:
+    """Capacity of the dummy-edge heap of 'split' (entries per instance): the start's dummy
+    edge plus at most one per evaluation."""
+    if self.heap_capacity is None:
+      return self.max_evaluations + 1
+    return min(self.heap_capacity, self.max_evaluations + 1)
 
   @property
   def pool(self) -> int:
@@ -173,7 +195,10 @@ class SearchResult:
   invalid: [I] int32 evaluated edges that were invalid (dropped).
   generated: [I] int32 nodes in the pool.
   iterations: [I] int32 loop iterations.
-  heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space.
+  lane_utilization: [I] float32 evaluated / (K * iterations): the share of the instance's K
+    evaluation lanes that held an edge while it searched (0 before the first iteration).
+  heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space
+    (heap_overflow: both heaps of 'split').
   wall_time_s: [] float32 host wall-clock seconds of the planning call without compilation
     (set by `plan`; NaN from `Search.result`).
   """
@@ -191,6 +216,7 @@ class SearchResult:
   invalid: jax.Array
   generated: jax.Array
   iterations: jax.Array
+  lane_utilization: jax.Array
   heap_overflow: jax.Array
   pool_overflow: jax.Array
   table_overflow: jax.Array
