@@ -52,6 +52,8 @@ def main():
   parser.add_argument('--num-actions', type=int, default=8)
   parser.add_argument('--budget', type=int, default=100_000)
   parser.add_argument('--weight', type=float, default=2.0)
+  parser.add_argument('--loops', default='split,mixed',
+                      help="loop modes to compare: 'split' (two heaps, full lanes), 'mixed'")
   parser.add_argument('--out', default='experiments/results/bench_search.json')
   args = parser.parse_args()
 
@@ -65,45 +67,49 @@ def main():
   result = {'provenance': common.provenance(), 'task': args.task, 'model': model_name,
             'rows': []}
   starts_all = env.canonical_instances(30)
-  for num_instances in [int(x) for x in args.instances.split(',')]:
-    for k in [int(x) for x in args.pop_sizes.split(',')]:
-      config = planner.default_config(args.task, pop_size=k, num_actions=args.num_actions,
-                                      max_evaluations=args.budget, weight=args.weight)
-      index = np.arange(num_instances) % 30
-      starts = jax.tree.map(lambda x: x[index], starts_all)
-      search = pachs.make_search(env, model, config)
-      t0 = time.perf_counter()
-      out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
-      first = time.perf_counter() - t0
-      out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
-      wall = float(out.wall_time_s)
-      evaluated = int(np.sum(out.evaluated))
-      iterations = int(np.max(out.iterations))
-      raw = bench_env.mjx_throughput(env, num_instances * k, steps=20, repeats=3)
-      state_shape = jax.eval_shape(search.init, starts, pachs.instance_keys(
-          jax.random.PRNGKey(0), num_instances))
-      row = {
-          'instances': num_instances, 'K': k, 'N': args.num_actions, 'budget': args.budget,
-          'wall_s': wall, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
-          'iterations': iterations, 'found': int(np.sum(out.found)),
-          'expanded': int(np.sum(out.expanded)),
-          'edges_per_s': evaluated / wall,
-          'evaluated_per_iteration_per_instance': evaluated / max(iterations, 1) / num_instances,
-          'raw_env_steps_per_s_same_batch': raw['env_steps_per_s'],
-          'search_over_raw': evaluated / wall / raw['env_steps_per_s'],
-          'state_bytes_per_instance': tree_bytes(state_shape) // num_instances,
-          'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool),
-          'stop_reasons': np.bincount(np.asarray(out.stop_reason), minlength=7).tolist(),
-      }
-      print(row, flush=True)
-      result['rows'].append(row)
-      common.write_json(args.out, result)
+  for num_instances, k, loop in [(i, k, loop) for i in map(int, args.instances.split(','))
+                                 for k in map(int, args.pop_sizes.split(','))
+                                 for loop in args.loops.split(',')]:
+    config = planner.default_config(args.task, pop_size=k, num_actions=args.num_actions,
+                                    max_evaluations=args.budget, weight=args.weight, loop=loop)
+    index = np.arange(num_instances) % 30
+    starts = jax.tree.map(lambda x: x[index], starts_all)
+    search = pachs.make_search(env, model, config)
+    t0 = time.perf_counter()
+    out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+    first = time.perf_counter() - t0
+    out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+    wall = float(out.wall_time_s)
+    evaluated = int(np.sum(out.evaluated))
+    iterations = int(np.max(out.iterations))
+    raw = bench_env.mjx_throughput(env, num_instances * k, steps=20, repeats=3)
+    state_shape = jax.eval_shape(search.init, starts, pachs.instance_keys(
+        jax.random.PRNGKey(0), num_instances))
+    row = {
+        'loop': loop, 'instances': num_instances, 'K': k, 'N': args.num_actions,
+        'budget': args.budget,
+        'wall_s': wall, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
+        'iterations': iterations, 'found': int(np.sum(out.found)),
+        'expanded': int(np.sum(out.expanded)),
+        'edges_per_s': evaluated / wall,
+        'evaluated_per_iteration_per_instance': evaluated / max(iterations, 1) / num_instances,
+        'lane_utilization_mean': float(np.mean(out.lane_utilization)),
+        'raw_env_steps_per_s_same_batch': raw['env_steps_per_s'],
+        'search_over_raw': evaluated / wall / raw['env_steps_per_s'],
+        'state_bytes_per_instance': tree_bytes(state_shape) // num_instances,
+        'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool),
+        'stop_reasons': np.bincount(np.asarray(out.stop_reason), minlength=7).tolist(),
+    }
+    print(row, flush=True)
+    result['rows'].append(row)
+    common.write_json(args.out, result)
   md = [f"# PACHS search throughput ({args.task}, model: {model_name})\n\n"
         f"{result['provenance']}\n",
         common.markdown_table(result['rows'], [
-            'instances', 'K', 'N', 'budget', 'wall_s', 'evaluated', 'found', 'edges_per_s',
-            'raw_env_steps_per_s_same_batch', 'search_over_raw',
-            'evaluated_per_iteration_per_instance', 'state_bytes_per_instance'])]
+            'loop', 'instances', 'K', 'N', 'budget', 'wall_s', 'evaluated', 'found',
+            'edges_per_s', 'raw_env_steps_per_s_same_batch', 'search_over_raw',
+            'lane_utilization_mean', 'evaluated_per_iteration_per_instance',
+            'state_bytes_per_instance'])]
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write('\n'.join(md) + '\n')
 
