@@ -1,7 +1,5 @@
 """MuJoCo C bridge: exact state conversion, C vs MJX physics, the CPU backend, the world."""
 
-import time
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -190,25 +188,6 @@ def test_delegation_and_make_backend(env, cenv):
     auto.close()
   with pytest.raises(ValueError, match='nthread'):
     mujoco_c.MujocoCEnv(env, nthread=0)
-
-
-def test_speed_against_mjx_at_b64(env, mjx_evaluate, c_evaluate):
-  nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(5), BATCH))
-  actions = jax.random.uniform(jax.random.PRNGKey(6), (BATCH, 7), minval=-1, maxval=1)
-
-  def rate(fn, repeats=3):
-    jax.block_until_ready(fn(nodes, actions))
-    times = []
-    for _ in range(repeats):
-      start = time.perf_counter()
-      jax.block_until_ready(fn(nodes, actions))
-      times.append(time.perf_counter() - start)
-    return BATCH / np.median(times)
-
-  mjx_rate, c_rate = rate(mjx_evaluate, repeats=1), rate(c_evaluate, repeats=5)
-  print(f'\nB={BATCH}: MJX-on-CPU {mjx_rate:.0f} edges/s, MuJoCo C {c_rate:.0f} edges/s, '
-        f'speed-up {c_rate / mjx_rate:.1f}x')
-  assert mjx_rate > 0 and c_rate > 0
 
 
 # ---- the world ----
