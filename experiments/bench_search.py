@@ -52,20 +52,22 @@ def main():
   parser.add_argument('--num-actions', type=int, default=8)
   parser.add_argument('--budget', type=int, default=100_000)
   parser.add_argument('--weight', type=float, default=2.0)
+  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
+                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
   parser.add_argument('--loops', default='split,mixed',
                       help="loop modes to compare: 'split' (two heaps, full lanes), 'mixed'")
   parser.add_argument('--out', default='experiments/results/bench_search.json')
   args = parser.parse_args()
 
   try:
-    env, model = planner.load_model(args.task, args.checkpoint)
+    env, model = planner.load_model(args.task, args.checkpoint, args.backend)
     model_name = args.checkpoint or planner.checkpoint_path(args.task)
   except FileNotFoundError:
     from pachs_jax import envs
     env = envs.make(args.task)
     model, model_name = untrained_model(env), 'untrained 3x256 (no checkpoint yet)'
   result = {'provenance': common.provenance(), 'task': args.task, 'model': model_name,
-            'rows': []}
+            'backend': type(env).__name__, 'rows': []}
   starts_all = env.canonical_instances(30)
   for num_instances, k, loop in [(i, k, loop) for i in map(int, args.instances.split(','))
                                  for k in map(int, args.pop_sizes.split(','))
@@ -103,7 +105,8 @@ def main():
     print(row, flush=True)
     result['rows'].append(row)
     common.write_json(args.out, result)
-  md = [f"# PACHS search throughput ({args.task}, model: {model_name})\n\n"
+  md = [f"# PACHS search throughput ({args.task}, model: {model_name}, env: "
+        f"{result['backend']})\n\n"
         f"{result['provenance']}\n",
         common.markdown_table(result['rows'], [
             'loop', 'instances', 'K', 'N', 'budget', 'wall_s', 'evaluated', 'found',
