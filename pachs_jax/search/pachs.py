@@ -164,16 +164,6 @@ def _first_of_node(node: jax.Array, mask: jax.Array) -> jax.Array:
   return mask & ~jnp.any(same, axis=2)
 
 
-def _best_of_cell(cell: jax.Array, g: jax.Array, mask: jax.Array) -> jax.Array:
-  """[I, K] bool: mask and no other masked entry of the same cell [I, K, L] has a smaller
-  (g, position)."""
-  k = g.shape[1]
-  earlier = jnp.arange(k)[None, :] < jnp.arange(k)[:, None]
-  same = jnp.all(cell[:, :, None] == cell[:, None, :], axis=-1) & mask[:, None, :]
-  better = (g[:, None, :] < g[:, :, None]) | ((g[:, None, :] == g[:, :, None]) & earlier)
-  return mask & ~jnp.any(same & better, axis=2)
-
-
 def _cost_to_go(q_value: jax.Array) -> jax.Array:
   """q = max(-Q, 0) with NaN as +inf (such an edge is never popped)."""
   q = jnp.maximum(-q_value.astype(jnp.float32), 0.0)
@@ -274,17 +264,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     g = pool_lib.gather(pool.g, popped.node) + outcome.cost
     cell = env.lattice_key(_flat(outcome.next_node, num_instances * k), resolution)
     cell = cell.reshape(num_instances, k, key_size)
-    candidate = _best_of_cell(cell, g, usable)
-    table, slot, _, has_slot = lattice_lib.insert(table, cell, candidate)
-    known = lattice_lib.get_values(table, slot)
-    old = jnp.maximum(known, 0)
-    is_new = candidate & has_slot & (known == lattice_lib.NO_VALUE)
-    improves = (candidate & has_slot & (known >= 0) & ~pool_lib.gather(pool.closed, old)
-                & (g < pool_lib.gather(pool.g, old)))
-    pool, new_node, fits = pool_lib.allocate(pool, is_new)
-    table = lattice_lib.set_values(table, slot, new_node, fits)
-    node = jnp.where(fits, new_node, old)
-    write = fits | improves
+    pool, table, node, write = pool_lib.merge_successors(pool, table, cell, g, usable)
     h = jnp.maximum(q - outcome.cost, 0.0)
     dummy_key = g + weighted(h)
     depth = pool_lib.gather(pool.depth, popped.node) + 1

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
+from pachs_jax.search import lattice as lattice_lib
 
 ROOT_INDEX = 0
 NO_PARENT = -1
@@ -138,3 +139,35 @@ def close(pool: NodePool, index: jax.Array, mask: jax.Array, edge_actions: jax.A
       closed=_scatter(pool.closed, index, mask, jnp.ones_like(mask)),
       edge_actions=_scatter(pool.edge_actions, index, mask, edge_actions),
       edge_q=_scatter(pool.edge_q, index, mask, edge_q))
+
+
+def best_of_cell(cell: jax.Array, g: jax.Array, mask: jax.Array) -> jax.Array:
+  """[I, K] bool: mask and no other masked entry of the same cell [I, K, L] has a smaller
+  (g, position)."""
+  k = g.shape[1]
+  earlier = jnp.arange(k)[None, :] < jnp.arange(k)[:, None]
+  same = jnp.all(cell[:, :, None] == cell[:, None, :], axis=-1) & mask[:, None, :]
+  better = (g[:, None, :] < g[:, :, None]) | ((g[:, None, :] == g[:, :, None]) & earlier)
+  return mask & ~jnp.any(same & better, axis=2)
+
+
+def merge_successors(pool: NodePool, table: lattice_lib.LatticeTable, cell: jax.Array,
+                     g: jax.Array, usable: jax.Array):
+  """Duplicate detection with the g-value test for a batch of successors [I, K].
+
+  cell: [I, K, L] int32 lattice keys; g: [I, K] float32 path costs through the new edges;
+  usable: [I, K] bool, evaluated valid edges. A successor counts when it is the best of its cell
+  in the batch and its cell is new (a node is allocated) or the cell's node is open and its g
+  improves (closed nodes are never updated, so their children keep replaying exactly).
+  Returns (pool, table, node [I, K] int32 node to write, write [I, K] bool).
+  """
+  candidate = best_of_cell(cell, g, usable)
+  table, slot, _, has_slot = lattice_lib.insert(table, cell, candidate)
+  known = lattice_lib.get_values(table, slot)
+  old = jnp.maximum(known, 0)
+  is_new = candidate & has_slot & (known == lattice_lib.NO_VALUE)
+  improves = (candidate & has_slot & (known >= 0) & ~gather(pool.closed, old)
+              & (g < gather(pool.g, old)))
+  pool, new_node, fits = allocate(pool, is_new)
+  table = lattice_lib.set_values(table, slot, new_node, fits)
+  return pool, table, jnp.where(fits, new_node, old), fits | improves

@@ -147,14 +147,6 @@ def _first_of_node(node, mask):
   return mask & ~jnp.any(same, axis=2)
 
 
-def _best_of_cell(cell, g, mask):
-  k = g.shape[1]
-  earlier = jnp.arange(k)[None, :] < jnp.arange(k)[:, None]
-  same = jnp.all(cell[:, :, None] == cell[:, None, :], axis=-1) & mask[:, None, :]
-  better = (g[:, None, :] < g[:, :, None]) | ((g[:, None, :] == g[:, :, None]) & earlier)
-  return mask & ~jnp.any(same & better, axis=2)
-
-
 def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
                config: EpaseConfig = EpaseConfig(), edge_fn: Optional[Callable] = None) -> Epase:
   """Builds the jitted ePA*SE for env, primitives [P, D], heuristic and config."""
@@ -251,17 +243,7 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
     # insert the successors
     g = pool_lib.gather(pool.g, node) + outcome.cost
     cell = env.lattice_key(flat(outcome.next_node, num * k), resolution).reshape(num, k, -1)
-    candidate = _best_of_cell(cell, g, usable)
-    table, tslot, _, has_slot = lattice_lib.insert(table, cell, candidate)
-    known = lattice_lib.get_values(table, tslot)
-    old = jnp.maximum(known, 0)
-    is_new = candidate & has_slot & (known == lattice_lib.NO_VALUE)
-    improves = (candidate & has_slot & (known >= 0) & ~pool_lib.gather(pool.closed, old)
-                & (g < pool_lib.gather(pool.g, old)))
-    pool, new_node, fits = pool_lib.allocate(pool, is_new)
-    table = lattice_lib.set_values(table, tslot, new_node, fits)
-    target = jnp.where(fits, new_node, old)
-    write = fits | improves
+    pool, table, target, write = pool_lib.merge_successors(pool, table, cell, g, usable)
     h = h_value(state.heuristic, outcome.next_node)
     dummy_key = g + weighted(h)
     pool = pool_lib.set_nodes(pool, target, write, outcome.next_node, g, node, prim,
