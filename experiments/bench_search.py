@@ -10,7 +10,6 @@ I*K is measured in the same run. Also: bytes per node and per instance at the bu
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import time
 

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import envs, planner
+from pachs_jax import planner
 from pachs_jax.sac import evaluator
 
 

@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pachs_jax.envs import base
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.sac import checkpoint, evaluator, presets, train
 from pachs_jax.sac.trainer import make_trainer

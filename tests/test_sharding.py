@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, make_search, plan
 from pachs_jax.search import sharding
 

@@ -87,7 +87,8 @@ from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import pool as pool_lib
-from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult, StopReason
+from pachs_jax.search.types import (ActorCritic, SearchConfig, SearchResult, StopReason,
+                                     cost_to_go)
 
 NO_NODE = -1
 
@@ -164,12 +165,6 @@ def _first_of_node(node: jax.Array, mask: jax.Array) -> jax.Array:
   return mask & ~jnp.any(same, axis=2)
 
 
-def _cost_to_go(q_value: jax.Array) -> jax.Array:
-  """q = max(-Q, 0) with NaN as +inf (such an edge is never popped)."""
-  q = jnp.maximum(-q_value.astype(jnp.float32), 0.0)
-  return jnp.where(jnp.isnan(q), jnp.inf, q)
-
-
 def _check_config(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   """Validates the pieces against each other; returns (lattice resolution, key size, action size)."""
   if not isinstance(config, SearchConfig):
@@ -240,7 +235,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
     q_value = actor_critic.q_values(_flat(obs, num_instances * k),
                                     _flat(actions, num_instances * k))
-    q = _cost_to_go(q_value).reshape(num_instances, k, n)
+    q = cost_to_go(q_value).reshape(num_instances, k, n)
     f = pool_lib.gather(pool.g, popped.node)[:, :, None] + weighted(q)
     return pool_lib.close(pool, popped.node, expand_mask, actions, q), f
 

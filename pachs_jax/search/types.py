@@ -12,6 +12,7 @@ import math
 from typing import Optional, Protocol, Tuple
 
 import jax
+import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
@@ -52,6 +53,38 @@ class ActorCritic(Protocol):
 
   def q_values(self, obs: jax.Array, actions: jax.Array) -> jax.Array:
     ...
+
+
+def check_weight(owner: str, weight) -> None:
+  """ValueError unless weight is a finite number >= 0."""
+  if (isinstance(weight, bool) or not isinstance(weight, (int, float))
+      or not math.isfinite(weight) or weight < 0):
+    raise ValueError(f'{owner}.weight must be a finite number >= 0, got {weight!r}')
+
+
+def check_heap_and_table(owner: str, heap_kind: str, table_capacity) -> None:
+  """ValueError for an unknown heap kind or a table capacity that is not a power of two."""
+  if heap_kind not in HEAP_KINDS:
+    raise ValueError(f'{owner}.heap_kind must be one of {HEAP_KINDS}, got {heap_kind!r}')
+  if table_capacity is not None and table_capacity & (table_capacity - 1):
+    raise ValueError(f'{owner}.table_capacity must be a power of two, got {table_capacity}')
+
+
+def lattice_resolution_tuple(owner: str, resolution):
+  """None, or the resolution as a tuple of positive finite floats (ValueError otherwise)."""
+  if resolution is None:
+    return None
+  res = tuple(resolution)
+  if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in res):
+    raise ValueError(f'{owner}.lattice_resolution must be a non-empty tuple of positive cell '
+                     f'sizes, got {resolution!r}')
+  return tuple(float(r) for r in res)
+
+
+def cost_to_go(q_value: jax.Array) -> jax.Array:
+  """The critic's cost-to-go q = max(-Q, 0), with NaN as +inf (such an edge is never chosen)."""
+  q = jnp.maximum(-q_value.astype(jnp.float32), 0.0)
+  return jnp.where(jnp.isnan(q), jnp.inf, q)
 
 
 def _next_pow2(n: int) -> int:
@@ -106,9 +139,7 @@ class SearchConfig:
       if isinstance(v, bool) or not isinstance(v, int) or v < 1:
         raise ValueError(f'SearchConfig.{name} must be a positive int, got {v!r}')
 
-    w = self.weight
-    if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) or w < 0:
-      raise ValueError(f'SearchConfig.weight must be a finite number >= 0, got {w!r}')
+    check_weight('SearchConfig', self.weight)
     for name in ('num_actions', 'pop_size', 'max_evaluations', 'max_path_length'):
       positive_int(name)
     for name in ('max_iterations', 'heap_capacity', 'segment_size', 'pool_capacity',
@@ -116,19 +147,9 @@ class SearchConfig:
       positive_int(name, allow_none=True)
     if self.loop not in LOOP_MODES:
       raise ValueError(f'SearchConfig.loop must be one of {LOOP_MODES}, got {self.loop!r}')
-    if self.heap_kind not in HEAP_KINDS:
-      raise ValueError(f'SearchConfig.heap_kind must be one of {HEAP_KINDS}, '
-                       f'got {self.heap_kind!r}')
-    if self.table_capacity is not None and self.table_capacity & (self.table_capacity - 1):
-      raise ValueError('SearchConfig.table_capacity must be a power of two, '
-                       f'got {self.table_capacity}')
-    if self.lattice_resolution is not None:
-      res = tuple(self.lattice_resolution)
-      if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0
-                            for r in res):
-        raise ValueError('SearchConfig.lattice_resolution must be a non-empty tuple of '
-                         f'positive cell sizes, got {self.lattice_resolution!r}')
-      object.__setattr__(self, 'lattice_resolution', tuple(float(r) for r in res))
+    check_heap_and_table('SearchConfig', self.heap_kind, self.table_capacity)
+    object.__setattr__(self, 'lattice_resolution',
+                       lattice_resolution_tuple('SearchConfig', self.lattice_resolution))
     if self.pool * (self.num_actions + 1) >= 2**31:
       raise ValueError('pool_capacity * (num_actions + 1) must stay below 2**31 (heap entries '
                        f'store node * (N + 1) + slot as int32); got {self.pool} nodes and '

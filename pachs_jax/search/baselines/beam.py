@@ -26,7 +26,6 @@ path_nodes are re-evaluated from the start along it (`common.replay`).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Callable, Optional, Tuple
 
 import jax
@@ -34,6 +33,7 @@ import jax.numpy as jnp
 
 from pachs_jax.envs import base
 from pachs_jax.search import lattice as lattice_lib
+from pachs_jax.search import types
 from pachs_jax.search.baselines import common
 from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
 
@@ -60,23 +60,11 @@ class BeamConfig:
     for name in ('beam_width', 'num_actions', 'max_evaluations'):
       common.positive_int('BeamConfig', name, getattr(self, name))
     common.positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
-    w = self.weight
-    if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) or w < 0:
-      raise ValueError(f'BeamConfig.weight must be a finite number >= 0, got {w!r}')
+    types.check_weight('BeamConfig', self.weight)
     if self.score not in SCORES:
       raise ValueError(f'BeamConfig.score must be one of {SCORES}, got {self.score!r}')
-    if self.lattice_resolution is not None:
-      res = tuple(self.lattice_resolution)
-      if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0
-                            for r in res):
-        raise ValueError('BeamConfig.lattice_resolution must be a non-empty tuple of positive '
-                         f'cell sizes, got {self.lattice_resolution!r}')
-      object.__setattr__(self, 'lattice_resolution', tuple(float(r) for r in res))
-
-
-def _cost_to_go(q_value):
-  q = jnp.maximum(-q_value.astype(jnp.float32), 0.0)
-  return jnp.where(jnp.isnan(q), jnp.inf, q)
+    object.__setattr__(self, 'lattice_resolution',
+                       types.lattice_resolution_tuple('BeamConfig', self.lattice_resolution))
 
 
 def _first_in_cell(cells: jax.Array, score: jax.Array, ok: jax.Array) -> jax.Array:
@@ -134,7 +122,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
     else:
       act = actor_critic.sample_actions(key, obs, 1)
     act = jnp.clip(jnp.nan_to_num(act.astype(jnp.float32)), -1.0, 1.0)
-    return _cost_to_go(actor_critic.q_values(obs, act))[:, 0]
+    return types.cost_to_go(actor_critic.q_values(obs, act))[:, 0]
 
   def search(start_nodes: base.NodeState, key: jax.Array) -> SearchResult:
     num = common.check_start(start_nodes, env)
@@ -178,7 +166,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
       g_src = jnp.repeat(c['g'], n, axis=1)
       g_next = g_src + out.cost
       if config.score == 'edge':
-        q = _cost_to_go(actor_critic.q_values(obs, act.reshape(num * b, n, a_size)))
+        q = types.cost_to_go(actor_critic.q_values(obs, act.reshape(num * b, n, a_size)))
         rank = g_src + weighted(q.reshape(num, b * n))
       else:
         next_flat = jax.tree.map(lambda x: x.reshape((num * b * n,) + x.shape[2:]),

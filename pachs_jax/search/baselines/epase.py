@@ -25,7 +25,6 @@ Stop reasons: GOAL, OPEN_EMPTY, CAPACITY, BUDGET, ITERATIONS (in that precedence
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, Callable, Optional, Tuple
 
 import jax
@@ -39,7 +38,8 @@ from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search.baselines import common
-from pachs_jax.search.types import HEAP_KINDS, SearchResult, StopReason
+from pachs_jax.search import types
+from pachs_jax.search.types import SearchResult, StopReason
 
 NO_NODE = -1
 
@@ -73,26 +73,14 @@ class EpaseConfig:
   max_path_length: int = 1024
 
   def __post_init__(self):
-    w = self.weight
-    if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) or w < 0:
-      raise ValueError(f'EpaseConfig.weight must be a finite number >= 0, got {w!r}')
+    types.check_weight('EpaseConfig', self.weight)
     for name in ('pop_size', 'max_evaluations', 'max_path_length'):
       common.positive_int('EpaseConfig', name, getattr(self, name))
     for name in ('max_iterations', 'heap_capacity', 'pool_capacity', 'table_capacity'):
       common.positive_int('EpaseConfig', name, getattr(self, name), allow_none=True)
-    if self.heap_kind not in HEAP_KINDS:
-      raise ValueError(f'EpaseConfig.heap_kind must be one of {HEAP_KINDS}, '
-                       f'got {self.heap_kind!r}')
-    if self.table_capacity is not None and self.table_capacity & (self.table_capacity - 1):
-      raise ValueError('EpaseConfig.table_capacity must be a power of two, '
-                       f'got {self.table_capacity}')
-    if self.lattice_resolution is not None:
-      res = tuple(self.lattice_resolution)
-      if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0
-                            for r in res):
-        raise ValueError('EpaseConfig.lattice_resolution must be a non-empty tuple of positive '
-                         f'cell sizes, got {self.lattice_resolution!r}')
-      object.__setattr__(self, 'lattice_resolution', tuple(float(r) for r in res))
+    types.check_heap_and_table('EpaseConfig', self.heap_kind, self.table_capacity)
+    object.__setattr__(self, 'lattice_resolution',
+                       types.lattice_resolution_tuple('EpaseConfig', self.lattice_resolution))
 
   def pool(self) -> int:
     return self.pool_capacity or self.max_evaluations + 1
