@@ -2,7 +2,12 @@
 
 For each (instances I, pop size K) the search runs to its evaluation budget and reports edges
 evaluated per second (compile excluded); the raw throughput of `env.evaluate` at the same batch
-I*K is measured in the same run. Also: bytes per node and per instance at the budget.
+I*K is measured in the same run. Also: bytes per node and per instance at the budget, and the
+device's peak memory.
+
+--run-to-budget makes every instance spend its whole budget (goals are never accepted; the
+critic still steers toward the real goal): the worst case of the issue's time targets, and a
+throughput figure not diluted by instances that finish early.
 
   python experiments/bench_search.py --task pusht-fixed --out experiments/results/bench_search.json
 """
@@ -37,6 +42,30 @@ def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.ActorCritic:
   return ac_lib.ActorCritic(params=params, config=config)
 
 
+class NeverGoal:
+  """env with the goal test switched off (every other method delegated): searches run to their
+  budget."""
+
+  def __init__(self, env):
+    self._env = env
+
+  def __getattr__(self, name):
+    return getattr(self._env, name)
+
+  def is_goal(self, nodes):
+    return jnp.zeros(jax.tree.leaves(nodes)[0].shape[:1], bool)
+
+  def evaluate(self, nodes, actions):
+    out = self._env.evaluate(nodes, actions)
+    return out.replace(is_goal=jnp.zeros_like(out.is_goal))
+
+
+def peak_memory_bytes():
+  """The device's peak bytes in use so far (None where the backend does not say)."""
+  stats = jax.devices()[0].memory_stats() or {}
+  return stats.get('peak_bytes_in_use')
+
+
 def tree_bytes(tree) -> int:
   return int(sum(np.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(tree)))
 
@@ -53,21 +82,30 @@ def main():
   parser.add_argument('--weight', type=float, default=2.0)
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
                       help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
-  parser.add_argument('--loops', default='split,mixed',
+  parser.add_argument('--raw-steps', type=int, default=20,
+                      help='evaluate calls per raw-throughput measurement')
+  parser.add_argument('--cpu-threads', type=int, default=None,
+                      help='MuJoCo C threads of --backend mujoco-c (default: all CPUs)')
+  parser.add_argument('--run-to-budget', action='store_true',
+                      help='never accept a goal: every instance spends its whole budget')
+  parser.add_argument('--loops', default='split',
                       help="loop modes to compare: 'split' (two heaps, full lanes), 'mixed'")
   parser.add_argument('--out', default='experiments/results/bench_search.json')
   args = parser.parse_args()
 
   try:
-    env, model = planner.load_model(args.task, args.checkpoint, args.backend)
+    env, model = planner.load_model(args.task, args.checkpoint, args.backend,
+                                    args.cpu_threads)
     model_name = args.checkpoint or planner.checkpoint_path(args.task)
   except FileNotFoundError:
     from pachs_jax import envs
     env = envs.make(args.task)
     model, model_name = untrained_model(env), 'untrained 3x256 (no checkpoint yet)'
   result = {'provenance': common.provenance(), 'task': args.task, 'model': model_name,
-            'backend': type(env).__name__, 'rows': []}
+            'backend': type(env).__name__, 'run_to_budget': args.run_to_budget, 'rows': []}
   starts_all = env.canonical_instances(30)
+  if args.run_to_budget:
+    env = NeverGoal(env)
   for num_instances, k, loop in [(i, k, loop) for i in map(int, args.instances.split(','))
                                  for k in map(int, args.pop_sizes.split(','))
                                  for loop in args.loops.split(',')]:
@@ -78,12 +116,11 @@ def main():
     search = pachs.make_search(env, model, config)
     t0 = time.perf_counter()
     out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
-    first = time.perf_counter() - t0
-    out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+    first = time.perf_counter() - t0  # wall_time_s excludes compilation; this includes it
     wall = float(out.wall_time_s)
     evaluated = int(np.sum(out.evaluated))
     iterations = int(np.max(out.iterations))
-    raw = bench_env.mjx_throughput(env, num_instances * k, steps=20, repeats=3)
+    raw = bench_env.mjx_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
     state_shape = jax.eval_shape(search.init, starts, pachs.instance_keys(
         jax.random.PRNGKey(0), num_instances))
     row = {
@@ -100,18 +137,21 @@ def main():
         'state_bytes_per_instance': tree_bytes(state_shape) // num_instances,
         'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool),
         'stop_reasons': np.bincount(np.asarray(out.stop_reason), minlength=7).tolist(),
+        'overflow': int(np.sum(out.heap_overflow + out.pool_overflow + out.table_overflow)),
+        'device_peak_bytes_so_far': peak_memory_bytes(),
     }
     print(row, flush=True)
     result['rows'].append(row)
     common.write_json(args.out, result)
   md = [f"# PACHS search throughput ({args.task}, model: {model_name}, env: "
-        f"{result['backend']})\n\n"
+        f"{result['backend']}"
+        f"{', run to budget (goals never accepted)' if args.run_to_budget else ''})\n\n"
         f"{result['provenance']}\n",
         common.markdown_table(result['rows'], [
-            'loop', 'instances', 'K', 'N', 'budget', 'wall_s', 'evaluated', 'found',
-            'edges_per_s', 'raw_env_steps_per_s_same_batch', 'search_over_raw',
+            'loop', 'instances', 'K', 'N', 'budget', 'wall_s', 'first_call_s_incl_compile',
+            'evaluated', 'iterations', 'found', 'edges_per_s', 'raw_env_steps_per_s_same_batch', 'search_over_raw',
             'lane_utilization_mean', 'evaluated_per_iteration_per_instance',
-            'state_bytes_per_instance'])]
+            'state_bytes_per_instance', 'device_peak_bytes_so_far'])]
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write('\n'.join(md) + '\n')
 

@@ -15,15 +15,55 @@ def _demo(args: argparse.Namespace) -> int:
   return 0
 
 
+def _devices_arg(text: str):
+  """--devices: 'all' or a positive device count."""
+  if text == 'all':
+    return text
+  try:
+    count = int(text)
+  except ValueError:
+    count = 0
+  if count < 1:
+    raise argparse.ArgumentTypeError(f"must be 'all' or a positive integer, got {text!r}")
+  return count
+
+
+def _plan_devices(args: argparse.Namespace):
+  """The devices to shard the instances over (None: one device, no sharding).
+
+  'all': every device of the job (after joining a multi-host job when the environment describes
+  one, see `sharding.initialize_multihost`); N > 1: the first N devices of this host.
+  """
+  if args.devices == 1:
+    return None
+  if args.time_limit is not None:
+    raise ValueError('--time-limit (anytime mode) is not supported with sharding: use '
+                     '--devices 1, or drop --time-limit to run every instance to completion')
+  import jax
+
+  from pachs_jax.search import sharding
+  if args.devices == 'all':
+    sharding.initialize_multihost()
+    return jax.devices()
+  local = jax.local_devices()
+  if args.devices > len(local):
+    raise ValueError(f'--devices {args.devices} exceeds the {len(local)} device(s) available '
+                     f'on this host ({local[0].platform})')
+  return local[:args.devices]
+
+
 def _plan(args: argparse.Namespace) -> int:
   import time
+
+  devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
   import jax
   import numpy as np
 
   from pachs_jax import planner
-  from pachs_jax.search import pachs
+  from pachs_jax.search import pachs, sharding
 
+  say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
   num_available = 100 if args.task == 'shelf' else 30
@@ -42,19 +82,28 @@ def _plan(args: argparse.Namespace) -> int:
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if env.__class__.__name__ == 'MujocoCEnv'
                else 'MJX on the CPU (slow: milliseconds per world and step)')
-    print(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
-          f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
+    say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
+        f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
   starts_all = env.canonical_instances(num_available)
   starts = jax.tree.map(lambda x: x[np.asarray(instances)], starts_all)
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
-  print(f'planning {args.task} instances {args.instances} with {model_path}: '
-        f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
-        f'on {jax.devices()[0].platform}', flush=True)
+  where = jax.devices()[0].platform
+  if devices is not None:
+    where = f'{len(devices)} {where} device(s), instances sharded'
+  say(f'planning {args.task} instances {args.instances} with {model_path}: '
+      f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
+      f'on {where}', flush=True)
   start = time.perf_counter()
-  result = pachs.plan(env, model, starts, config, jax.random.PRNGKey(args.seed),
-                      time_limit_s=args.time_limit)
+  key = jax.random.PRNGKey(args.seed)
+  if devices is None:
+    result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit)
+  else:
+    result = sharding.plan_sharded(env, model, starts, config, key,
+                                   mesh=sharding.instance_mesh(devices))
   total = time.perf_counter() - start
   rows = planner.result_rows(result, instances)
+  if jax.process_index() != 0:
+    return 0  # every host got the whole result; the first one reports it
   print(planner.format_table(rows, ['instance', 'found', 'cost', 'path_length', 'expanded', 'evaluated',
                             'stop', 'overflow']))
   found = sum(r['found'] for r in rows)
@@ -67,6 +116,7 @@ def _plan(args: argparse.Namespace) -> int:
     import json
     with open(args.json, 'w') as f:
       json.dump({'task': args.task, 'config': repr(config), 'rows': rows,
+                 'devices': 1 if devices is None else len(devices),
                  'search_time_s': float(result.wall_time_s)}, f, indent=1)
   return 0
 
@@ -100,6 +150,10 @@ def main(argv=None) -> int:
                     default=None, help='lattice cell sizes, comma separated')
   plan.add_argument('--time-limit', type=float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
+  plan.add_argument('--devices', type=_devices_arg, default=1,
+                    help="devices to shard the instances over: 1 (default, no sharding), N "
+                         "(the first N of this host) or 'all' (every device; across hosts "
+                         "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
   plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
   plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator')

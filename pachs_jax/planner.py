@@ -60,15 +60,16 @@ def checkpoint_path(task: str) -> str:
   return os.path.join(CHECKPOINT_DIR, MODEL_FOR_TASK[task])
 
 
-def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx'):
+def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx',
+               nthread: Optional[int] = None):
   """(env, actor-critic) for a task: the shipped model unless `path`, checked against the env.
 
   backend: 'mjx', 'mujoco-c' (PushT edges simulated by MuJoCo C on all CPU threads) or 'auto'
-  (MuJoCo C when JAX has no accelerator).
+  (MuJoCo C when JAX has no accelerator). nthread: MuJoCo C threads (None: all CPUs).
   """
   from pachs_jax.envs import mujoco_c
   from pachs_jax.sac import checkpoint
-  env = mujoco_c.make_backend(envs.make(task), backend)
+  env = mujoco_c.make_backend(envs.make(task), backend, nthread)
   path = path or checkpoint_path(task)
   if not os.path.exists(path):
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '

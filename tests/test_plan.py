@@ -23,6 +23,31 @@ def test_short_pusht_plan_runs_end_to_end(tmp_path, capsys):
   assert 'found' in capsys.readouterr().out
 
 
+def test_sharded_plan_runs_end_to_end(tmp_path):
+  # 'all' shards over every device, here the one CPU device (MuJoCo C physics in shard_map).
+  out = tmp_path / 'rows.json'
+  code = cli.main(['plan', '--task', 'pusht-fixed', '--instances', '0,3', '--budget', '16',
+                   '-K', '4', '-N', '4', '--devices', 'all', '--json', str(out)])
+  assert code == 0
+  saved = json.loads(out.read_text())
+  assert saved['devices'] == 1 and [r['instance'] for r in saved['rows']] == [0, 3]
+  assert all(0 < r['evaluated'] <= 16 and r['stop'] in ('goal', 'budget')
+             for r in saved['rows'])
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['plan', '--devices', '2'], '--devices 2 exceeds the 1 device(s) available'),
+    (['plan', '--devices', 'all', '--time-limit', '1'], 'not supported with sharding'),
+    (['plan', '--devices', '0'], "must be 'all' or a positive integer"),
+    (['plan', '--devices', 'two'], "must be 'all' or a positive integer"),
+])
+def test_bad_devices_give_clear_errors(argv, message, capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(argv)
+  assert exit_info.value.code == 2
+  assert message in capsys.readouterr().err
+
+
 @pytest.mark.parametrize('argv, message', [
     (['plan', '--task', 'pusht-fixed', '--instances', '40'], 'instances must lie in 0..29'),
     (['plan', '--task', 'pusht-fixed', '--budget', '0'], 'max_evaluations must be a positive'),

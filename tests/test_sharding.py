@@ -1,4 +1,6 @@
-"""plan_sharded: the sharded search equals the unsharded `plan`, instance by instance."""
+"""Sharded planners equal the unsharded ones, instance by instance: PACHS (`plan_sharded`) and
+the baselines (`plan_sharded_fn`), on 4 simulated CPU devices (a subprocess, since the device
+count is fixed when JAX starts) and on this process's default mesh."""
 
 import os
 import subprocess
@@ -35,30 +37,74 @@ SETUP = textwrap.dedent('''
     NODES = ENV.node(STARTS, GOALS)
     CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400,
                           heap_kind='flat')
+
+    from pachs_jax.search import baselines as bl
+    from pachs_jax.search import sharding
+
+    class GreedyActor(RandomActor):
+      # The single rollout's deterministic policy: the move of the best Q.
+      def deterministic_action(self, obs):
+        moves = jax.numpy.asarray(self.env.moves)
+        q = self.q_values(obs, jax.numpy.broadcast_to(moves, obs.shape[:1] + moves.shape))
+        return moves[jax.numpy.argmax(q, axis=1)]
+
+    def baselines():
+      # name -> (per-shard fn(start_nodes, keys), the unsharded call fn(start_nodes, key)).
+      rollout = bl.make_parallel_rollout(
+          ENV, AC, bl.ParallelRolloutConfig(num_copies=4, max_evaluations=300, episode_length=12))
+      beam = bl.make_beam_search(ENV, AC, bl.BeamConfig(beam_width=4, num_actions=4,
+                                                        max_evaluations=300))
+      heuristic = bl.Heuristic(init=lambda s: jax.numpy.zeros(s.t.shape[:1]),
+                               value=lambda data, n: AC.heuristic(n.qpos, n.goal))
+      epase = bl.make_epase(ENV, ENV.moves, heuristic, bl.EpaseConfig(pop_size=2,
+                                                                      max_evaluations=300))
+      single = bl.make_single_rollout(ENV, GreedyActor(ENV))
+      return {'rollout': (rollout.plan, rollout.plan), 'beam': (beam, beam),
+              'epase': (sharding.keyless(epase.plan), lambda s, k: epase.plan(s)),
+              'single': (sharding.keyless(single), lambda s, k: single(s))}
 ''')
 _scope = {}
 exec(SETUP, _scope)  # pylint: disable=exec-used
 ENV, AC, NODES, CONFIG = _scope['ENV'], _scope['AC'], _scope['NODES'], _scope['CONFIG']
+BASELINES = ('rollout', 'beam', 'epase', 'single')
 
-# 6 instances over 4 devices (padded to 8); compares every field but the wall time.
+# 6 instances over 4 devices (padded to 8); compares every field but the wall time. Prints
+# NAME_OK per planner, or NAME_FAILED with the error (each planner is checked).
 FOUR_DEVICES = SETUP + textwrap.dedent('''
-    import jax
+    import traceback
     from pachs_jax.search import plan, make_search
-    from pachs_jax.search.sharding import instance_mesh, plan_sharded
     assert len(jax.devices()) == 4, jax.devices()
-    search = make_search(ENV, AC, CONFIG)
     key = jax.random.PRNGKey(3)
-    want = plan(ENV, AC, NODES, CONFIG, key, search=search)
-    got = plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=instance_mesh(), search=search)
-    assert got.found.shape == (6,), got.found.shape
-    assert np.asarray(want.found).sum() >= 4, want.found
-    want_leaves = jax.tree.leaves(want.replace(wall_time_s=None))
-    got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
-    assert len(want_leaves) == len(got_leaves) > 0
-    for w, g in zip(want_leaves, got_leaves):
-      assert np.array_equal(np.asarray(w), np.asarray(g)), (w, g)
-    assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
-    print('SHARDED_OK')
+    mesh = sharding.instance_mesh()
+
+    def same(want, got):
+      assert got.found.shape == (6,), got.found.shape
+      want_leaves = jax.tree.leaves(want.replace(wall_time_s=None))
+      got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
+      assert len(want_leaves) == len(got_leaves) > 0
+      for w, g in zip(want_leaves, got_leaves):
+        assert np.array_equal(np.asarray(w), np.asarray(g)), (w, g)
+      assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
+      assert np.asarray(got.evaluated).sum() > 0
+
+    def check_pachs():
+      search = make_search(ENV, AC, CONFIG)
+      want = plan(ENV, AC, NODES, CONFIG, key, search=search)
+      got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=mesh, search=search)
+      assert np.asarray(want.found).sum() >= 4, want.found
+      same(want, got)
+
+    checks = {'pachs': check_pachs}
+    for name, (shard_fn, unsharded) in baselines().items():
+      checks[name] = (lambda s, u: lambda: same(u(NODES, key),
+                                                sharding.plan_sharded_fn(s, NODES, key, mesh)))(
+                                                    shard_fn, unsharded)
+    for name, check in checks.items():
+      try:
+        check()
+        print(f'{name.upper()}_OK', flush=True)
+      except Exception:  # pylint: disable=broad-except
+        print(f'{name.upper()}_FAILED', traceback.format_exc(), flush=True)
 ''')
 
 
@@ -66,12 +112,20 @@ def _leaves(result):
   return [np.asarray(x) for x in jax.tree.leaves(result.replace(wall_time_s=None))]
 
 
-def test_four_devices_equal_unsharded():
+@pytest.fixture(scope='module')
+def four_devices():
+  """stdout of the 4-device script (run once for the module)."""
   env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=4',
              JAX_PLATFORMS='cpu')
   proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES], env=env, capture_output=True,
-                        text=True, timeout=300)
-  assert proc.returncode == 0 and 'SHARDED_OK' in proc.stdout, proc.stderr[-4000:]
+                        text=True, timeout=600)
+  assert proc.returncode == 0, proc.stderr[-4000:]
+  return proc.stdout
+
+
+@pytest.mark.parametrize('name', ('pachs',) + BASELINES)
+def test_four_devices_equal_unsharded(four_devices, name):
+  assert f'{name.upper()}_OK' in four_devices, four_devices[-4000:]
 
 
 @pytest.fixture(scope='module')
@@ -92,6 +146,41 @@ def test_default_mesh_equals_plan(search):
   assert any(not np.array_equal(w, o) for w, o in zip(_leaves(want), _leaves(other)))
   assert got.found.shape == (NODES.qpos.shape[0],)
   assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
+
+
+@pytest.fixture(scope='module')
+def baselines():
+  return _scope['baselines']()
+
+
+@pytest.mark.parametrize('name', BASELINES)
+def test_baseline_default_mesh_equals_unsharded(baselines, name):
+  shard_fn, unsharded = baselines[name]
+  key = jax.random.PRNGKey(5)
+  want = unsharded(NODES, key)
+  got = sharding.plan_sharded_fn(shard_fn, NODES, key)
+  assert got.found.shape == (NODES.qpos.shape[0],)
+  assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
+  for w, g in zip(_leaves(want), _leaves(got)):
+    np.testing.assert_array_equal(g, w)
+  if name in ('rollout', 'beam'):  # random proposals: each instance must get its own key
+    other = unsharded(NODES, jax.random.PRNGKey(6))
+    assert any(not np.array_equal(w, o) for w, o in zip(_leaves(want), _leaves(other)))
+  # per-instance keys [I, 2] are taken as they are
+  keys = jax.random.split(key, NODES.qpos.shape[0])
+  again = sharding.plan_sharded_fn(shard_fn, NODES, keys)
+  for w, g in zip(_leaves(want), _leaves(again)):
+    np.testing.assert_array_equal(g, w)
+
+
+def test_initialize_multihost_needs_a_job(monkeypatch):
+  for name in ('JAX_COORDINATOR_ADDRESS', 'SLURM_NTASKS', 'OMPI_COMM_WORLD_SIZE'):
+    monkeypatch.delenv(name, raising=False)
+  assert sharding.initialize_multihost() is False  # a single process: nothing to join
+  monkeypatch.setenv('SLURM_NTASKS', '1')
+  monkeypatch.setenv('SLURM_PROCID', '0')
+  assert sharding.initialize_multihost() is False  # one task is no multi-process job
+  assert sharding.to_host({'a': 1}) == {'a': 1}
 
 
 def test_pad_repeats_the_last_row():

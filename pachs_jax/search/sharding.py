@@ -1,23 +1,32 @@
-"""PACHS with the problem-instance axis sharded across devices.
+"""Planners with the problem-instance axis sharded across devices (and hosts).
 
-Instances are independent, so each device runs the whole search on its own block of instances:
-init, the while_loop to completion and the result all run inside one `shard_map` over a mesh
-axis named 'instances', with no communication in the loop. A device stops as soon as its own
-instances have finished. Per-instance keys are made on the host before sharding, so every
-instance's result equals that of the unsharded `pachs.plan`.
+Instances are independent, so each device runs the whole planner on its own block of
+instances: a per-shard planning function `fn(start_nodes [P], keys [P, 2]) -> SearchResult [P]`
+runs inside one `shard_map` over a mesh axis named 'instances', with no communication in its
+loop; a device stops as soon as its own instances have finished. Per-instance keys are made on
+the host before sharding, so every instance's result equals that of the unsharded call with the
+same keys.
 
-Multi-host: after `jax.distributed.initialize()`, `jax.devices()` lists the devices of every
-host, so the default mesh spans hosts. Every host calls `plan_sharded` with the same global
-start nodes and key; the returned arrays are then global (not fully addressable on one host):
-gather them with `jax.experimental.multihost_utils.process_allgather` before reading them.
+- `plan_sharded_fn(fn, start_nodes, key, mesh)`: any planner. PACHS: `pachs_shard_fn(search)`;
+  the baselines are such functions already: `make_parallel_rollout(...).plan`,
+  `make_beam_search(...)`, and, with `keyless`, `make_epase(...).plan` and
+  `make_single_rollout(...)`.
+- `plan_sharded(env, actor_critic, start_nodes, config, key, mesh)`: PACHS, as `pachs.plan`.
+
+Multi-host: call `initialize_multihost()` on every host before anything else touches JAX
+(it calls `jax.distributed.initialize()` when the environment describes a multi-process job);
+then `jax.devices()` lists the devices of every host, so the default mesh spans hosts. Every
+host calls the planner with the same global start nodes and key and gets the whole result
+(gathered with `process_allgather`).
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
+import os
 import time
-from typing import Optional
+from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +38,9 @@ from pachs_jax.search import pachs
 from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
 
 AXIS = 'instances'
+
+# fn(start_nodes [P], keys [P, 2] uint32) -> SearchResult [P]: one device's planner.
+ShardFn = Callable[[base.NodeState, jax.Array], SearchResult]
 
 
 def _shard_map(fn, mesh: Mesh, in_specs, out_specs):
@@ -45,6 +57,45 @@ def _shard_map(fn, mesh: Mesh, in_specs, out_specs):
   return shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, **{check: False})
 
 
+# ---- devices and hosts ----
+
+def initialize_multihost(**kwargs) -> bool:
+  """Joins a multi-process JAX job when the environment describes one; True if it did.
+
+  Call it on every host before any other JAX call. It calls `jax.distributed.initialize`
+  - with JAX_COORDINATOR_ADDRESS ('host:port' of process 0), JAX_NUM_PROCESSES and
+    JAX_PROCESS_ID when JAX_COORDINATOR_ADDRESS is set (the two others may be left to JAX's
+    cluster detection);
+  - with JAX's own cluster detection under SLURM (SLURM_NTASKS > 1) or Open MPI's mpirun
+    (OMPI_COMM_WORLD_SIZE > 1).
+  Otherwise, or when already initialized, it does nothing. kwargs go to
+  `jax.distributed.initialize` (e.g. local_device_ids).
+  """
+  if jax.distributed.is_initialized():
+    return False
+  env = os.environ
+
+  def count(name):
+    try:
+      return int(env.get(name, '1'))
+    except ValueError:
+      return 1
+
+  if env.get('JAX_COORDINATOR_ADDRESS'):
+    for arg, name in (('num_processes', 'JAX_NUM_PROCESSES'), ('process_id', 'JAX_PROCESS_ID')):
+      if env.get(name) and arg not in kwargs:
+        try:
+          kwargs[arg] = int(env[name])
+        except ValueError:
+          raise ValueError(f'{name} must be an integer, got {env[name]!r}') from None
+    kwargs.setdefault('coordinator_address', env['JAX_COORDINATOR_ADDRESS'])
+  elif not ((count('SLURM_NTASKS') > 1 and 'SLURM_PROCID' in env)
+            or (count('OMPI_COMM_WORLD_SIZE') > 1 and 'OMPI_MCA_orte_hnp_uri' in env)):
+    return False
+  jax.distributed.initialize(**kwargs)
+  return True
+
+
 def instance_mesh(devices=None) -> Mesh:
   """A one-axis mesh named 'instances' over devices (default: all of `jax.devices()`)."""
   devices = jax.devices() if devices is None else list(devices)
@@ -52,6 +103,28 @@ def instance_mesh(devices=None) -> Mesh:
     raise ValueError('instance_mesh needs at least one device')
   return Mesh(np.asarray(devices), (AXIS,))
 
+
+def check_mesh(mesh: Optional[Mesh]) -> Mesh:
+  """mesh (default: `instance_mesh()`), checked to be a Mesh with the single axis 'instances'."""
+  if mesh is None:
+    return instance_mesh()
+  if not isinstance(mesh, Mesh):
+    raise ValueError(f'mesh must be a jax.sharding.Mesh, got {type(mesh).__name__}')
+  if tuple(mesh.axis_names) != (AXIS,):
+    raise ValueError(f"mesh must have the single axis '{AXIS}', got axes {mesh.axis_names}")
+  return mesh
+
+
+def to_host(tree):
+  """tree's arrays whole on every host: `process_allgather` of the global arrays when there are
+  several processes (numpy arrays then), the tree unchanged with one."""
+  if jax.process_count() > 1:
+    from jax.experimental import multihost_utils  # pylint: disable=g-import-not-at-top
+    return multihost_utils.process_allgather(tree, tiled=True)
+  return tree
+
+
+# ---- the generic sharded planner ----
 
 def _pad(tree, num: int):
   """Pads every leaf's leading axis to num rows by repeating the last row."""
@@ -63,22 +136,85 @@ def _pad(tree, num: int):
   return jax.tree.map(pad, tree)
 
 
-def make_sharded_search(search: pachs.Search, mesh: Mesh):
-  """The jitted sharded search: (start_nodes [P], keys [P, 2]) -> SearchResult [P], P a multiple
-  of the mesh size, wall_time_s [P] NaN (every leaf keeps the leading instance axis)."""
+def _num_instances(start_nodes) -> int:
+  sizes = {jnp.shape(x)[0] if jnp.ndim(x) else 0 for x in jax.tree.leaves(start_nodes)}
+  if len(sizes) != 1 or 0 in sizes:
+    raise ValueError(f'start_nodes leaves must share one leading axis I >= 1, got {sizes}')
+  return sizes.pop()
+
+
+def _put_global(x, sharding: NamedSharding) -> jax.Array:
+  """The global array of host value x (the same on every host) split by sharding."""
+  host = np.asarray(x)
+  return jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
+
+
+@functools.lru_cache(maxsize=32)
+def keyless(fn: Callable[[base.NodeState], SearchResult]) -> ShardFn:
+  """A per-shard fn(start_nodes, keys) of a planner without keys (ePA*SE, single rollout)."""
+  def run(start_nodes, keys):
+    del keys
+    return fn(start_nodes)
+  return run
+
+
+@functools.lru_cache(maxsize=32)
+def shard_planner(fn: ShardFn, mesh: Mesh):
+  """The jitted sharded planner: (start_nodes [P], keys [P, 2]) -> SearchResult [P], P a
+  multiple of the mesh size, each device running fn on its P / devices rows; wall_time_s [P]
+  NaN (every leaf keeps the leading instance axis). Cached per (fn, mesh)."""
   def per_shard(start_nodes, keys):
-    state = search.run(search.init(start_nodes, keys))
-    out = search.result(state)
-    local = keys.shape[0]
-    return out.replace(wall_time_s=jnp.full((local,), jnp.nan, jnp.float32))
+    out = fn(start_nodes, keys)
+    return out.replace(wall_time_s=jnp.full((keys.shape[0],), jnp.nan, jnp.float32))
 
   spec = PartitionSpec(AXIS)
   return jax.jit(_shard_map(per_shard, mesh, (spec, spec), spec))
 
 
+def plan_sharded_fn(fn: ShardFn, start_nodes: base.NodeState, key: jax.Array,
+                    mesh: Optional[Mesh] = None) -> SearchResult:
+  """Runs the per-shard planner fn on start_nodes [I] split over mesh; SearchResult [I].
+
+  fn(start_nodes [P], keys [P, 2] uint32) -> SearchResult [P]: pure and jittable, each
+    instance's result depending only on its own row (see the module docstring).
+  key: one PRNG key (split per instance, as the planners do) or per-instance keys [I, 2] / [I].
+  mesh: a `jax.sharding.Mesh` with the single axis 'instances' (default: all `jax.devices()`).
+    I need not divide the device count: the last instance is repeated up to a multiple of it,
+    and the extra rows are dropped from the result.
+  Returns the whole result on every host; wall_time_s: host seconds of the planning call
+  (compilation, input transfer and the gather across hosts excluded).
+  """
+  mesh = check_mesh(mesh)
+  num_instances = _num_instances(start_nodes)
+  keys = pachs._raw_keys(  # pylint: disable=protected-access
+      pachs.instance_keys(key, num_instances), num_instances)
+  devices = mesh.devices.size
+  padded = -(-num_instances // devices) * devices
+  sharding = NamedSharding(mesh, PartitionSpec(AXIS))
+  start_nodes = jax.tree.map(lambda x: _put_global(x, sharding), _pad(start_nodes, padded))
+  keys = _put_global(_pad(keys, padded), sharding)
+  run = shard_planner(fn, mesh).lower(start_nodes, keys).compile()
+
+  start = time.perf_counter()
+  out = jax.block_until_ready(run(start_nodes, keys))
+  wall = time.perf_counter() - start
+  out = jax.tree.map(lambda x: x[:num_instances], to_host(out))
+  return out.replace(wall_time_s=jnp.float32(wall))
+
+
+# ---- PACHS ----
+
 @functools.lru_cache(maxsize=32)
-def _cached_sharded(search: pachs.Search, mesh: Mesh):
-  return make_sharded_search(search, mesh)
+def pachs_shard_fn(search: pachs.Search) -> ShardFn:
+  """PACHS as a per-shard planner: init, the loop to completion and the result."""
+  def run(start_nodes, keys):
+    return search.result(search.run(search.init(start_nodes, keys)))
+  return run
+
+
+def make_sharded_search(search: pachs.Search, mesh: Mesh):
+  """The jitted sharded PACHS: `shard_planner(pachs_shard_fn(search), mesh)`."""
+  return shard_planner(pachs_shard_fn(search), mesh)
 
 
 def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
@@ -88,36 +224,15 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
 
   key: one PRNG key (split per instance, as in `pachs.plan`) or per-instance keys [I, 2].
   mesh: a `jax.sharding.Mesh` with the single axis 'instances' (default: all `jax.devices()`).
-    I need not divide the device count: the last instance is repeated up to a multiple of it,
-    and the extra rows are dropped from the result.
   search: a `make_search` result to reuse; built here when None.
   Runs every instance to completion (no time limit; use `pachs.plan` for anytime chunks).
-  wall_time_s: host seconds of the call without compilation and input transfer.
+  See `plan_sharded_fn` for padding, the result across hosts and wall_time_s.
   """
-  if mesh is None:
-    mesh = instance_mesh()
-  if not isinstance(mesh, Mesh):
-    raise ValueError(f'mesh must be a jax.sharding.Mesh, got {type(mesh).__name__}')
-  if tuple(mesh.axis_names) != (AXIS,):
-    raise ValueError(f"mesh must have the single axis '{AXIS}', got axes {mesh.axis_names}")
+  mesh = check_mesh(mesh)
   if search is None:
     search = pachs.make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  num_instances = pachs._check_start(  # pylint: disable=protected-access
+  pachs._check_start(  # pylint: disable=protected-access
       start_nodes, jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0)))
-  keys = pachs._raw_keys(  # pylint: disable=protected-access
-      pachs.instance_keys(key, num_instances), num_instances)
-
-  devices = mesh.devices.size
-  padded = -(-num_instances // devices) * devices
-  sharding = NamedSharding(mesh, PartitionSpec(AXIS))
-  start_nodes = jax.device_put(_pad(start_nodes, padded), sharding)
-  keys = jax.device_put(_pad(keys, padded), sharding)
-  run = _cached_sharded(search, mesh).lower(start_nodes, keys).compile()
-
-  start = time.perf_counter()
-  out = jax.block_until_ready(run(start_nodes, keys))
-  wall = time.perf_counter() - start
-  out = jax.tree.map(lambda x: x[:num_instances], out)
-  return out.replace(wall_time_s=jnp.float32(wall))
+  return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

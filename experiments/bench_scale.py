@@ -1,0 +1,150 @@
+"""PACHS over several devices of one host: the 150-run PushT-Obs benchmark on 1, 2 and 4 devices.
+
+The runs are the canonical instances x seeds (default 30 x 5 = 150 searches, PACHS with the
+task's tuned config and shipped model, 100,000 evaluations each); run (i, r) plans instance i
+with its own key fold_in(fold_in(PRNGKey(seed), i), r). For each device count all runs go into
+one `sharding.plan_sharded` call over a mesh of the first D devices (D = 1 too: the same
+code path), compile excluded. Reported per device count: wall time, edges evaluated per second,
+found count, speed-up over one device and efficiency (speed-up / D), and whether every run's
+result (found and cost; also every other field) is identical to that of the first device count.
+Device counts above `jax.device_count()` are skipped and recorded as such.
+
+  python experiments/bench_scale.py --devices 1,2,4 --out experiments/results/bench_scale.json
+
+CPU smoke test (4 simulated devices, MuJoCo C physics):
+
+  XLA_FLAGS=--xla_force_host_platform_device_count=4 python experiments/bench_scale.py \\
+      --devices 1,2,4 --budget 200 --instances 6 --backend mujoco-c --out /tmp/scale.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import jax
+import numpy as np
+
+import common
+from pachs_jax import planner
+from pachs_jax.search import pachs, sharding
+from pachs_jax.search.types import StopReason
+
+
+def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
+  """[I * R, 2] keys, run i * R + r (instance i, round r): fold_in(fold_in(key, i), r)."""
+  base = jax.random.PRNGKey(seed)
+  per_instance = jax.vmap(lambda i: jax.random.fold_in(base, i))(np.arange(num_instances))
+  return jax.vmap(lambda k: jax.vmap(lambda r: jax.random.fold_in(k, r))(np.arange(rounds)))(
+      per_instance).reshape(num_instances * rounds, 2)
+
+
+def peak_memory_bytes(device):
+  stats = device.memory_stats() or {}
+  return stats.get('peak_bytes_in_use')
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--checkpoint', default=None, help='default: the shipped model')
+  parser.add_argument('--devices', default='1,2,4', help='device counts, comma separated')
+  parser.add_argument('--instances', type=int, default=30, help='canonical instances 0..n-1')
+  parser.add_argument('--seeds', type=int, default=5, help='runs (rounds) per instance')
+  parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--budget', type=int, default=100_000, help='evaluations per run')
+  parser.add_argument('--repeats', type=int, default=1,
+                      help='timed calls per device count (the median is reported)')
+  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
+                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
+  parser.add_argument('--out', default='experiments/results/bench_scale.json')
+  args = parser.parse_args()
+  counts = [int(d) for d in args.devices.split(',')]
+  if not counts or min(counts) < 1 or min(args.instances, args.seeds, args.repeats) < 1:
+    parser.error('--devices, --instances, --seeds and --repeats must be positive')
+
+  env, model = planner.load_model(args.task, args.checkpoint, args.backend)
+  config = planner.default_config(args.task, max_evaluations=args.budget)
+  num_runs = args.instances * args.seeds
+  instance = np.repeat(np.arange(args.instances), args.seeds)
+  round_ = np.tile(np.arange(args.seeds), args.instances)
+  starts = jax.tree.map(lambda x: x[instance], env.canonical_instances(args.instances))
+  keys = run_keys(args.seed, args.instances, args.seeds)
+  search = pachs.make_search(env, model, config)
+  available = jax.device_count()
+  result = {'provenance': common.provenance(), 'task': args.task,
+            'model': args.checkpoint or planner.checkpoint_path(args.task),
+            'backend': type(env).__name__, 'config': repr(config),
+            'instances': args.instances, 'seeds': args.seeds, 'runs': num_runs,
+            'devices_available': available, 'rows': [], 'skipped': [], 'per_run': []}
+  reference = None  # (device count, host result) of the first count measured
+  for count in counts:
+    if count > available:
+      print(f'skipping {count} devices: only {available} available', flush=True)
+      result['skipped'].append({'devices': count,
+                                'reason': f'only {available} device(s) available'})
+      continue
+    mesh = sharding.instance_mesh(jax.devices()[:count])
+    walls, first = [], None
+    for _ in range(args.repeats):
+      t0 = time.perf_counter()
+      out = sharding.plan_sharded(env, model, starts, config, keys, mesh=mesh, search=search)
+      first = first if first is not None else time.perf_counter() - t0
+      walls.append(float(out.wall_time_s))
+    host = jax.tree.map(np.asarray, out.replace(wall_time_s=None))
+    wall = float(np.median(walls))
+    evaluated = int(host.evaluated.sum())
+    row = {'devices': count, 'runs_per_device': -(-num_runs // count), 'wall_s': wall,
+           'wall_s_all': walls, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
+           'edges_per_s': evaluated / wall, 'found': int(host.found.sum()),
+           'iterations_max': int(host.iterations.max()),
+           'stop_reasons': {StopReason.name(c): int(n) for c, n in
+                            enumerate(np.bincount(host.stop_reason, minlength=7)) if n},
+           'overflow': int((host.heap_overflow + host.pool_overflow
+                            + host.table_overflow).sum()),
+           'device0_peak_bytes_so_far': peak_memory_bytes(jax.devices()[0])}
+    if reference is None:
+      reference = (count, host)
+      result['per_run'] = [
+          {'instance': int(i), 'round': int(r), 'found': bool(f), 'cost': float(c),
+           'evaluated': int(e), 'stop': StopReason.name(s)}
+          for i, r, f, c, e, s in zip(instance, round_, host.found, host.cost, host.evaluated,
+                                      host.stop_reason)]
+    ref_count, ref = reference
+    same_found_cost = (np.array_equal(host.found, ref.found)
+                       and np.array_equal(host.cost, ref.cost, equal_nan=True))
+    differing = np.flatnonzero((host.found != ref.found)
+                               | ~((host.cost == ref.cost)
+                                   | (np.isnan(host.cost) & np.isnan(ref.cost))))
+    row.update({
+        'compared_with_devices': ref_count,
+        'identical_found_cost': bool(same_found_cost),
+        'identical_all_fields': all(np.array_equal(a, b, equal_nan=a.dtype.kind == 'f')
+                                    for a, b in zip(jax.tree.leaves(host), jax.tree.leaves(ref))),
+        'differing_runs': differing.tolist()[:20]})
+    print({k: v for k, v in row.items() if k != 'wall_s_all'}, flush=True)
+    result['rows'].append(row)
+    common.write_json(args.out, result)
+
+  one = next((r for r in result['rows'] if r['devices'] == 1), None)
+  for row in result['rows']:
+    row['speedup'] = one['wall_s'] / row['wall_s'] if one else None
+    row['efficiency'] = row['speedup'] / row['devices'] if one else None
+  result['all_identical_found_cost'] = all(r['identical_found_cost'] for r in result['rows'])
+  common.write_json(args.out, result)
+  skipped = ''.join(f"\nskipped: {s['devices']} devices ({s['reason']})"
+                    for s in result['skipped'])
+  md = [f"# PACHS over devices ({args.task}, {num_runs} runs = {args.instances} instances x "
+        f"{args.seeds} seeds, budget {args.budget}, env {result['backend']})\n\n"
+        f"{result['provenance']}\n{skipped}\n",
+        common.markdown_table(result['rows'], [
+            'devices', 'runs_per_device', 'wall_s', 'evaluated', 'edges_per_s', 'found',
+            'speedup', 'efficiency', 'identical_found_cost', 'identical_all_fields'])]
+  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+    f.write('\n'.join(md) + '\n')
+  print('\n'.join(md))
+
+
+if __name__ == '__main__':
+  main()

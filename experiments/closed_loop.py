@@ -1,0 +1,290 @@
+"""Closed loop: plans made with MJX (float32) executed in a MuJoCo C world (float64), PushT.
+
+Protocol (the original's, DESIGN.md): for each task, `--instances` canonical instances x
+`--rounds` rounds (20 x 5 = 100 episodes); each planning query gets `--query-time` seconds of
+wall clock (3 s); the first `--execute` actions (10) of the returned, possibly partial, path are
+executed in the world, one control step at a time; the world's state is observed and planned
+from again, at most `--max-queries` queries (30). Success is judged in the world after every
+executed action (the env's goal rule on the observed state); a successful episode stops.
+
+All episodes of a planner share each query: one batched planning call over the E = 100 current
+world states (episodes that already ended stay in the batch, their answers are ignored), so the
+3 s budget is for all 100 queries of that step together, a stricter budget than one query each.
+Planners:
+- single: the deterministic policy acting in the world, one action per world step, up to
+  max_queries x execute steps (no planning).
+- parallel: the parallel rollout (its evaluation budget, `--budget`, bounds it; it returns its
+  best-reward rollout when no copy reaches the goal); the query's wall time is recorded and
+  checked against the budget.
+- pachs: PACHS in real-time mode: anytime chunks until the query time, then the path to the
+  best-f state (or to a goal).
+- mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
+  from its previous plan shifted by the executed actions afterwards, under the same query time.
+A returned path with no action (e.g. PACHS's best state is the start) executes one action of
+the deterministic policy, so no episode stalls.
+
+Each world is a `mujoco_c.World` (its own MjModel copy; `--perturb friction=1.2,t_mass=0.8`
+scales its parameters, see `mujoco_c.Perturbation`).
+
+  python experiments/closed_loop.py --task pusht-fixed --out experiments/results/closed_loop_pusht-fixed.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+from typing import Dict, List
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import common
+import open_loop
+from pachs_jax import planner
+from pachs_jax.envs import mujoco_c
+from pachs_jax.search import baselines as bl
+from pachs_jax.search import pachs
+
+PLANNERS = ('single', 'parallel', 'pachs', 'mppi')
+
+
+def parse_perturbation(text: str) -> mujoco_c.Perturbation:
+  if not text:
+    return mujoco_c.Perturbation()
+  values = {}
+  for item in text.split(','):
+    name, _, value = item.partition('=')
+    if name not in {f.name for f in dataclasses.fields(mujoco_c.Perturbation)}:
+      raise ValueError(f'unknown perturbation {name!r}; valid: '
+                       f'{[f.name for f in dataclasses.fields(mujoco_c.Perturbation)]}')
+    values[name] = float(value)
+  return mujoco_c.Perturbation(**values)
+
+
+class Episodes:
+  """E worlds in MuJoCo C with their success bookkeeping."""
+
+  def __init__(self, env, starts, perturbation):
+    self.env = env
+    num = jax.tree.leaves(starts)[0].shape[0]
+    self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
+    self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
+                  for i, w in enumerate(self.worlds)]
+    self.is_goal = jax.jit(env.is_goal)
+    self.success = np.array(self.is_goal(self.batch()))
+    self.steps = np.zeros(num, np.int64)
+    self.success_step = np.full(num, -1, np.int64)
+
+  @property
+  def active(self) -> np.ndarray:
+    return ~self.success
+
+  def batch(self):
+    """NodeState [E] of the worlds' current states."""
+    return jax.tree.map(jnp.asarray, mujoco_c.stack_nodes(self.nodes))
+
+  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
+    """Runs actions [E, T, A] (the first lengths[e] of each) in the active worlds, checking the
+    goal after every step."""
+    for j in range(actions.shape[1]):
+      moving = self.active & (lengths > j)
+      if not moving.any():
+        break
+      for e in np.flatnonzero(moving):
+        self.nodes[e] = self.worlds[e].execute(actions[e, j:j + 1])[-1]
+        self.steps[e] += 1
+      reached = np.asarray(self.is_goal(self.batch())) & moving
+      self.success_step[reached] = self.steps[reached]
+      self.success |= reached
+
+
+def policy_actions(model):
+  """jitted obs [E, O] -> [E, 1, A] deterministic actions."""
+  return jax.jit(lambda obs: model.deterministic_action(obs)[:, None])
+
+
+def make_query(name: str, task: str, env, model, args, num: int):
+  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E]) numpy."""
+  if name == 'pachs':
+    config = planner.default_config(task, max_evaluations=args.budget)
+    search = pachs.make_search(env, model, config)
+
+    def query(nodes, keys, executed):
+      out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
+                       chunk_iterations=args.chunk_iterations, search=search)
+      return np.asarray(out.path_actions), np.asarray(out.path_length)
+    return query, config
+  if name == 'parallel':
+    config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
+    rollout = bl.make_parallel_rollout(env, model, config)
+
+    def query(nodes, keys, executed):
+      out = rollout.plan(nodes, keys)
+      return np.asarray(out.path_actions), np.asarray(out.path_length)
+    return query, config
+  if name == 'mppi':
+    config = bl.MppiConfig(max_evaluations=args.budget)
+    config = dataclasses.replace(config, max_iterations=config.max_evaluations
+                                 // config.evaluations_per_iteration)
+    mppi = bl.make_mppi(env, model, config)
+    previous = {}
+
+    def query(nodes, keys, executed):
+      nominal = None
+      if previous:  # the last plan without its executed actions, its last action repeated
+        last = np.maximum(previous['length'] - 1, 0)
+        idx = np.minimum(np.arange(config.horizon)[None] + executed[:, None], last[:, None])
+        nominal = jnp.asarray(np.take_along_axis(previous['actions'], idx[:, :, None], axis=1))
+      out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=nominal)
+      previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
+      return previous['actions'], previous['length']
+    return query, config
+  raise ValueError(f'unknown planner {name!r}')
+
+
+def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
+  """The deterministic policy in the world for up to `steps` steps; returns per-step times."""
+  act = policy_actions(model)
+  times = []
+  for _ in range(steps):
+    if not episodes.active.any():
+      break
+    start = time.perf_counter()
+    actions = np.asarray(act(env.observe(episodes.batch())))
+    times.append(time.perf_counter() - start)
+    episodes.execute(actions, np.ones(actions.shape[0], np.int64))
+  return times
+
+
+def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
+  num = len(episodes.worlds)
+  if name == 'single':
+    times = run_single(env, model, episodes, args.max_queries * args.execute)
+    return {'queries_per_episode_mean': None, 'step_time_s_mean': float(np.mean(times))}
+  query, config = make_query(name, task, env, model, args, num)
+  fallback = policy_actions(model)
+  query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
+  executed = np.zeros(num, np.int64)
+  for q in range(args.max_queries):
+    if not episodes.active.any():
+      break
+    nodes = episodes.batch()
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
+        jnp.arange(num))
+    start = time.perf_counter()
+    actions, lengths = query(nodes, keys, executed)
+    elapsed = time.perf_counter() - start
+    if q == 0:
+      compile_s = elapsed  # the first query includes compilation
+    else:
+      query_times.append(elapsed)
+    lengths = np.minimum(lengths, args.execute)
+    actions = actions[:, :args.execute]
+    empty = lengths == 0
+    if empty.any():
+      actions = actions.copy()
+      actions[empty, 0] = np.asarray(fallback(env.observe(nodes)))[empty, 0]
+      lengths = np.where(empty, 1, lengths)
+    queries += episodes.active
+    executed = lengths
+    episodes.execute(actions, lengths)
+  return {'config': repr(config), 'queries_per_episode_mean': float(np.mean(queries)),
+          'query_time_s_mean': float(np.mean(query_times)) if query_times else None,
+          'query_time_s_max': float(np.max(query_times)) if query_times else None,
+          'first_query_s_incl_compile': compile_s}
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-fixed',
+                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
+  parser.add_argument('--planners', default=','.join(PLANNERS))
+  parser.add_argument('--instances', type=int, default=20)
+  parser.add_argument('--rounds', type=int, default=5)
+  parser.add_argument('--query-time', type=float, default=3.0, help='s per planning query')
+  parser.add_argument('--execute', type=int, default=10, help='actions executed per query')
+  parser.add_argument('--max-queries', type=int, default=30)
+  parser.add_argument('--budget', type=int, default=100_000,
+                      help='evaluation budget per query and episode')
+  parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--chunk-iterations', type=int, default=8,
+                      help='PACHS iterations between wall-clock checks')
+  parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
+                      "'friction=1.2,t_mass=0.8'")
+  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
+                      help='physics of the planners (the world is always MuJoCo C)')
+  parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--out', default=None)
+  args = parser.parse_args()
+  out = args.out or f'experiments/results/closed_loop_{args.task}.json'
+  perturbation = parse_perturbation(args.perturb)
+
+  env, model = planner.load_model(args.task, backend=args.backend)
+  starts = env.canonical_instances(args.instances)
+  index = np.tile(np.arange(args.instances), args.rounds)
+  starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)
+  payload = {'provenance': common.provenance(), 'task': args.task,
+             'settings': {k: v for k, v in vars(args).items() if k != 'out'},
+             'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
+  for name in args.planners.split(','):
+    episodes = Episodes(env, starts, perturbation)
+    start = time.perf_counter()
+    info = run_planner(name, args.task, env, model, episodes, args,
+                       jax.random.PRNGKey(args.seed))
+    total = time.perf_counter() - start
+    k, n = int(episodes.success.sum()), len(episodes.worlds)
+    low, high = open_loop.wilson_interval(k, n)
+    won = episodes.success_step[episodes.success]
+    row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
+           'ci95_low': low, 'ci95_high': high,
+           'steps_to_success_mean': float(np.mean(won)) if len(won) else None,
+           'total_s': total, **info}
+    print(row, flush=True)
+    payload['summary'].append(row)
+    payload['episodes'][name] = {'success': episodes.success.tolist(),
+                                 'success_step': episodes.success_step.tolist(),
+                                 'steps': episodes.steps.tolist()}
+    common.write_json(out, payload)
+    write_markdown(payload, os.path.splitext(out)[0] + '.md')
+  plot(payload, os.path.splitext(out)[0] + '.png')
+
+
+def write_markdown(payload: Dict, path: str) -> None:
+  rows = []
+  for s in payload['summary']:
+    rows.append(dict(s, success=f'{s["successes"]}/{s["episodes"]} = '
+                     f'{100 * s["success_rate"]:.0f}% [{100 * s["ci95_low"]:.0f}, '
+                     f'{100 * s["ci95_high"]:.0f}]'))
+  with open(path, 'w') as f:
+    f.write(f'# Closed loop in a MuJoCo C world, {payload["task"]}\n\n'
+            f'{payload["provenance"]}\n\nSettings: {payload["settings"]}\n\n'
+            f'World perturbation: {payload["perturbation"]}\n\n')
+    f.write(common.markdown_table(rows, [
+        'planner', 'success', 'steps_to_success_mean', 'queries_per_episode_mean',
+        'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
+
+
+def plot(payload: Dict, path: str) -> None:
+  import matplotlib
+  matplotlib.use('Agg')
+  import matplotlib.pyplot as plt
+  fig, ax = plt.subplots(figsize=(6, 4))
+  for name, ep in payload['episodes'].items():
+    steps = np.asarray(ep['success_step'])
+    horizon = payload['settings']['max_queries'] * payload['settings']['execute']
+    grid = np.arange(horizon + 1)
+    ax.plot(grid, [np.mean((steps >= 0) & (steps <= g)) for g in grid], label=name)
+  ax.set_xlabel('world steps executed')
+  ax.set_ylabel('success rate')
+  ax.set_title(f'closed loop, {payload["task"]}')
+  ax.legend()
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+  plt.close(fig)
+
+
+if __name__ == '__main__':
+  main()

@@ -1,0 +1,292 @@
+"""The original's open-loop experiments: PushT x3 (PACHS against the policy, parallel rollout
+and beam search) and Panda-Shelf (PACHS against ePA*SE, parallel rollout and beam search).
+
+PushT (each task): the 30 canonical instances x `--rounds` seeds (150 runs), every planner with
+the same budget of edge evaluations per run (100,000). All runs of one planner go into ONE
+batched, jitted call (I = 150); the call's wall time (compilation excluded) is the time of the
+150 runs. A run's own planning time is estimated as the call's wall time x its iterations / the
+call's largest iteration count (instances finish at different iterations of one loop).
+Success rates get Wilson 95% intervals; cost and time are over successful runs. The success rate
+against edges evaluated comes from the same runs: a run that found its goal after e evaluations
+finds it with any budget >= e (the search up to a budget is a prefix of the full search).
+
+Shelf: the 100 canonical targets once, each planner with a 60 s wall-clock limit for the whole
+batch (PACHS: anytime chunks; the baselines are budget-bound, their wall time is checked against
+the limit and reported). Also: the matrix of pairwise cost ratios (mean over targets both
+planners solved of cost_row / cost_column; written for PushT too) and edges evaluated against
+states expanded.
+
+  python experiments/open_loop.py --task pusht-obs --out experiments/results/open_loop_pusht-obs.json
+  python experiments/open_loop.py --task shelf --out experiments/results/open_loop_shelf.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from typing import Dict, List
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import common
+from pachs_jax import planner
+from pachs_jax.search import baselines as bl
+from pachs_jax.search import pachs
+from pachs_jax.search.types import StopReason
+
+PUSHT_PLANNERS = ('pachs', 'single', 'parallel', 'beam')
+SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
+# The original's open-loop success rates (DESIGN.md), where it states them.
+ORIGINAL = {
+    'pusht-fixed': {'pachs': '100%', 'single': '93%'},
+    'pusht-rand': {'pachs': '100%', 'single': '20%'},
+    'pusht-obs': {'pachs': 'far above both rollouts'},
+    'shelf': {'pachs': '100%', 'epase': '100%'},
+}
+
+
+def wilson_interval(successes: int, total: int, z: float = 1.96):
+  """95% Wilson score interval (lower, upper) of a success rate."""
+  if total == 0:
+    return (math.nan, math.nan)
+  p = successes / total
+  centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+  half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+  return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
+  """[rounds * I, 2] keys: run r of instance i gets fold_in(fold_in(seed, r), i)."""
+  base = jax.random.PRNGKey(seed)
+  return jnp.stack([jax.random.fold_in(jax.random.fold_in(base, r), i)
+                    for r in range(rounds) for i in range(num_instances)])
+
+
+def make_planner(name: str, task: str, env, model, args):
+  """(fn(starts, keys) -> SearchResult with wall_time_s set, config description)."""
+  budget = args.budget
+  if name == 'pachs':
+    config = planner.default_config(task, max_evaluations=budget, pop_size=args.pop_size,
+                                    weight=args.weight, num_actions=args.num_actions)
+    search = pachs.make_search(env, model, config)
+    limit = args.time_limit
+
+    def fn(starts, keys):
+      return pachs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
+    return fn, config
+  if name == 'single':
+    config = bl.SingleRolloutConfig()
+    rollout = bl.make_single_rollout(env, model, config)
+    return (lambda starts, keys: bl.timed(rollout, starts)), config
+  if name == 'parallel':
+    config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=budget)
+    rollout = bl.make_parallel_rollout(env, model, config)
+    return (lambda starts, keys: bl.timed(rollout.plan, starts, keys)), config
+  if name == 'beam':
+    config = bl.BeamConfig(beam_width=args.beam_width, num_actions=16, max_evaluations=budget)
+    beam = bl.make_beam_search(env, model, config)
+    return (lambda starts, keys: bl.timed(beam, starts, keys)), config
+  if name == 'epase':
+    setup = bl.shelf_setup(env)
+    config = bl.EpaseConfig(weight=args.epase_weight, pop_size=args.pop_size or 16,
+                            max_evaluations=args.epase_budget,
+                            lattice_resolution=setup.lattice_resolution)
+    search = bl.make_epase(env, setup.primitives, setup.heuristic, config,
+                           edge_fn=setup.edge_fn)
+    return (lambda starts, keys: bl.timed(search.plan, starts)), config
+  raise ValueError(f'unknown planner {name!r}')
+
+
+def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
+  """Per-run rows with the estimated finish time of each run in the batched call."""
+  r = jax.tree.map(np.asarray, result)
+  wall = float(r.wall_time_s)
+  most = max(int(r.iterations.max()), 1)
+  rows = []
+  for j in range(len(r.found)):
+    rows.append({
+        'instance': j % num_instances, 'round': j // num_instances, 'found': bool(r.found[j]),
+        'cost': float(r.cost[j]), 'path_length': int(r.path_length[j]),
+        'evaluated': int(r.evaluated[j]), 'expanded': int(r.expanded[j]),
+        'iterations': int(r.iterations[j]), 'stop': StopReason.name(r.stop_reason[j]),
+        'time_s_est': wall * int(r.iterations[j]) / most,
+        'overflow': int(r.heap_overflow[j] + r.pool_overflow[j] + r.table_overflow[j])})
+  return rows
+
+
+def summarise(name: str, rows: List[Dict], wall: float, compile_s: float) -> Dict:
+  ok = [r for r in rows if r['found']]
+  n, k = len(rows), len(ok)
+  low, high = wilson_interval(k, n)
+  mean = lambda xs: float(np.mean(xs)) if xs else None
+  stops = {}
+  for r in rows:
+    stops[r['stop']] = stops.get(r['stop'], 0) + 1
+  return {
+      'planner': name, 'runs': n, 'successes': k, 'success_rate': k / n,
+      'ci95_low': low, 'ci95_high': high, 'batch_wall_s': wall, 'compile_s': compile_s,
+      'time_s_success_mean': mean([r['time_s_est'] for r in ok]),
+      'cost_success_mean': mean([r['cost'] for r in ok]),
+      'evaluated_mean': mean([r['evaluated'] for r in rows]),
+      'expanded_mean': mean([r['expanded'] for r in rows]),
+      'evaluated_per_expanded': (sum(r['evaluated'] for r in rows)
+                                 / max(1, sum(r['expanded'] for r in rows))),
+      'edges_per_s': sum(r['evaluated'] for r in rows) / max(wall, 1e-9),
+      'overflow_runs': sum(r['overflow'] > 0 for r in rows), 'stop_reasons': stops}
+
+
+def success_curve(rows: List[Dict], budgets) -> List[float]:
+  """Share of runs that found the goal within each budget of evaluations."""
+  return [float(np.mean([r['found'] and r['evaluated'] <= b for r in rows])) for b in budgets]
+
+
+def cost_ratios(per_planner: Dict[str, List[Dict]]) -> Dict[str, Dict[str, Dict]]:
+  """ratio[a][b]: mean over runs both solved of cost_a / cost_b, and how many runs."""
+  out = {}
+  for a, rows_a in per_planner.items():
+    out[a] = {}
+    for b, rows_b in per_planner.items():
+      pairs = [(x['cost'], y['cost']) for x, y in zip(rows_a, rows_b)
+               if x['found'] and y['found'] and y['cost'] > 0]
+      out[a][b] = {'mean_ratio': float(np.mean([x / y for x, y in pairs])) if pairs else None,
+                   'runs': len(pairs)}
+  return out
+
+
+def plot(task: str, payload: Dict, path: str) -> None:
+  import matplotlib
+  matplotlib.use('Agg')
+  import matplotlib.pyplot as plt
+  rows = payload['runs']
+  shelf = task == 'shelf'
+  fig, axes = plt.subplots(1, 3 if shelf else 2, figsize=(15 if shelf else 10, 4))
+  budgets = payload['curve_budgets']
+  for name, curve in payload['success_curve'].items():
+    axes[0].plot(budgets, curve, label=name)
+  axes[0].set_xscale('log')
+  axes[0].set_xlabel('edges evaluated (budget)')
+  axes[0].set_ylabel('success rate')
+  axes[0].set_title(f'{task}: success against edges evaluated')
+  axes[0].legend()
+  names = [s['planner'] for s in payload['summary']]
+  rates = [s['success_rate'] for s in payload['summary']]
+  err = [[s['success_rate'] - s['ci95_low'] for s in payload['summary']],
+         [s['ci95_high'] - s['success_rate'] for s in payload['summary']]]
+  axes[1].bar(names, rates, yerr=err, capsize=4)
+  axes[1].set_ylim(0, 1.05)
+  axes[1].set_title(f'success rate (95% CI), {payload["summary"][0]["runs"]} runs')
+  if shelf:
+    for name, planner_rows in rows.items():
+      axes[2].scatter([max(r['expanded'], 1) for r in planner_rows],
+                      [max(r['evaluated'], 1) for r in planner_rows], s=8, label=name)
+    axes[2].set_xscale('log')
+    axes[2].set_yscale('log')
+    axes[2].set_xlabel('states expanded')
+    axes[2].set_ylabel('edges evaluated')
+    axes[2].set_title('evaluated against expanded (per target)')
+    axes[2].legend()
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+  plt.close(fig)
+
+
+def write_markdown(task: str, payload: Dict, path: str) -> None:
+  lines = [f'# Open loop, {task}\n', f'{payload["provenance"]}\n',
+           f'Settings: {payload["settings"]}\n']
+  rows = []
+  for s in payload['summary']:
+    row = dict(s)
+    row['success'] = (f'{s["successes"]}/{s["runs"]} = {100 * s["success_rate"]:.1f}% '
+                      f'[{100 * s["ci95_low"]:.1f}, {100 * s["ci95_high"]:.1f}]')
+    row['original'] = ORIGINAL.get(task, {}).get(s['planner'], '')
+    rows.append(row)
+  lines.append(common.markdown_table(rows, [
+      'planner', 'success', 'original', 'batch_wall_s', 'time_s_success_mean',
+      'cost_success_mean', 'evaluated_mean', 'expanded_mean', 'evaluated_per_expanded',
+      'edges_per_s', 'overflow_runs', 'compile_s']))
+  if 'cost_ratios' in payload:
+    names = list(payload['cost_ratios'])
+    lines.append('\nPairwise cost ratios (row / column, mean over targets both solved; runs):\n')
+    table = [{'planner': a, **{b: (f'{c["mean_ratio"]:.3f} ({c["runs"]})'
+                                   if c['mean_ratio'] is not None else '-')
+                               for b, c in payload['cost_ratios'][a].items()}} for a in names]
+    lines.append(common.markdown_table(table, ['planner'] + names))
+  lines.append('\nStop reasons: ' + '; '.join(f'{s["planner"]}: {s["stop_reasons"]}'
+                                             for s in payload['summary']))
+  with open(path, 'w') as f:
+    f.write('\n'.join(lines) + '\n')
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-obs',
+                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
+  parser.add_argument('--planners', default=None, help='comma list (default: all of the task)')
+  parser.add_argument('--instances', type=int, default=None,
+                      help='canonical instances (default: 30 PushT, 100 shelf)')
+  parser.add_argument('--rounds', type=int, default=None, help='runs per instance (default: '
+                      '5 PushT, 1 shelf)')
+  parser.add_argument('--budget', type=int, default=None,
+                      help='evaluations per run (default: 100,000 PushT, 20,000 shelf)')
+  parser.add_argument('--time-limit', type=float, default=None,
+                      help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
+  parser.add_argument('--pop-size', type=int, default=None, help='K (default: the task\'s)')
+  parser.add_argument('--num-actions', type=int, default=None, help='N (default: the task\'s)')
+  parser.add_argument('--weight', type=float, default=None, help='w (default: the task\'s)')
+  parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--beam-width', type=int, default=64)
+  parser.add_argument('--epase-weight', type=float, default=2.0)
+  parser.add_argument('--epase-budget', type=int, default=200_000)
+  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
+  parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--out', default=None)
+  args = parser.parse_args()
+  shelf = args.task == 'shelf'
+  args.instances = args.instances or (100 if shelf else 30)
+  args.rounds = args.rounds or (1 if shelf else 5)
+  args.budget = args.budget or (20_000 if shelf else 100_000)
+  if args.time_limit is None and shelf:
+    args.time_limit = 60.0
+  names = (args.planners.split(',') if args.planners
+           else list(SHELF_PLANNERS if shelf else PUSHT_PLANNERS))
+  out = args.out or f'experiments/results/open_loop_{args.task}.json'
+
+  env, model = planner.load_model(args.task, backend=args.backend)
+  starts = env.canonical_instances(args.instances)
+  index = np.tile(np.arange(args.instances), args.rounds)
+  starts = jax.tree.map(lambda x: x[index], starts)
+  keys = run_keys(args.seed, args.instances, args.rounds)
+  budgets = np.unique(np.geomspace(100, max(args.budget, args.epase_budget if shelf else 0),
+                                   40).astype(int)).tolist()
+  payload = {'provenance': common.provenance(), 'task': args.task,
+             'model': planner.MODEL_FOR_TASK[args.task],
+             'settings': {'instances': args.instances, 'rounds': args.rounds,
+                          'budget': args.budget, 'time_limit_s': args.time_limit},
+             'configs': {}, 'summary': [], 'runs': {}, 'curve_budgets': budgets,
+             'success_curve': {}}
+  for name in names:
+    fn, config = make_planner(name, args.task, env, model, args)
+    payload['configs'][name] = repr(config)
+    start = time.perf_counter()
+    result = fn(starts, keys)  # compiles, then runs (wall_time_s excludes compilation)
+    compile_s = time.perf_counter() - start - float(result.wall_time_s)
+    rows = run_rows(result, args.rounds, args.instances)
+    summary = summarise(name, rows, float(result.wall_time_s), compile_s)
+    if args.time_limit and name != 'pachs':
+      summary['within_time_limit'] = float(result.wall_time_s) <= args.time_limit
+    print(summary, flush=True)
+    payload['summary'].append(summary)
+    payload['runs'][name] = rows
+    payload['success_curve'][name] = success_curve(rows, budgets)
+    payload['cost_ratios'] = cost_ratios(payload['runs'])
+    common.write_json(out, payload)
+    write_markdown(args.task, payload, os.path.splitext(out)[0] + '.md')
+  plot(args.task, payload, os.path.splitext(out)[0] + '.png')
+
+
+if __name__ == '__main__':
+  main()
