@@ -1,0 +1,21 @@
+#!/bin/bash
+# Runs independent jobs side by side, one per GPU of the host: line i of JOBS runs with
+# CUDA_VISIBLE_DEVICES=i (a line may chain commands with &&), its output in LOGDIR/gpu<i>.log.
+# TIMEOUT_S (optional) stops each line after that many seconds; scripts that write their results
+# as they go keep what they finished. Waits for all lines.
+#   bash experiments/parallel_gpus.sh JOBS LOGDIR [TIMEOUT_S]
+set -u
+jobs=$1; logdir=$2; limit=${3:-0}
+mkdir -p "$logdir"
+i=0
+while IFS= read -r line || [ -n "$line" ]; do
+  [ -z "$line" ] && continue
+  (
+    export CUDA_VISIBLE_DEVICES=$i
+    if [ "$limit" -gt 0 ]; then timeout "$limit" bash -c "$line"; else bash -c "$line"; fi
+    echo "exit status $?"
+  ) > "$logdir/gpu$i.log" 2>&1 &
+  i=$((i + 1))
+done < "$jobs"
+wait
+tail -n 3 "$logdir"/gpu*.log

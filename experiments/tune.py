@@ -1,0 +1,95 @@
+"""A documented sweep of PACHS's parameters (w, N, K, lattice resolution) on a task's canonical
+instances: one parameter at a time around the task's defaults (`planner.TASK_DEFAULTS`).
+
+Each setting plans the `--instances` canonical instances (one run each, seed 0) in one batched
+call with the task's budget; the table gives success, the call's wall time (compilation
+excluded), mean edges evaluated and mean cost over successes.
+
+  python experiments/tune.py --task pusht-obs --out experiments/results/tune_pusht-obs.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+import jax
+import numpy as np
+
+import common
+import open_loop
+from pachs_jax import planner
+from pachs_jax.search import pachs
+from pachs_jax.search.types import StopReason
+
+# One-at-a-time variations around the defaults; 'res' scales the env's lattice resolution.
+SWEEP = {'weight': (1.0, 3.0, 5.0), 'num_actions': (4, 16), 'pop_size': (16, 256),
+         'res': (0.5, 2.0)}
+
+
+def settings(task: str, env, sweep=SWEEP):
+  """[(label, SearchConfig)]: the default first, then each single change."""
+  base = planner.default_config(task)
+  out = [('default', base)]
+  for name, values in sweep.items():
+    for v in values:
+      if name == 'res':
+        res = tuple(float(x) * v for x in np.asarray(env.default_lattice_resolution))
+        out.append((f'res x{v:g}', dataclasses.replace(base, lattice_resolution=res)))
+      elif getattr(base, name) != v:
+        out.append((f'{name}={v:g}', dataclasses.replace(base, **{name: v})))
+  return out
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--instances', type=int, default=None)
+  parser.add_argument('--budget', type=int, default=None)
+  parser.add_argument('--only', default=None, help='comma list of setting labels to run')
+  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
+  parser.add_argument('--out', default=None)
+  args = parser.parse_args()
+  out = args.out or f'experiments/results/tune_{args.task}.json'
+  env, model = planner.load_model(args.task, backend=args.backend)
+  num = args.instances or (100 if args.task == 'shelf' else 30)
+  starts = env.canonical_instances(num)
+  keys = open_loop.run_keys(0, num, 1)
+  payload = {'provenance': common.provenance(), 'task': args.task, 'instances': num,
+             'rows': []}
+  chosen = args.only.split(',') if args.only else None
+  for label, config in settings(args.task, env):
+    if chosen and label not in chosen:
+      continue
+    if args.budget:
+      config = dataclasses.replace(config, max_evaluations=args.budget)
+    start = time.perf_counter()
+    result = pachs.plan(env, model, starts, config, keys)
+    compile_s = time.perf_counter() - start - float(result.wall_time_s)
+    r = jax.tree.map(np.asarray, result)
+    row = {'setting': label, 'w': config.weight, 'N': config.num_actions, 'K': config.pop_size,
+           'lattice_resolution': (str(tuple(round(x, 4) for x in config.lattice_resolution))
+                                  if config.lattice_resolution else 'default'),
+           'budget': config.max_evaluations, 'found': int(r.found.sum()), 'runs': num,
+           'success_rate': float(r.found.mean()), 'wall_s': float(r.wall_time_s),
+           'compile_s': compile_s, 'evaluated_mean': float(r.evaluated.mean()),
+           'cost_success_mean': float(r.cost[r.found].mean()) if r.found.any() else None,
+           'overflow': int((r.heap_overflow + r.pool_overflow + r.table_overflow).sum()),
+           'stops': {StopReason.name(c): int(n) for c, n in
+                     zip(*np.unique(r.stop_reason, return_counts=True))}}
+    print(row, flush=True)
+    payload['rows'].append(row)
+    common.write_json(out, payload)
+    with open(os.path.splitext(out)[0] + '.md', 'w') as f:
+      f.write(f'# PACHS parameter sweep, {args.task} ({num} canonical instances, one run '
+              f'each)\n\n{payload["provenance"]}\n\n')
+      f.write(common.markdown_table(payload['rows'], [
+          'setting', 'w', 'N', 'K', 'lattice_resolution', 'budget', 'found', 'success_rate',
+          'wall_s', 'evaluated_mean', 'cost_success_mean', 'overflow', 'stops',
+          'compile_s']) + '\n')
+
+
+if __name__ == '__main__':
+  main()
