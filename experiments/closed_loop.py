@@ -13,9 +13,9 @@ world states (episodes that already ended stay in the batch, their answers are i
 Planners:
 - single: the deterministic policy acting in the world, one action per world step, up to
   max_queries x execute steps (no planning).
-- parallel: the parallel rollout (its evaluation budget, `--budget`, bounds it; it returns its
-  best-reward rollout when no copy reaches the goal); the query's wall time is recorded and
-  checked against the budget.
+- parallel: the parallel rollout under the same query time and evaluation budget (steps in
+  chunks with a wall-clock check between them); without a goal it returns its best-reward
+  finished rollout.
 - pachs: PACHS in real-time mode: anytime chunks until the query time, then the path to the
   best-f state (or to a goal).
 - mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
@@ -101,9 +101,9 @@ class Episodes:
       self.success |= reached
 
 
-def policy_actions(model):
-  """jitted obs [E, O] -> [E, 1, A] deterministic actions."""
-  return jax.jit(lambda obs: model.deterministic_action(obs)[:, None])
+def policy_actions(env, model):
+  """jitted nodes [E] -> [E, 1, A] deterministic actions of the policy."""
+  return jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes))[:, None])
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
@@ -122,7 +122,14 @@ def make_query(name: str, task: str, env, model, args, num: int):
     rollout = bl.make_parallel_rollout(env, model, config)
 
     def query(nodes, keys, executed):
-      out = rollout.plan(nodes, keys)
+      state = rollout.init(nodes, keys)
+      start = time.perf_counter()
+      while True:  # steps until every copy has stopped or the query time is spent
+        for _ in range(args.chunk_iterations):
+          state = rollout.step(state)
+        if not bool(jnp.any(state.active)) or time.perf_counter() - start >= args.query_time:
+          break
+      out = rollout.result(state)
       return np.asarray(out.path_actions), np.asarray(out.path_length)
     return query, config
   if name == 'mppi':
@@ -147,13 +154,13 @@ def make_query(name: str, task: str, env, model, args, num: int):
 
 def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
   """The deterministic policy in the world for up to `steps` steps; returns per-step times."""
-  act = policy_actions(model)
+  act = policy_actions(env, model)
   times = []
   for _ in range(steps):
     if not episodes.active.any():
       break
     start = time.perf_counter()
-    actions = np.asarray(act(env.observe(episodes.batch())))
+    actions = np.asarray(act(episodes.batch()))
     times.append(time.perf_counter() - start)
     episodes.execute(actions, np.ones(actions.shape[0], np.int64))
   return times
@@ -165,7 +172,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     times = run_single(env, model, episodes, args.max_queries * args.execute)
     return {'queries_per_episode_mean': None, 'step_time_s_mean': float(np.mean(times))}
   query, config = make_query(name, task, env, model, args, num)
-  fallback = policy_actions(model)
+  fallback = policy_actions(env, model)
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
   for q in range(args.max_queries):
@@ -186,7 +193,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     empty = lengths == 0
     if empty.any():
       actions = actions.copy()
-      actions[empty, 0] = np.asarray(fallback(env.observe(nodes)))[empty, 0]
+      actions[empty, 0] = np.asarray(fallback(nodes))[empty, 0]
       lengths = np.where(empty, 1, lengths)
     queries += episodes.active
     executed = lengths
@@ -211,7 +218,7 @@ def main():
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
   parser.add_argument('--chunk-iterations', type=int, default=8,
-                      help='PACHS iterations between wall-clock checks')
+                      help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],

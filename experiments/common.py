@@ -15,7 +15,10 @@ import numpy as np
 
 
 def git_revision() -> str:
-  """The checkout's commit (with '+dirty' when files differ), or 'unknown'."""
+  """PACHS_GIT_REVISION when set (the GPU machine's copy of the tree), else the checkout's
+  commit (with '+dirty' when files differ), or 'unknown'."""
+  if os.environ.get('PACHS_GIT_REVISION'):
+    return os.environ['PACHS_GIT_REVISION']
   root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
   try:
     rev = subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=root, capture_output=True, text=True,
@@ -24,8 +27,7 @@ def git_revision() -> str:
                            capture_output=True, text=True).stdout.strip()
     return rev + ('+dirty' if dirty else '')
   except (OSError, subprocess.CalledProcessError):
-    # The GPU machine gets a copy of the tree without .git: pass PACHS_GIT_REVISION there.
-    return os.environ.get('PACHS_GIT_REVISION', 'unknown')
+    return 'unknown'
 
 
 def provenance() -> Dict[str, Any]:

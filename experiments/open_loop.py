@@ -23,6 +23,7 @@ states expanded.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import time
@@ -72,6 +73,10 @@ def make_planner(name: str, task: str, env, model, args):
   if name == 'pachs':
     config = planner.default_config(task, max_evaluations=budget, pop_size=args.pop_size,
                                     weight=args.weight, num_actions=args.num_actions)
+    if args.lattice_scale is not None:
+      base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
+      config = dataclasses.replace(config, lattice_resolution=tuple(
+          float(x) * args.lattice_scale for x in base))
     search = pachs.make_search(env, model, config)
     limit = args.time_limit
 
@@ -174,8 +179,8 @@ def plot(task: str, payload: Dict, path: str) -> None:
   axes[0].legend()
   names = [s['planner'] for s in payload['summary']]
   rates = [s['success_rate'] for s in payload['summary']]
-  err = [[s['success_rate'] - s['ci95_low'] for s in payload['summary']],
-         [s['ci95_high'] - s['success_rate'] for s in payload['summary']]]
+  err = [[max(0.0, s['success_rate'] - s['ci95_low']) for s in payload['summary']],
+         [max(0.0, s['ci95_high'] - s['success_rate']) for s in payload['summary']]]
   axes[1].bar(names, rates, yerr=err, capsize=4)
   axes[1].set_ylim(0, 1.05)
   axes[1].set_title(f'success rate (95% CI), {payload["summary"][0]["runs"]} runs')
@@ -237,6 +242,8 @@ def main():
   parser.add_argument('--pop-size', type=int, default=None, help='K (default: the task\'s)')
   parser.add_argument('--num-actions', type=int, default=None, help='N (default: the task\'s)')
   parser.add_argument('--weight', type=float, default=None, help='w (default: the task\'s)')
+  parser.add_argument('--lattice-scale', type=float, default=None,
+                      help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
   parser.add_argument('--beam-width', type=int, default=64)
   parser.add_argument('--epase-weight', type=float, default=2.0)
