@@ -76,9 +76,12 @@ def _plan(args: argparse.Namespace) -> int:
   instances = planner.parse_instances(args.instances, num_available)
   budget = args.budget if args.budget is not None else (
       cpu_budget if on_cpu else planner.default_config(args.task).max_evaluations)
-  config = planner.default_config(args.task, weight=args.weight, num_actions=args.num_actions,
-                                  pop_size=args.pop_size, max_evaluations=budget,
-                                  lattice_resolution=args.lattice_resolution)
+  settings = dict(planner.CPU_TASK_OVERRIDES.get(args.task, {})) if (
+      on_cpu and args.budget is None) else {}
+  explicit = dict(weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
+                  max_evaluations=budget, lattice_resolution=args.lattice_resolution)
+  settings.update({k: v for k, v in explicit.items() if v is not None})
+  config = planner.default_config(args.task, **settings)
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if env.__class__.__name__ == 'MujocoCEnv'
                else 'MJX on the CPU (slow: milliseconds per world and step)')

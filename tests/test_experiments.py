@@ -1,0 +1,69 @@
+"""The experiment scripts' own logic: statistics, curves, cost ratios, closed-loop bookkeeping."""
+
+import os
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
+
+import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
+import open_loop  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
+
+
+def test_wilson_interval_known_values_and_edges():
+  low, high = open_loop.wilson_interval(137, 150)
+  assert low == pytest.approx(0.8566, abs=1e-3) and high == pytest.approx(0.9489, abs=1e-3)
+  assert open_loop.wilson_interval(150, 150)[1] == 1.0  # exactly 1, not 0.99999...
+  assert open_loop.wilson_interval(0, 10) == (0.0, pytest.approx(0.2775, abs=1e-3))
+  low, high = open_loop.wilson_interval(5, 10)
+  assert low < 0.5 < high and low == pytest.approx(1 - high)
+
+
+def test_success_curve_counts_runs_found_within_budget():
+  rows = [{'found': True, 'evaluated': 50}, {'found': True, 'evaluated': 500},
+          {'found': False, 'evaluated': 1000}, {'found': True, 'evaluated': 5000}]
+  assert open_loop.success_curve(rows, [10, 50, 499, 500, 10_000]) == [0, 0.25, 0.25, 0.5, 0.75]
+
+
+def test_cost_ratios_use_runs_both_solved():
+  rows = {'a': [{'found': True, 'cost': 2.0}, {'found': True, 'cost': 4.0},
+                {'found': False, 'cost': 9.0}],
+          'b': [{'found': True, 'cost': 1.0}, {'found': False, 'cost': 1.0},
+                {'found': True, 'cost': 3.0}]}
+  ratios = open_loop.cost_ratios(rows)
+  assert ratios['a']['b'] == {'mean_ratio': 2.0, 'runs': 1}
+  assert ratios['b']['a'] == {'mean_ratio': 0.5, 'runs': 1}
+  assert ratios['a']['a'] == {'mean_ratio': 1.0, 'runs': 2}
+
+
+def test_run_keys_differ_per_run_and_repeat_per_seed():
+  keys = np.asarray(open_loop.run_keys(0, 3, 2))
+  assert keys.shape == (6, 2) and len({tuple(k) for k in keys}) == 6
+  np.testing.assert_array_equal(keys, np.asarray(open_loop.run_keys(0, 3, 2)))
+
+
+def test_perturbation_parsing():
+  p = closed_loop.parse_perturbation('friction=1.5,t_mass=0.5')
+  assert (p.friction, p.t_mass, p.actuator_gain) == (1.5, 0.5, 1.0)
+  with pytest.raises(ValueError, match='unknown perturbation'):
+    closed_loop.parse_perturbation('gravity=2')
+
+
+def test_episodes_judge_success_in_the_world_and_stop_finished_ones():
+  env = envs.make('pusht-fixed')
+  at_goal = env.node_from_pose(np.asarray(pusht.FIXED_GOAL), np.asarray(pusht.FIXED_GOAL))
+  away = env.node_from_pose(np.array([0.1, 0.1, 0.0]), np.asarray(pusht.FIXED_GOAL))
+  starts = jax.tree.map(lambda a, b: np.stack([np.asarray(a), np.asarray(b)]), at_goal, away)
+  episodes = closed_loop.Episodes(env, starts, None)
+  assert episodes.success.tolist() == [True, False]  # the first starts at the goal
+  actions = np.zeros((2, 3, env.action_size), np.float32)
+  episodes.execute(actions, np.array([3, 2]))
+  # the finished episode does not move; the other runs its 2 actions in the world
+  assert episodes.steps.tolist() == [0, 2]
+  assert episodes.success.tolist() == [True, False]
+  assert int(np.asarray(episodes.nodes[1].t)) == 2
