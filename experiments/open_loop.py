@@ -248,7 +248,7 @@ def main():
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
   parser.add_argument('--beam-width', type=int, default=64)
-  parser.add_argument('--epase-weight', type=float, default=2.0)
+  parser.add_argument('--epase-weight', type=float, default=10.0)
   parser.add_argument('--epase-budget', type=int, default=200_000)
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
   parser.add_argument('--seed', type=int, default=0)

@@ -1,0 +1,74 @@
+"""A sweep of the shelf's ePA*SE baseline: heuristic weight w, obstacle inflation of the BFS-3D
+grid and the primitive step, on the first `--targets` canonical shelf targets.
+
+Each setting plans all targets in one batched call with `--budget` evaluations per target and
+reports success, evaluations, expansions and cost (JSON and a markdown table).
+
+  python experiments/tune_epase.py --weights 2,5,10,20 --targets 100 --budget 120000 \
+      --out experiments/results/tune_epase.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import common
+from pachs_jax import envs
+from pachs_jax.search import baselines as bl
+from pachs_jax.search.types import StopReason
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--weights', default='2,10')
+  parser.add_argument('--inflations', default='0.02', help='m, comma separated')
+  parser.add_argument('--steps', default='7', help='primitive steps in degrees, comma separated')
+  parser.add_argument('--targets', type=int, default=100)
+  parser.add_argument('--pop-size', type=int, default=16)
+  parser.add_argument('--budget', type=int, default=120_000)
+  parser.add_argument('--out', default='experiments/results/tune_epase.json')
+  args = parser.parse_args()
+  env = envs.make('shelf')
+  starts = env.canonical_instances(100)
+  starts = jax.tree.map(lambda x: x[:args.targets], starts)
+  payload = {'provenance': common.provenance(), 'targets': args.targets, 'rows': []}
+  for w, inflation, step in itertools.product(
+      [float(x) for x in args.weights.split(',')], [float(x) for x in args.inflations.split(',')],
+      [float(x) for x in args.steps.split(',')]):
+    setup = bl.shelf_setup(env, step_deg=step, inflation=inflation)
+    config = bl.EpaseConfig(weight=w, pop_size=args.pop_size, max_evaluations=args.budget,
+                            lattice_resolution=setup.lattice_resolution)
+    search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
+    start = time.perf_counter()
+    result = bl.timed(search.plan, starts)
+    compile_s = time.perf_counter() - start - float(result.wall_time_s)
+    r = jax.tree.map(np.asarray, result)
+    h0 = np.asarray(setup.heuristic.value(setup.heuristic.init(starts),
+                                          jax.tree.map(lambda x: jnp.asarray(x)[:, None],
+                                                       starts)))[:, 0]
+    row = {'w': w, 'inflation_m': inflation, 'step_deg': step, 'budget': args.budget,
+           'found': int(r.found.sum()), 'targets': args.targets,
+           'wall_s': float(r.wall_time_s), 'compile_s': compile_s,
+           'evaluated_mean': float(r.evaluated.mean()), 'expanded_mean': float(r.expanded.mean()),
+           'cost_success_mean': float(r.cost[r.found].mean()) if r.found.any() else None,
+           'h_start_mean': float(h0.mean()),
+           'stops': {StopReason.name(c): int(n) for c, n in
+                     zip(*np.unique(r.stop_reason, return_counts=True))}}
+    print(row, flush=True)
+    payload['rows'].append(row)
+    common.write_json(args.out, payload)
+    with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+      f.write(f'# ePA*SE sweep on the shelf ({args.targets} canonical targets)\n\n'
+              f'{payload["provenance"]}\n\n')
+      f.write(common.markdown_table(payload['rows'], list(row)) + '\n')
+
+
+if __name__ == '__main__':
+  main()
