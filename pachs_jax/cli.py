@@ -67,23 +67,20 @@ def _plan(args: argparse.Namespace) -> int:
   on_cpu = jax.default_backend() == 'cpu'
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
   num_available = 100 if args.task == 'shelf' else 30
-  cpu_instances, cpu_budget = planner.CPU_DEFAULTS[
-      'mujoco-c' if env.__class__.__name__ == 'MujocoCEnv' else 'other']
+  mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
+  cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
   if args.instances is None:
     args.instances = cpu_instances if on_cpu else 'all'
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
-  budget = args.budget if args.budget is not None else (
-      cpu_budget if on_cpu else planner.default_config(args.task).max_evaluations)
-  settings = dict(planner.CPU_TASK_OVERRIDES.get(args.task, {})) if (
-      on_cpu and args.budget is None) else {}
-  explicit = dict(weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
-                  max_evaluations=budget, lattice_resolution=args.lattice_resolution)
-  settings.update({k: v for k, v in explicit.items() if v is not None})
-  config = planner.default_config(args.task, **settings)
+  config = planner.command_config(
+      args.task, on_cpu, mujoco_c, args.budget,
+      weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
+      lattice_resolution=args.lattice_resolution)
+  budget = config.max_evaluations
   if on_cpu:
-    physics = ('MuJoCo C on all CPU threads' if env.__class__.__name__ == 'MujocoCEnv'
+    physics = ('MuJoCo C on all CPU threads' if mujoco_c
                else 'MJX on the CPU (slow: milliseconds per world and step)')
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)

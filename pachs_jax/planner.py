@@ -48,8 +48,8 @@ TASK_DEFAULTS: Dict[str, search_types.SearchConfig] = {
 # the CPU, which costs milliseconds per world and step, one instance and a small budget.
 CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 # Settings that are better at the CPU's smaller budget (CPU, 2 cores, 30 instances, 20,000
-# evaluations: PushT-Obs finds 28/30 in about 70 s with these, 25/30 in 43 s with the GPU
-# defaults, whose finer lattice pays off only with a larger budget).
+# evaluations, MuJoCo C: PushT-Obs finds 28/30 in 43 s of search with these, 25/30 in 43 s with
+# the GPU defaults, whose finer lattice pays off only with a larger budget).
 CPU_TASK_OVERRIDES = {
     'pusht-obs': {'pop_size': 64, 'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
 }
@@ -61,6 +61,19 @@ def default_config(task: str, **overrides) -> search_types.SearchConfig:
     raise ValueError(f'unknown task {task!r}; valid tasks: {", ".join(TASK_DEFAULTS)}')
   kept = {k: v for k, v in overrides.items() if v is not None}
   return dataclasses.replace(TASK_DEFAULTS[task], **kept)
+
+
+def command_config(task: str, on_cpu: bool, mujoco_c: bool, budget: Optional[int] = None,
+                   **explicit) -> search_types.SearchConfig:
+  """The SearchConfig of `pachs plan`: the task's defaults; on a CPU-only machine without a
+  given budget, the CPU budget (`CPU_DEFAULTS`, by physics backend) and `CPU_TASK_OVERRIDES`;
+  explicit non-None values (weight, num_actions, ...) win over both."""
+  settings = {}
+  if on_cpu and budget is None:
+    settings.update(CPU_TASK_OVERRIDES.get(task, {}))
+    budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]
+  settings.update({k: v for k, v in explicit.items() if v is not None})
+  return default_config(task, max_evaluations=budget, **settings)
 
 
 def checkpoint_path(task: str) -> str:
