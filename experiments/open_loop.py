@@ -36,7 +36,7 @@ import numpy as np
 import common
 from pachs_jax import planner
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
+from pachs_jax.search import pachs, sharding
 from pachs_jax.search.types import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'single', 'parallel', 'beam')
@@ -69,8 +69,12 @@ def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
                     for r in range(rounds) for i in range(num_instances)])
 
 
-def make_planner(name: str, task: str, env, model, args):
-  """(fn(starts, keys) -> SearchResult with wall_time_s set, config description)."""
+def make_planner(name: str, task: str, env, model, args, mesh=None):
+  """(fn(starts, keys) -> SearchResult with wall_time_s set, config description).
+
+  mesh: None runs on the default device; a `sharding.instance_mesh` splits the instances over
+  its devices (no time limit then).
+  """
   budget = args.budget
   if name == 'pachs':
     config = planner.default_config(task, max_evaluations=budget, pop_size=args.pop_size,
@@ -80,6 +84,9 @@ def make_planner(name: str, task: str, env, model, args):
       config = dataclasses.replace(config, lattice_resolution=tuple(
           float(x) * args.lattice_scale for x in base))
     search = pachs.make_search(env, model, config)
+    if mesh is not None:
+      return (lambda starts, keys: sharding.plan_sharded(env, model, starts, config, keys, mesh,
+                                                         search=search)), config
     limit = args.time_limit
 
     def fn(starts, keys):
@@ -87,25 +94,26 @@ def make_planner(name: str, task: str, env, model, args):
     return fn, config
   if name == 'single':
     config = bl.SingleRolloutConfig()
-    rollout = bl.make_single_rollout(env, model, config)
-    return (lambda starts, keys: bl.timed(rollout, starts)), config
-  if name == 'parallel':
+    shard_fn = sharding.keyless(bl.make_single_rollout(env, model, config))
+  elif name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=budget)
-    rollout = bl.make_parallel_rollout(env, model, config)
-    return (lambda starts, keys: bl.timed(rollout.plan, starts, keys)), config
-  if name == 'beam':
+    shard_fn = bl.make_parallel_rollout(env, model, config).plan
+  elif name == 'beam':
     config = bl.BeamConfig(beam_width=args.beam_width, num_actions=16, max_evaluations=budget)
-    beam = bl.make_beam_search(env, model, config)
-    return (lambda starts, keys: bl.timed(beam, starts, keys)), config
-  if name == 'epase':
+    shard_fn = bl.make_beam_search(env, model, config)
+  elif name == 'epase':
     setup = bl.shelf_setup(env)
     config = bl.EpaseConfig(weight=args.epase_weight, pop_size=args.pop_size or 16,
                             max_evaluations=args.epase_budget,
                             lattice_resolution=setup.lattice_resolution)
-    search = bl.make_epase(env, setup.primitives, setup.heuristic, config,
-                           edge_fn=setup.edge_fn)
-    return (lambda starts, keys: bl.timed(search.plan, starts)), config
-  raise ValueError(f'unknown planner {name!r}')
+    shard_fn = sharding.keyless(bl.make_epase(env, setup.primitives, setup.heuristic, config,
+                                              edge_fn=setup.edge_fn).plan)
+  else:
+    raise ValueError(f'unknown planner {name!r}')
+  if mesh is not None:
+    return (lambda starts, keys: sharding.plan_sharded_fn(shard_fn, starts, keys, mesh)), config
+  jitted = jax.jit(shard_fn)
+  return (lambda starts, keys: bl.timed(jitted, starts, keys)), config
 
 
 def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
@@ -251,6 +259,8 @@ def main():
   parser.add_argument('--epase-weight', type=float, default=10.0)
   parser.add_argument('--epase-budget', type=int, default=200_000)
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
+  parser.add_argument('--devices', type=int, default=1,
+                      help='shard the runs over this many local devices (no PACHS time limit)')
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument('--out', default=None)
   args = parser.parse_args()
@@ -258,8 +268,13 @@ def main():
   args.instances = args.instances or (100 if shelf else 30)
   args.rounds = args.rounds or (1 if shelf else 5)
   args.budget = args.budget or (20_000 if shelf else 100_000)
-  if args.time_limit is None and shelf:
+  if args.time_limit is None and shelf and args.devices == 1:
     args.time_limit = 60.0
+  if args.devices < 1 or args.devices > jax.device_count():
+    parser.error(f'--devices must be in 1..{jax.device_count()} (the local devices)')
+  if args.devices > 1 and args.time_limit is not None:
+    parser.error('--time-limit (anytime chunks) needs --devices 1')
+  mesh = sharding.instance_mesh(jax.devices()[:args.devices]) if args.devices > 1 else None
   names = (args.planners.split(',') if args.planners
            else list(SHELF_PLANNERS if shelf else PUSHT_PLANNERS))
   out = args.out or f'experiments/results/open_loop_{args.task}.json'
@@ -274,11 +289,12 @@ def main():
   payload = {'provenance': common.provenance(), 'task': args.task,
              'model': planner.MODEL_FOR_TASK[args.task],
              'settings': {'instances': args.instances, 'rounds': args.rounds,
-                          'budget': args.budget, 'time_limit_s': args.time_limit},
+                          'budget': args.budget, 'time_limit_s': args.time_limit,
+                          'devices': args.devices},
              'configs': {}, 'summary': [], 'runs': {}, 'curve_budgets': budgets,
              'success_curve': {}}
   for name in names:
-    fn, config = make_planner(name, args.task, env, model, args)
+    fn, config = make_planner(name, args.task, env, model, args, mesh)
     payload['configs'][name] = repr(config)
     start = time.perf_counter()
     result = fn(starts, keys)  # compiles, then runs (wall_time_s excludes compilation)
