@@ -14,8 +14,8 @@ Planners:
 - single: the deterministic policy acting in the world, one action per world step, up to
   max_queries x execute steps (no planning).
 - parallel: the parallel rollout under the same query time and evaluation budget (steps in
-  chunks with a wall-clock check between them); without a goal it returns its best-reward
-  finished rollout.
+  chunks, stopping when the next chunk, timed as the last, would end past the query time);
+  without a goal it returns its best-reward finished rollout.
 - pachs: PACHS in real-time mode: anytime chunks until the query time, then the path to the
   best-f state (or to a goal).
 - mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
@@ -124,10 +124,13 @@ def make_query(name: str, task: str, env, model, args, num: int):
     def query(nodes, keys, executed):
       state = rollout.init(nodes, keys)
       start = time.perf_counter()
-      while True:  # steps until every copy has stopped or the query time is spent
+      while True:  # chunks of steps while the next one, timed as the last, ends in time
+        began = time.perf_counter()
         for _ in range(args.chunk_iterations):
           state = rollout.step(state)
-        if not bool(jnp.any(state.active)) or time.perf_counter() - start >= args.query_time:
+        active = bool(jnp.any(state.active))
+        now = time.perf_counter()
+        if not active or now - start + (now - began) > args.query_time:
           break
       out = rollout.result(state)
       return np.asarray(out.path_actions), np.asarray(out.path_length)

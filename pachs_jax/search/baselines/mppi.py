@@ -382,8 +382,9 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
            nominal: Optional[jax.Array] = None) -> SearchResult:
     """Plans from start_nodes [I] (key: one PRNG key or [I, 2]; nominal: optional warm start
     [I, H, A]). time_limit_s None: all iterations in one jitted loop; otherwise one jitted
-    iteration per host step until the wall-clock limit (at least one iteration), and instances
-    still running then report TIME_LIMIT. Compilation happens before the clock starts."""
+    iteration per host step while the next one, timed as the last, would end within the
+    wall-clock limit (at least one iteration), and instances still running then report
+    TIME_LIMIT. Compilation happens before the clock starts."""
     if time_limit_s is not None and not time_limit_s > 0:
       raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
     num = common.check_start(start_nodes, env)
@@ -396,9 +397,12 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     clock = time.perf_counter()
     state = init_c(start_nodes, keys, nominal)
     while True:
+      began = time.perf_counter()
       state = loop_c(state)
       active = bool(jnp.any(state.active))
-      if not active or time_limit_s is None or time.perf_counter() - clock >= time_limit_s:
+      now = time.perf_counter()
+      # stop when the next iteration, as long as this one, would end past the limit
+      if not active or time_limit_s is None or now - clock + (now - began) > time_limit_s:
         break
     out = jax.block_until_ready(result_c(state))
     wall = time.perf_counter() - clock
