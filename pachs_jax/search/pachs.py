@@ -476,9 +476,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   """Plans from start_nodes [I]; returns the SearchResult with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
-  time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run until
-    the wall-clock limit, and instances still searching then report TIME_LIMIT with the path
-    to their best open node. Compilation happens before the clock starts.
+  time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
+    least one) while the next chunk, timed as the last, would end within the wall-clock limit,
+    and instances still searching then report TIME_LIMIT with the path to their best open
+    node. Compilation happens before the clock starts.
   search: a `make_search` result to reuse (its compiled functions); built here when None.
   """
   if time_limit_s is not None and not time_limit_s > 0:
@@ -501,10 +502,12 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   start = time.perf_counter()
   state = init(start_nodes, keys)
   while True:
+    began = time.perf_counter()
     state = chunk(state, steps)
     active = bool(jnp.any(state.active))
-    elapsed = time.perf_counter() - start
-    if not active or time_limit_s is None or elapsed >= time_limit_s:
+    now = time.perf_counter()
+    # stop when the next chunk, as long as this one, would end past the limit
+    if not active or time_limit_s is None or now - start + (now - began) > time_limit_s:
       break
   out = jax.block_until_ready(result(state))
   wall = time.perf_counter() - start
