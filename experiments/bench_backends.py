@@ -2,9 +2,10 @@
 problems with MJX on the GPU, and on the CPU (JAX on the CPU, edges simulated by MuJoCo C on
 `--cpu-threads` threads, the original's thread-parallel edge evaluation).
 
-Both runs plan the same instances with the same keys and run every instance to its budget
-(`bench_search.py --run-to-budget`: goals are never accepted, so both evaluate exactly
-instances x budget edges). Each side runs in its own process (JAX_PLATFORMS=cpu for the CPU
+Both runs plan the same instances with the same keys toward their budget (`bench_search.py
+--run-to-budget`: goals are never accepted); an instance may still stop early when its OPEN
+list empties, so the two sides' edge counts can differ a little and both are reported (the
+comparison is of rates, edges per second). Each side runs in its own process (JAX_PLATFORMS=cpu for the CPU
 side); compilation is excluded. Reported: edges evaluated per second of each and their ratio,
 next to each side's raw batched env-step throughput at the same batch.
 
@@ -59,7 +60,8 @@ def main():
     assert (g['instances'], g['K']) == (c['instances'], c['K'])
     rows.append({
         'instances': g['instances'], 'K': g['K'], 'budget': g['budget'],
-        'evaluated': g['evaluated'],
+        'gpu_evaluated': g['evaluated'], 'cpu_evaluated': c['evaluated'],
+        'gpu_stops': g['stop_reasons'], 'cpu_stops': c['stop_reasons'],
         'gpu_mjx_edges_per_s': g['edges_per_s'], 'cpu_mujoco_c_edges_per_s': c['edges_per_s'],
         'gpu_over_cpu': g['edges_per_s'] / c['edges_per_s'],
         'gpu_raw_env_steps_per_s': g['raw_env_steps_per_s_same_batch'],
@@ -74,7 +76,8 @@ def main():
             f'{args.task}, same host, run to budget\n\n'
             f'{payload["provenance"]}\n\nGPU side: {gpu["provenance"]["device"]}; CPU side: '
             f'{cpu["provenance"]["device"]}, {cpu["provenance"]["host_cpus"]} host CPUs\n\n')
-    f.write(common.markdown_table(rows, list(rows[0])) + '\n')
+    f.write(common.markdown_table(rows, list(rows[0])) + '\n\nStop reason counts: '
+            '[running, goal, budget, iterations, open_empty, capacity, time_limit].\n')
   print(common.markdown_table(rows, list(rows[0])))
 
 

@@ -1,8 +1,9 @@
 """PACHS over several devices of one host: the 150-run PushT-Obs benchmark on 1, 2 and 4 devices.
 
 The runs are the canonical instances x seeds (default 30 x 5 = 150 searches, PACHS with the
-task's tuned config and shipped model, 100,000 evaluations each); run (i, r) plans instance i
-with its own key fold_in(fold_in(PRNGKey(seed), i), r). For each device count all runs go into
+task's tuned config and shipped model, 100,000 evaluations each): the runs and keys of
+`open_loop.py` (run r * I + i is round r of instance i, key fold_in(fold_in(PRNGKey(seed), r),
+i)); the recorded `bench_scale.md` predates this and used instance-major keys. For each device count all runs go into
 one `sharding.plan_sharded` call over a mesh of the first D devices (D = 1 too: the same
 code path), compile excluded. Reported per device count: wall time, edges evaluated per second,
 found count, speed-up over one device and efficiency (speed-up / D), and whether every run's
@@ -27,17 +28,10 @@ import jax
 import numpy as np
 
 import common
+import open_loop
 from pachs_jax import planner
 from pachs_jax.search import pachs, sharding
 from pachs_jax.search.types import StopReason
-
-
-def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
-  """[I * R, 2] keys, run i * R + r (instance i, round r): fold_in(fold_in(key, i), r)."""
-  base = jax.random.PRNGKey(seed)
-  per_instance = jax.vmap(lambda i: jax.random.fold_in(base, i))(np.arange(num_instances))
-  return jax.vmap(lambda k: jax.vmap(lambda r: jax.random.fold_in(k, r))(np.arange(rounds)))(
-      per_instance).reshape(num_instances * rounds, 2)
 
 
 def peak_memory_bytes(device):
@@ -67,10 +61,11 @@ def main():
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
   config = planner.default_config(args.task, max_evaluations=args.budget)
   num_runs = args.instances * args.seeds
-  instance = np.repeat(np.arange(args.instances), args.seeds)
-  round_ = np.tile(np.arange(args.seeds), args.instances)
+  # the runs and keys of experiments/open_loop.py: run r * I + i is round r of instance i
+  instance = np.tile(np.arange(args.instances), args.seeds)
+  round_ = np.repeat(np.arange(args.seeds), args.instances)
   starts = jax.tree.map(lambda x: x[instance], env.canonical_instances(args.instances))
-  keys = run_keys(args.seed, args.instances, args.seeds)
+  keys = open_loop.run_keys(args.seed, args.instances, args.seeds)
   search = pachs.make_search(env, model, config)
   available = jax.device_count()
   result = {'provenance': common.provenance(), 'task': args.task,

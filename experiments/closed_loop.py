@@ -21,7 +21,12 @@ Planners:
 - mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
   from its previous plan shifted by the executed actions afterwards, under the same query time.
 A returned path with no action (e.g. PACHS's best state is the start) executes one action of
-the deterministic policy, so no episode stalls.
+the deterministic policy, so no episode stalls. With `--fill-with-policy 1` (the default) a path
+shorter than `--execute` actions is followed by the policy's own actions in the world up to
+`--execute` steps, so every planner acts for the same number of world steps per query (at most
+max_queries x execute in all, the single rollout's horizon). Without it (the first recorded
+runs), PACHS's and the parallel rollout's failed PushT-Obs episodes ended after about 60 world
+steps against 300 for the single rollout and MPPI: short real-time answers used up the queries.
 
 Each world is a `mujoco_c.World` (its own MjModel copy; `--perturb friction=1.2,t_mass=0.8`
 scales its parameters, see `mujoco_c.Perturbation`).
@@ -120,19 +125,26 @@ def make_query(name: str, task: str, env, model, args, num: int):
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
     rollout = bl.make_parallel_rollout(env, model, config)
+    compiled = {}
 
     def query(nodes, keys, executed):
-      state = rollout.init(nodes, keys)
+      if not compiled:  # compile before the clock, as PACHS and MPPI do
+        shape = jax.eval_shape(rollout.init, nodes, keys)
+        compiled.update(init=rollout.init.lower(nodes, keys).compile(),
+                        **{f: getattr(rollout, f).lower(shape).compile()
+                           for f in ('step', 'stop', 'result')})
       start = time.perf_counter()
+      state = compiled['init'](nodes, keys)
       while True:  # chunks of steps while the next one, timed as the last, ends in time
         began = time.perf_counter()
         for _ in range(args.chunk_iterations):
-          state = rollout.step(state)
+          state = compiled['step'](state)
         active = bool(jnp.any(state.active))
         now = time.perf_counter()
         if not active or now - start + (now - began) > args.query_time:
           break
-      out = rollout.result(state)
+      # at the time limit the unfinished copies compete too (TIME_LIMIT)
+      out = compiled['result'](compiled['stop'](state))
       return np.asarray(out.path_actions), np.asarray(out.path_length)
     return query, config
   if name == 'mppi':
@@ -143,12 +155,16 @@ def make_query(name: str, task: str, env, model, args, num: int):
     previous = {}
 
     def query(nodes, keys, executed):
-      nominal = None
-      if previous:  # the last plan without its executed actions, its last action repeated
+      # warm start: the last plan without its executed actions (its last action repeated),
+      # or the policy's rollout from the current state where nothing of it is left
+      nominal = np.asarray(mppi.init(nodes, keys).nominal)
+      if previous:
+        left = previous['length'] - executed
         last = np.maximum(previous['length'] - 1, 0)
         idx = np.minimum(np.arange(config.horizon)[None] + executed[:, None], last[:, None])
-        nominal = jnp.asarray(np.take_along_axis(previous['actions'], idx[:, :, None], axis=1))
-      out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=nominal)
+        shifted = np.take_along_axis(previous['actions'], idx[:, :, None], axis=1)
+        nominal = np.where((left > 0)[:, None, None], shifted, nominal)
+      out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return previous['actions'], previous['length']
     return query, config
@@ -178,6 +194,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   fallback = policy_actions(env, model)
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
+  empty_answers, actions_per_query, policy_steps = 0, [], 0
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -194,17 +211,31 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     lengths = np.minimum(lengths, args.execute)
     actions = actions[:, :args.execute]
     empty = lengths == 0
+    empty_answers += int(np.sum(empty & episodes.active))
+    actions_per_query += lengths[episodes.active].tolist()
     if empty.any():
       actions = actions.copy()
       actions[empty, 0] = np.asarray(fallback(nodes))[empty, 0]
       lengths = np.where(empty, 1, lengths)
     queries += episodes.active
-    executed = lengths
+    # the plan's actions executed (a row the policy filled gets a fresh warm start next time)
+    short = lengths < args.execute
+    executed = np.where(short & args.fill_with_policy, np.iinfo(np.int32).max, lengths)
     episodes.execute(actions, lengths)
+    if args.fill_with_policy:  # the policy acts on up to `execute` world steps per query
+      for j in range(1, args.execute):
+        need = episodes.active & (lengths <= j)
+        if not need.any():
+          continue
+        policy_steps += int(need.sum())
+        episodes.execute(np.asarray(fallback(episodes.batch())), need.astype(np.int64))
   return {'config': repr(config), 'queries_per_episode_mean': float(np.mean(queries)),
           'query_time_s_mean': float(np.mean(query_times)) if query_times else None,
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
-          'first_query_s_incl_compile': compile_s}
+          'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
+          'policy_fill_steps': policy_steps,
+          'actions_per_query_mean': float(np.mean(actions_per_query)) if actions_per_query
+          else None}
 
 
 def main():
@@ -217,6 +248,9 @@ def main():
   parser.add_argument('--query-time', type=float, default=3.0, help='s per planning query')
   parser.add_argument('--execute', type=int, default=10, help='actions executed per query')
   parser.add_argument('--max-queries', type=int, default=30)
+  parser.add_argument('--fill-with-policy', type=int, default=1, choices=[0, 1],
+                      help='1: a path shorter than --execute is followed by policy actions up '
+                      'to --execute world steps per query')
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
@@ -246,10 +280,14 @@ def main():
                        jax.random.PRNGKey(args.seed))
     total = time.perf_counter() - start
     k, n = int(episodes.success.sum()), len(episodes.worlds)
-    low, high = open_loop.wilson_interval(k, n)
+    low, high = open_loop.instance_bootstrap_interval(
+        episodes.success, np.arange(n) % args.instances)
+    wilson = open_loop.wilson_interval(k, n)
     won = episodes.success_step[episodes.success]
     row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
-           'ci95_low': low, 'ci95_high': high,
+           'ci95_low': low, 'ci95_high': high, 'wilson_ci95': list(wilson),
+           'world_steps_failed_mean': float(np.mean(episodes.steps[~episodes.success]))
+           if (~episodes.success).any() else None,
            'steps_to_success_mean': float(np.mean(won)) if len(won) else None,
            'total_s': total, **info}
     print(row, flush=True)
@@ -273,8 +311,12 @@ def write_markdown(payload: Dict, path: str) -> None:
             f'{payload["provenance"]}\n\nSettings: {payload["settings"]}\n\n'
             f'World perturbation: {payload["perturbation"]}\n\n')
     f.write(common.markdown_table(rows, [
-        'planner', 'success', 'steps_to_success_mean', 'queries_per_episode_mean',
+        'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
+        'queries_per_episode_mean', 'empty_answers', 'actions_per_query_mean',
+        'policy_fill_steps',
         'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
+    f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '
+            'instances; the rounds of an instance are not independent).\n')
 
 
 def plot(payload: Dict, path: str) -> None:

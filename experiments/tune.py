@@ -1,5 +1,8 @@
 """A documented sweep of PACHS's parameters (w, N, K, lattice resolution) on a task's canonical
-instances: one parameter at a time around the task's defaults (`planner.TASK_DEFAULTS`).
+instances: one parameter at a time around the task's defaults (`planner.TASK_DEFAULTS`; 'res xV'
+scales the task's lattice cells). The recorded `tune_pusht-obs.md` was made when PushT-Obs's
+defaults were K = 64 with the env's default cells; its K = 256 and 'res x0.5' rows became the
+new defaults.
 
 Each setting plans the `--instances` canonical instances (one run each, seed 0) in one batched
 call with the task's budget; the table gives success, the call's wall time (compilation
@@ -35,8 +38,9 @@ def settings(task: str, env, sweep=SWEEP):
   out = [('default', base)]
   for name, values in sweep.items():
     for v in values:
-      if name == 'res':
-        res = tuple(float(x) * v for x in np.asarray(env.default_lattice_resolution))
+      if name == 'res':  # scales the task's tuned cells (the env's default when it has none)
+        cells = base.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
+        res = tuple(float(x) * v for x in cells)
         out.append((f'res x{v:g}', dataclasses.replace(base, lattice_resolution=res)))
       elif getattr(base, name) != v:
         out.append((f'{name}={v:g}', dataclasses.replace(base, **{name: v})))

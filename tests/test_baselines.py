@@ -132,6 +132,26 @@ def test_parallel_rollout_budget_and_restarts(env, start):
   assert bool(valid[0]) and np.isclose(float(cost[0]), float(result.cost[0]))
 
 
+def test_parallel_rollout_stop_returns_an_unfinished_copy(env, start):
+  # episodes of 5 steps; stopped after 3 steps no copy has finished, yet a 3-step rollout is
+  # returned (TIME_LIMIT), and an instance that already stopped keeps its result
+  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  rollout = bl.make_parallel_rollout(env, Oscillating(env), config)
+  state = rollout.init(_take(start, 0), jax.random.PRNGKey(0))
+  for _ in range(3):
+    state = rollout.step(state)
+  assert int(state.best_length[0]) == 0  # nothing finished yet
+  stopped = rollout.stop(state)
+  assert not bool(stopped.active[0]) and int(stopped.stop_reason[0]) == StopReason.TIME_LIMIT
+  result = rollout.result(stopped)
+  assert int(result.path_length[0]) == 3 and not bool(result.found[0])
+  _, cost, valid, _ = common.replay(env, _take(start, 0), result.path_actions, result.path_length)
+  assert bool(valid[0]) and np.isclose(float(cost[0]), float(result.cost[0]))
+  again = rollout.stop(stopped)
+  assert int(again.stop_reason[0]) == StopReason.TIME_LIMIT
+  np.testing.assert_array_equal(np.asarray(again.best_actions), np.asarray(stopped.best_actions))
+
+
 def test_parallel_rollout_finds_goal_and_batches(env):
   # the stand-in actor always proposes its first move (down): goals below the start are reached
   ac = gridworld.GridActorCritic(env)

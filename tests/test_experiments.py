@@ -67,3 +67,15 @@ def test_episodes_judge_success_in_the_world_and_stop_finished_ones():
   assert episodes.steps.tolist() == [0, 2]
   assert episodes.success.tolist() == [True, False]
   assert int(np.asarray(episodes.nodes[1].t)) == 2
+
+
+def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
+  # 30 instances x 5 rounds of a deterministic planner: one instance fails all its rounds
+  instance = np.tile(np.arange(30), 5)
+  found = instance != 7
+  low, high = open_loop.instance_bootstrap_interval(found, instance)
+  wilson_low, _ = open_loop.wilson_interval(int(found.sum()), found.size)
+  assert low < wilson_low < 29 / 30 <= high <= 1.0  # wider than 150 independent runs
+  assert open_loop.instance_bootstrap_interval(np.ones(10, bool), np.arange(10)) == (1.0, 1.0)
+  # resampling is seeded: the same interval every call
+  assert open_loop.instance_bootstrap_interval(found, instance) == (low, high)

@@ -16,7 +16,8 @@ lowest cost (for the dense-reward tasks the state closest to the goal, what the 
 executes), or with `fallback='total_cost'` the lowest cumulative cost.
 
 Stop reasons: GOAL; BUDGET (evaluations spent; for the single rollout: the episode length);
-OPEN_EMPTY (single rollout only: the policy's edge was invalid, nothing else to try).
+OPEN_EMPTY (single rollout only: the policy's edge was invalid, nothing else to try);
+TIME_LIMIT (parallel rollout, when a caller ends it with `stop`).
 Returned path_nodes are re-evaluated from the start along the returned actions (`common.replay`),
 so no per-copy state history is stored; path_is_goal is the replay's goal test.
 """
@@ -203,12 +204,14 @@ class RolloutState:
 @dataclasses.dataclass(frozen=True)
 class ParallelRollout:
   """Jitted functions: init(start_nodes [I], key) -> RolloutState; step(state) -> state after
-  one loop step; run(state) -> state when all instances stopped; result(state) -> SearchResult;
-  plan(start_nodes, key) = result(run(init(...)))."""
+  one loop step; run(state) -> state when all instances stopped; stop(state) -> state with the
+  active instances ended now (TIME_LIMIT; for a caller's wall-clock limit between steps);
+  result(state) -> SearchResult; plan(start_nodes, key) = result(run(init(...)))."""
 
   init: Callable[..., RolloutState]
   step: Callable[[RolloutState], RolloutState]
   run: Callable[[RolloutState], RolloutState]
+  stop: Callable[[RolloutState], RolloutState]
   result: Callable[[RolloutState], SearchResult]
   plan: Callable[..., SearchResult]
   config: ParallelRolloutConfig
@@ -314,6 +317,19 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
   def run(state: RolloutState) -> RolloutState:
     return jax.lax.while_loop(lambda s: jnp.any(s.active), step, state)
 
+  def stop(state: RolloutState) -> RolloutState:
+    """Ends the still-active instances now (e.g. at a wall-clock limit) with TIME_LIMIT: their
+    unfinished copies (at least one step) compete for the returned rollout, as at the budget."""
+    score = state.last_cost if config.fallback == 'last_cost' else state.episode_cost
+    candidates = state.active[:, None] & (state.episode_step >= 1)
+    _, actions, length, best_score, cost = pick(state, state.best_score, candidates, score,
+                                                state.episode_step, state.episode_cost)
+    return state.replace(
+        best_actions=actions, best_length=length, best_score=best_score, best_cost=cost,
+        active=jnp.zeros_like(state.active),
+        stop_reason=jnp.where(state.active, StopReason.TIME_LIMIT,
+                              state.stop_reason).astype(jnp.int32))
+
   def result(state: RolloutState) -> SearchResult:
     nodes, _, _, is_goal = common.replay(env, state.start, state.best_actions, state.best_length)
     return _result(state.found, state.stop_reason, state.best_actions, state.best_length, nodes,
@@ -324,4 +340,5 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
     return result(run(init(start_nodes, key)))
 
   return ParallelRollout(init=jax.jit(init), step=jax.jit(step), run=jax.jit(run),
-                         result=jax.jit(result), plan=jax.jit(plan), config=config)
+                         stop=jax.jit(stop), result=jax.jit(result), plan=jax.jit(plan),
+                         config=config)
