@@ -1,5 +1,6 @@
 """A sweep of the shelf's ePA*SE baseline: heuristic weight w, obstacle inflation of the BFS-3D
-grid and the primitive step, on the first `--targets` canonical shelf targets.
+grid, the primitive step and the heuristic's spread into blocked cells, on the first
+`--targets` canonical shelf targets.
 
 Each setting plans all targets in one batched call with `--budget` evaluations per target and
 reports success, evaluations, expansions and cost (JSON and a markdown table).
@@ -30,6 +31,8 @@ def main():
   parser.add_argument('--weights', default='2,10')
   parser.add_argument('--inflations', default='0.02', help='m, comma separated')
   parser.add_argument('--steps', default='7', help='primitive steps in degrees, comma separated')
+  parser.add_argument('--spreads', default='0', help='cells the BFS distances extend into the '
+                      'blocked cells (voxel.grid_heuristic), comma separated')
   parser.add_argument('--targets', type=int, default=100)
   parser.add_argument('--pop-size', type=int, default=16)
   parser.add_argument('--budget', type=int, default=120_000)
@@ -39,10 +42,10 @@ def main():
   starts = env.canonical_instances(100)
   starts = jax.tree.map(lambda x: x[:args.targets], starts)
   payload = {'provenance': common.provenance(), 'targets': args.targets, 'rows': []}
-  for w, inflation, step in itertools.product(
+  for w, inflation, step, spread in itertools.product(
       [float(x) for x in args.weights.split(',')], [float(x) for x in args.inflations.split(',')],
-      [float(x) for x in args.steps.split(',')]):
-    setup = bl.shelf_setup(env, step_deg=step, inflation=inflation)
+      [float(x) for x in args.steps.split(',')], [int(x) for x in args.spreads.split(',')]):
+    setup = bl.shelf_setup(env, step_deg=step, inflation=inflation, spread=spread)
     config = bl.EpaseConfig(weight=w, pop_size=args.pop_size, max_evaluations=args.budget,
                             lattice_resolution=setup.lattice_resolution)
     search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
@@ -53,7 +56,8 @@ def main():
     h0 = np.asarray(setup.heuristic.value(setup.heuristic.init(starts),
                                           jax.tree.map(lambda x: jnp.asarray(x)[:, None],
                                                        starts)))[:, 0]
-    row = {'w': w, 'inflation_m': inflation, 'step_deg': step, 'budget': args.budget,
+    row = {'w': w, 'inflation_m': inflation, 'step_deg': step, 'spread_cells': spread,
+           'budget': args.budget,
            'found': int(r.found.sum()), 'targets': args.targets,
            'wall_s': float(r.wall_time_s), 'compile_s': compile_s,
            'evaluated_mean': float(r.evaluated.mean()), 'expanded_mean': float(r.expanded.mean()),

@@ -280,6 +280,25 @@ def test_bfs_matches_python_bfs(connectivity):
   assert np.isinf(want).any() and np.isfinite(want[:, 5]).any()
 
 
+def test_grid_heuristic_spread_into_blocked_cells():
+  # a 1-D corridor along x with a wall of 2 blocked cells at x = 4, 5 (and a free way around
+  # through y = 1): without spread the wall reads `unreachable`, with spread 2 it reads the
+  # nearest free neighbour's distance + 1 cell per layer
+  grid = bl.VoxelGrid((0.0, 0.0, 0.0), 0.1, (9, 2, 1))
+  blocked = np.zeros((9, 2, 1), bool)
+  blocked[4:6, 0, 0] = True
+  goal = np.array([0.05, 0.05, 0.05], np.float32)
+  point = lambda node: node  # nodes are points here
+  plain = bl.grid_heuristic(grid, blocked, point, lambda n: goal, 26, 10.0)
+  spread = bl.grid_heuristic(grid, blocked, point, lambda n: goal, 26, 10.0, spread=2)
+  starts = jnp.zeros((1, 3))
+  cells = jnp.array([[[0.45, 0.05, 0.05], [0.55, 0.05, 0.05], [0.35, 0.05, 0.05]]])
+  h_plain = np.asarray(plain.value(plain.init(starts), cells))[0]
+  h_spread = np.asarray(spread.value(spread.init(starts), cells))[0]
+  np.testing.assert_allclose(h_plain, [10.0, 10.0, 0.3], atol=1e-6)
+  np.testing.assert_allclose(h_spread, [0.4, 0.5, 0.3], atol=1e-6)
+
+
 def test_box_occupancy_inflates():
   grid = bl.VoxelGrid((0.0, 0.0, 0.0), 0.1, (5, 5, 5))
   occ = bl.box_occupancy(grid, [[0.25, 0.25, 0.25]], [[0.05, 0.05, 0.05]], 0.06)

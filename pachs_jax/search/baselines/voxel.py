@@ -119,12 +119,16 @@ def bfs_distance(blocked: jax.Array, goal_cell: jax.Array, connectivity: int = 2
 
 def grid_heuristic(grid: VoxelGrid, blocked: np.ndarray, point_fn: Callable,
                    goal_fn: Callable, connectivity: int = 26,
-                   unreachable: float = 10.0) -> epase.Heuristic:
+                   unreachable: float = 10.0, spread: int = 0) -> epase.Heuristic:
   """An ePA*SE heuristic: BFS distance (m) of point_fn(node) [3] from goal_fn(node) [3]'s cell.
 
-  init(start_nodes [I]) runs one BFS per instance ([I, X, Y, Z] grids in metres); a point
-  outside the grid, blocked or unreachable gets `unreachable` (m; finite, so such states stay
-  in OPEN, last).
+  init(start_nodes [I]) runs one BFS per instance ([I, X, Y, Z] grids in metres); spread > 0
+  extends the distances into the blocked cells up to `spread` cells deep (a blocked cell gets
+  its nearest valued neighbour's distance + 1 cell), so a state whose point lies in an inflated
+  cell (its edge was collision-checked) keeps an informative value. On the shelf the states
+  closest to a target (the tip just inside a compartment, near its floor board) lie in such
+  cells. A point outside the grid, or blocked (beyond the spread) or unreachable gets
+  `unreachable` (m; finite, so such states stay in OPEN, last).
   """
   blocked = np.asarray(blocked, bool)
   if blocked.shape != tuple(grid.shape):
@@ -136,6 +140,9 @@ def grid_heuristic(grid: VoxelGrid, blocked: np.ndarray, point_fn: Callable,
     goals = jax.vmap(goal_fn)(start_nodes)
     cells, _ = grid.cell_of(goals)
     steps = jax.vmap(lambda c: bfs_distance(jnp.asarray(blocked), c, connectivity))(cells)
+    for _ in range(spread):
+      steps = jnp.where(jnp.isfinite(steps), steps,
+                        jax.vmap(lambda d: _neighbour_min(d, connectivity))(steps) + 1.0)
     return jnp.where(jnp.isfinite(steps), steps * grid.cell, unreachable)
 
   def value(dist: jax.Array, nodes: base.NodeState) -> jax.Array:
@@ -168,7 +175,7 @@ class ShelfEpaseSetup:
 def shelf_setup(env, step_deg: float = 7.0, cell: float = 0.02, inflation: float = 0.02,
                 connectivity: int = 26, num_checks: Optional[int] = None,
                 bounds: Optional[Tuple[Tuple[float, ...], Tuple[float, ...]]] = None,
-                unreachable: float = 10.0) -> ShelfEpaseSetup:
+                unreachable: float = 10.0, spread: int = 0) -> ShelfEpaseSetup:
   """ePA*SE's pieces for a `ShelfEnv`: +-step_deg single-joint moves, checked at num_checks
   points (None: as densely as the env checks one action), and the BFS-3D heuristic over
   `bounds` ((lower, upper) m; None: the arm's side of the shelf up to past its back)."""
@@ -192,6 +199,6 @@ def shelf_setup(env, step_deg: float = 7.0, cell: float = 0.02, inflation: float
   halves = np.array([b[1] for b in env.boxes.values()])
   blocked = box_occupancy(grid, centres, halves, inflation)
   heuristic = grid_heuristic(grid, blocked, lambda n: env.tip_position(n.qpos),
-                             lambda n: n.goal, connectivity, unreachable)
+                             lambda n: n.goal, connectivity, unreachable, spread)
   return ShelfEpaseSetup(primitives=primitives, edge_fn=edge_fn, heuristic=heuristic,
                          lattice_resolution=(0.5 * step,) * dof, grid=grid, blocked=blocked)
