@@ -51,7 +51,7 @@ import open_loop
 from pachs_jax import planner
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
+from pachs_jax.search import anytime, pachs
 
 PLANNERS = ('single', 'parallel', 'pachs', 'mppi')
 
@@ -133,16 +133,12 @@ def make_query(name: str, task: str, env, model, args, num: int):
         compiled.update(init=rollout.init.lower(nodes, keys).compile(),
                         **{f: getattr(rollout, f).lower(shape).compile()
                            for f in ('step', 'stop', 'result')})
-      start = time.perf_counter()
-      state = compiled['init'](nodes, keys)
-      while True:  # chunks of steps while the next one, timed as the last, ends in time
-        began = time.perf_counter()
+      def chunk(state):
         for _ in range(args.chunk_iterations):
           state = compiled['step'](state)
-        active = bool(jnp.any(state.active))
-        now = time.perf_counter()
-        if not active or now - start + (now - began) > args.query_time:
-          break
+        return state
+
+      state, _ = anytime.run_until(chunk, compiled['init'](nodes, keys), args.query_time)
       # at the time limit the unfinished copies compete too (TIME_LIMIT)
       out = compiled['result'](compiled['stop'](state))
       return np.asarray(out.path_actions), np.asarray(out.path_length)

@@ -83,10 +83,12 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
+from pachs_jax.search import anytime
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search import types
 from pachs_jax.search.types import (ActorCritic, SearchConfig, SearchResult, StopReason,
                                      cost_to_go)
 
@@ -173,14 +175,7 @@ def _check_config(env: base.Env, actor_critic: ActorCritic, config: SearchConfig
     if not callable(getattr(actor_critic, name, None)):
       raise ValueError(f'actor_critic has no method {name}(...) (see search.types.ActorCritic)')
   node = jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0))
-  default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
-  if config.lattice_resolution is None:
-    resolution = default
-  else:
-    resolution = jnp.asarray(config.lattice_resolution, jnp.float32)
-  if resolution.shape != default.shape:
-    raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
-                     f'environment {env.name} uses {default.shape[0]}')
+  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
   key_size = jax.eval_shape(env.lattice_coords, node, resolution).shape
   num, actions = config.num_actions, env.action_size
   obs = jax.ShapeDtypeStruct((2, env.observation_size), jnp.float32)
@@ -351,8 +346,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   # ---- the public functions ----
 
   def init(start_nodes: base.NodeState, keys: jax.Array) -> SearchState:
-    num_instances = _check_start(start_nodes, node_spec)
-    keys = _raw_keys(keys, num_instances)
+    num_instances = types.check_start_nodes(start_nodes, node_spec)
+    keys = types.instance_keys(keys, num_instances)
     start_goal = env.is_goal(start_nodes)
     pool = pool_lib.init(start_nodes, start_goal, config.pool, n, action_size)
     table = lattice_lib.init(num_instances, config.table, key_size)
@@ -401,31 +396,12 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return value, in_open
 
   def result(state: SearchState) -> SearchResult:
-    pool = state.pool
-    found = state.stop_reason == StopReason.GOAL
-    # The real-time answer: the node of the best OPEN entry (a real edge names its source),
-    # or with OPEN empty the node whose dummy edge had the smallest key.
-    value, in_open = best_open(state)
-    exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
-    best = jnp.where(in_open, value // (n + 1),
-                     jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
-    final = jnp.where(found, state.goal_node, best).astype(jnp.int32)
-    path = path_lib.extract(pool, final, config.max_path_length)
-    rows = jnp.arange(final.shape[0])
+    value, in_open = best_open(state)  # the real-time answer: a real edge names its source
     heap_overflow = heap_lib.overflow(state.heap)
     if state.dummy_heap is not None:
       heap_overflow = heap_overflow + heap_lib.overflow(state.dummy_heap)
-    lanes = k * state.iterations
-    return SearchResult(
-        found=found, stop_reason=state.stop_reason, path_actions=path.actions,
-        path_length=path.length, path_nodes=path.nodes, path_truncated=path.truncated,
-        path_is_goal=pool.is_goal[rows, final], cost=pool.g[rows, final],
-        expanded=state.expanded, evaluated=state.evaluated, invalid=state.invalid,
-        generated=pool.size, iterations=state.iterations,
-        lane_utilization=jnp.where(lanes > 0, state.evaluated / jnp.maximum(lanes, 1),
-                                   0.0).astype(jnp.float32),
-        heap_overflow=heap_overflow, pool_overflow=pool.overflow,
-        table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan))
+    return path_lib.search_result(state, value, in_open, n + 1, k, heap_overflow,
+                                  config.max_path_length)
 
   run_chunk_jit = jax.jit(run_chunk, donate_argnums=0)
   run_all = jnp.int32(jnp.iinfo(jnp.int32).max)
@@ -434,40 +410,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                 config=config)
 
 
-def _check_start(start_nodes: base.NodeState, node_spec: base.NodeState) -> int:
-  """The number of instances I of start_nodes [I, ...]; ValueError when shapes do not fit."""
-  leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(node_spec)
-  if (jax.tree.structure(start_nodes) != jax.tree.structure(node_spec)
-      or any(jnp.ndim(x) != len(s.shape) + 1 or jnp.shape(x)[1:] != s.shape
-             for x, s in zip(leaves, spec_leaves))):
-    want = jax.tree.map(lambda s: ('I',) + s.shape, node_spec)
-    got = jax.tree.map(jnp.shape, start_nodes)
-    raise ValueError(f'start_nodes must be the environment\'s NodeState with a leading '
-                     f'instance axis: want shapes {want}, got {got}')
-  sizes = {jnp.shape(x)[0] for x in leaves}
-  if len(sizes) != 1 or 0 in sizes:
-    raise ValueError(f'start_nodes leaves must share one leading axis I >= 1, got {sizes}')
-  return sizes.pop()
-
-
-def _raw_keys(keys: jax.Array, num_instances: int) -> jax.Array:
-  """[I, 2] uint32 keys from raw [I, 2] or typed [I] PRNG keys."""
-  if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
-    keys = jax.random.key_data(keys)
-  if keys.shape != (num_instances, 2):
-    raise ValueError(f'keys must be [I, 2] raw or [I] typed PRNG keys with I = '
-                     f'{num_instances}, got shape {keys.shape}')
-  return keys.astype(jnp.uint32)
-
-
-def instance_keys(key: jax.Array, num_instances: int) -> jax.Array:
-  """[I, 2] per-instance keys: a single key is split, a batch [I] / [I, 2] is kept."""
-  if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-    key = jax.random.key_data(key)
-  key = jnp.asarray(key)
-  if key.shape == (2,):
-    return jax.random.split(key, num_instances)
-  return key
+# One key or per-instance keys -> [I, 2] uint32 (kept here as part of the search's API).
+instance_keys = types.instance_keys
 
 
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
@@ -490,7 +434,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     search = make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  num_instances = _check_start(start_nodes, jax.eval_shape(env.sample_instance,
+  num_instances = types.check_start_nodes(start_nodes, jax.eval_shape(env.sample_instance,
                                                            jax.random.PRNGKey(0)))
   keys = instance_keys(key, num_instances)
   init = search.init.lower(start_nodes, keys).compile()
@@ -500,15 +444,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   result = search.result.lower(shape).compile()
 
   start = time.perf_counter()
-  state = init(start_nodes, keys)
-  while True:
-    began = time.perf_counter()
-    state = chunk(state, steps)
-    active = bool(jnp.any(state.active))
-    now = time.perf_counter()
-    # stop when the next chunk, as long as this one, would end past the limit
-    if not active or time_limit_s is None or now - start + (now - began) > time_limit_s:
-      break
+  state, active = anytime.run_until(lambda s: chunk(s, steps), init(start_nodes, keys),
+                                    time_limit_s)
   out = jax.block_until_ready(result(state))
   wall = time.perf_counter() - start
   if active:

@@ -1,4 +1,5 @@
-"""Backtracking a path through the node pool's parent pointers."""
+"""Backtracking a path through the node pool's parent pointers, and the `SearchResult` of a
+pool-based edge search (PACHS, ePA*SE)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from flax import struct
 
 from pachs_jax.envs import base
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search.types import SearchResult, StopReason
 
 
 @struct.dataclass
@@ -54,3 +56,34 @@ def extract(pool: pool_lib.NodePool, final: jax.Array, max_len: int) -> Path:
 
   _, actions, nodes = jax.lax.while_loop(cond, body, (final.astype(jnp.int32), actions, nodes))
   return Path(actions=actions, nodes=nodes, length=length, truncated=length > max_len)
+
+
+def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,
+                  heap_overflow: jax.Array, max_len: int) -> SearchResult:
+  """The SearchResult [I] of an edge search whose state has pool, table, stop_reason,
+  goal_node, expanded, evaluated, invalid and iterations ([I] each).
+
+  The path ends at the goal node when one was found, else at the real-time answer: the node of
+  the best OPEN entry (best_value [I], an entry value node * slots + slot, where in_open [I]),
+  or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
+  pop_size evaluation lanes per iteration.
+  """
+  pool = state.pool
+  found = state.stop_reason == StopReason.GOAL
+  exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
+  best = jnp.where(in_open, best_value // slots,
+                   jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
+  final = jnp.where(found, state.goal_node, best).astype(jnp.int32)
+  path = extract(pool, final, max_len)
+  rows = jnp.arange(final.shape[0])
+  lanes = pop_size * state.iterations
+  return SearchResult(
+      found=found, stop_reason=state.stop_reason, path_actions=path.actions,
+      path_length=path.length, path_nodes=path.nodes, path_truncated=path.truncated,
+      path_is_goal=pool.is_goal[rows, final], cost=pool.g[rows, final],
+      expanded=state.expanded, evaluated=state.evaluated, invalid=state.invalid,
+      generated=pool.size, iterations=state.iterations,
+      lane_utilization=jnp.where(lanes > 0, state.evaluated / jnp.maximum(lanes, 1),
+                                 0.0).astype(jnp.float32),
+      heap_overflow=heap_overflow, pool_overflow=pool.overflow,
+      table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan))

@@ -34,7 +34,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from pachs_jax.envs import base
-from pachs_jax.search import pachs
+from pachs_jax.search import pachs, types
 from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
 
 AXIS = 'instances'
@@ -186,8 +186,7 @@ def plan_sharded_fn(fn: ShardFn, start_nodes: base.NodeState, key: jax.Array,
   """
   mesh = check_mesh(mesh)
   num_instances = _num_instances(start_nodes)
-  keys = pachs._raw_keys(  # pylint: disable=protected-access
-      pachs.instance_keys(key, num_instances), num_instances)
+  keys = types.instance_keys(key, num_instances)
   devices = mesh.devices.size
   padded = -(-num_instances // devices) * devices
   sharding = NamedSharding(mesh, PartitionSpec(AXIS))
@@ -233,6 +232,6 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     search = pachs.make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  pachs._check_start(  # pylint: disable=protected-access
-      start_nodes, jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0)))
+  types.check_start_nodes(start_nodes, jax.eval_shape(env.sample_instance,
+                                                      jax.random.PRNGKey(0)))
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

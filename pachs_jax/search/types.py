@@ -81,6 +81,50 @@ def lattice_resolution_tuple(owner: str, resolution):
   return tuple(float(r) for r in res)
 
 
+def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
+  """[L] float32 cell sizes: `resolution`, or the env's default when None (ValueError when its
+  length differs from the env's)."""
+  default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
+  if resolution is None:
+    return default
+  resolution = jnp.asarray(resolution, jnp.float32)
+  if resolution.shape != default.shape:
+    raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
+                     f'environment {env.name} uses {default.shape[0]}')
+  return resolution
+
+
+def check_start_nodes(start_nodes: base.NodeState, node_spec: base.NodeState) -> int:
+  """The number of instances I of start_nodes [I, ...] (node_spec: one node's shapes);
+  ValueError when the shapes do not fit."""
+  leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(node_spec)
+  if (jax.tree.structure(start_nodes) != jax.tree.structure(node_spec)
+      or any(jnp.ndim(x) != len(s.shape) + 1 or jnp.shape(x)[1:] != s.shape
+             for x, s in zip(leaves, spec_leaves))):
+    want = jax.tree.map(lambda s: ('I',) + s.shape, node_spec)
+    got = jax.tree.map(jnp.shape, start_nodes)
+    raise ValueError(f'start_nodes must be the environment\'s NodeState with a leading '
+                     f'instance axis: want shapes {want}, got {got}')
+  sizes = {jnp.shape(x)[0] for x in leaves}
+  if len(sizes) != 1 or 0 in sizes:
+    raise ValueError(f'start_nodes leaves must share one leading axis I >= 1, got {sizes}')
+  return sizes.pop()
+
+
+def instance_keys(key: jax.Array, num_instances: int) -> jax.Array:
+  """[I, 2] uint32 per-instance keys: one key ([2] raw or [] typed) is split, per-instance keys
+  ([I, 2] raw or [I] typed) are kept; ValueError for other shapes."""
+  key = jnp.asarray(key)
+  if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+    key = jax.random.key_data(key)
+  if key.shape == (2,):
+    key = jax.random.split(key, num_instances)
+  if key.shape != (num_instances, 2):
+    raise ValueError(f'key must be one PRNG key or [I, 2] keys with I = {num_instances}, '
+                     f'got shape {key.shape}')
+  return key.astype(jnp.uint32)
+
+
 def cost_to_go(q_value: jax.Array) -> jax.Array:
   """The critic's cost-to-go q = max(-Q, 0), with NaN as +inf (such an edge is never chosen)."""
   q = jnp.maximum(-q_value.astype(jnp.float32), 0.0)

@@ -107,12 +107,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
   depth_limit = config.max_depth or env.episode_length
   w = float(config.weight)
   a_size = env.action_size
-  default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
-  resolution = (default if config.lattice_resolution is None
-                else jnp.asarray(config.lattice_resolution, jnp.float32))
-  if resolution.shape != default.shape:
-    raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
-                     f'environment {env.name} uses {default.shape[0]}')
+  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
   weighted = (lambda q: q * w) if w else jnp.zeros_like
 
   def policy_q(key, obs):

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from pachs_jax.envs import base
+from pachs_jax.search import types
 from pachs_jax.search.types import SearchResult
 
 
@@ -19,32 +20,11 @@ def node_spec(env: base.Env) -> base.NodeState:
 
 def check_start(start_nodes: base.NodeState, env: base.Env) -> int:
   """The number of instances I of start_nodes [I, ...]; ValueError when shapes do not fit."""
-  spec = node_spec(env)
-  leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(spec)
-  if (jax.tree.structure(start_nodes) != jax.tree.structure(spec)
-      or any(jnp.ndim(x) != len(s.shape) + 1 or jnp.shape(x)[1:] != s.shape
-             for x, s in zip(leaves, spec_leaves))):
-    want = jax.tree.map(lambda s: ('I',) + s.shape, spec)
-    got = jax.tree.map(jnp.shape, start_nodes)
-    raise ValueError('start_nodes must be the environment\'s NodeState with a leading instance '
-                     f'axis: want shapes {want}, got {got}')
-  sizes = {jnp.shape(x)[0] for x in leaves}
-  if len(sizes) != 1 or 0 in sizes:
-    raise ValueError(f'start_nodes leaves must share one leading axis I >= 1, got {sizes}')
-  return sizes.pop()
+  return types.check_start_nodes(start_nodes, node_spec(env))
 
 
-def instance_keys(key: jax.Array, num_instances: int) -> jax.Array:
-  """[I, 2] uint32 per-instance keys: one key [2] (or typed []) is split, [I, 2] kept."""
-  key = jnp.asarray(key)
-  if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-    key = jax.random.key_data(key)
-  if key.shape == (2,):
-    key = jax.random.split(key, num_instances)
-  if key.shape != (num_instances, 2):
-    raise ValueError(f'key must be one PRNG key or [I, 2] keys with I = {num_instances}, '
-                     f'got shape {key.shape}')
-  return key.astype(jnp.uint32)
+# [I, 2] uint32 per-instance keys from one key or per-instance keys (see `types`).
+instance_keys = types.instance_keys
 
 
 def check_actor_critic(actor_critic, names) -> None:

@@ -153,12 +153,7 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
                        f'of {env.action_size}; pass an edge_fn for other primitives')
     edge_fn = env.evaluate
   primitives = jnp.asarray(prims)
-  default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
-  resolution = (default if config.lattice_resolution is None
-                else jnp.asarray(config.lattice_resolution, jnp.float32))
-  if resolution.shape != default.shape:
-    raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
-                     f'environment {env.name} uses {default.shape[0]}')
+  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
   spec = common.node_spec(env)
   key_size = int(jax.eval_shape(env.lattice_coords, spec, resolution).shape[0])
   if config.pool() * (num_prims + 1) >= 2**31:
@@ -259,26 +254,9 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
     return jax.lax.while_loop(lambda s: jnp.any(s.active), step, state)
 
   def result(state: EpaseState) -> SearchResult:
-    pool = state.pool
-    found = state.stop_reason == StopReason.GOAL
     _, value, in_open = heap_lib.peek(state.heap)
-    exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
-    best = jnp.where(in_open, value // (num_prims + 1),
-                     jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
-    final = jnp.where(found, state.goal_node, best).astype(jnp.int32)
-    path = path_lib.extract(pool, final, config.max_path_length)
-    rows = jnp.arange(final.shape[0])
-    lanes = k * state.iterations
-    return SearchResult(
-        found=found, stop_reason=state.stop_reason, path_actions=path.actions,
-        path_length=path.length, path_nodes=path.nodes, path_truncated=path.truncated,
-        path_is_goal=pool.is_goal[rows, final], cost=pool.g[rows, final],
-        expanded=state.expanded, evaluated=state.evaluated, invalid=state.invalid,
-        generated=pool.size, iterations=state.iterations,
-        lane_utilization=jnp.where(lanes > 0, state.evaluated / jnp.maximum(lanes, 1),
-                                   0.0).astype(jnp.float32),
-        heap_overflow=heap_lib.overflow(state.heap), pool_overflow=pool.overflow,
-        table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan))
+    return path_lib.search_result(state, value, in_open, num_prims + 1, k,
+                                  heap_lib.overflow(state.heap), config.max_path_length)
 
   def plan(start_nodes: base.NodeState) -> SearchResult:
     return result(run(init(start_nodes)))

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
-from pachs_jax.search import types
+from pachs_jax.search import anytime, types
 from pachs_jax.search.baselines import common
 from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
 
@@ -395,15 +395,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     result_c = result_jit.lower(shape).compile()
 
     clock = time.perf_counter()
-    state = init_c(start_nodes, keys, nominal)
-    while True:
-      began = time.perf_counter()
-      state = loop_c(state)
-      active = bool(jnp.any(state.active))
-      now = time.perf_counter()
-      # stop when the next iteration, as long as this one, would end past the limit
-      if not active or time_limit_s is None or now - clock + (now - began) > time_limit_s:
-        break
+    state, active = anytime.run_until(loop_c, init_c(start_nodes, keys, nominal),
+                                      time_limit_s)
     out = jax.block_until_ready(result_c(state))
     wall = time.perf_counter() - clock
     if active:
