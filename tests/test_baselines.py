@@ -1,7 +1,6 @@
 """Planning baselines on the analytic grid world (and ePA*SE end to end on Panda-Shelf)."""
 
 import collections
-import heapq
 import math
 
 import jax
@@ -26,25 +25,6 @@ def _obstacles():
 def _octile(a, b):
   d = np.abs(np.asarray(a, float) - np.asarray(b, float))
   return d.max() + (math.sqrt(2.0) - 1.0) * d.min()
-
-
-def _dijkstra(obstacles, start, goal):
-  dist = {start: 0.0}
-  queue = [(0.0, start)]
-  while queue:
-    d, (r, c) = heapq.heappop(queue)
-    if (r, c) == goal:
-      return d
-    if d > dist[(r, c)]:
-      continue
-    for dr, dc in gridworld.MOVES_8:
-      nr, nc = r + dr, c + dc
-      if 0 <= nr < SIZE and 0 <= nc < SIZE and not obstacles[nr, nc]:
-        nd = d + math.hypot(dr, dc)
-        if nd < dist.get((nr, nc), math.inf):
-          dist[(nr, nc)] = nd
-          heapq.heappush(queue, (nd, (nr, nc)))
-  return math.inf
 
 
 class Greedy(gridworld.GridActorCritic):
@@ -186,7 +166,7 @@ def test_beam_finds_replayable_paths(env, start, beam_search):
   result = beam_search(start, jax.random.PRNGKey(0))
   assert bool(jnp.all(result.found))
   for i in range(4):
-    assert float(result.cost[i]) >= _dijkstra(_obstacles(), tuple(STARTS[i].astype(int)),
+    assert float(result.cost[i]) >= gridworld.shortest_path_cost(_obstacles(), tuple(STARTS[i].astype(int)),
                                               tuple(GOALS[i].astype(int))) - 1e-5
   node, total = start, np.zeros(4)
   for t in range(int(jnp.max(result.path_length))):
@@ -235,7 +215,7 @@ def test_epase_k1_is_optimal_and_batches(env, start, grid_epase):
   result = grid_epase.plan(start)
   assert bool(jnp.all(result.found)) and bool(jnp.all(result.path_is_goal))
   for i in range(4):
-    want = _dijkstra(_obstacles(), tuple(STARTS[i].astype(int)), tuple(GOALS[i].astype(int)))
+    want = gridworld.shortest_path_cost(_obstacles(), tuple(STARTS[i].astype(int)), tuple(GOALS[i].astype(int)))
     np.testing.assert_allclose(float(result.cost[i]), want, rtol=1e-5)
   _, cost, valid, is_goal = common.replay(env, start, result.path_actions, result.path_length)
   assert bool(jnp.all(valid & is_goal))

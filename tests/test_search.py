@@ -2,8 +2,6 @@
 
 import dataclasses
 import functools
-import heapq
-import math
 
 import jax
 import jax.numpy as jnp
@@ -28,26 +26,6 @@ def _grid(seed, density):
   return obstacles
 
 
-def _dijkstra(obstacles, start, goal):
-  """Cheapest 8-connected path cost (float64), inf when unreachable."""
-  dist = {start: 0.0}
-  queue = [(0.0, start)]
-  while queue:
-    d, (r, c) = heapq.heappop(queue)
-    if (r, c) == goal:
-      return d
-    if d > dist[(r, c)]:
-      continue
-    for dr, dc in gridworld.MOVES_8:
-      nr, nc = r + dr, c + dc
-      if 0 <= nr < SIZE and 0 <= nc < SIZE and not obstacles[nr, nc]:
-        nd = d + math.hypot(dr, dc)
-        if nd < dist.get((nr, nc), math.inf):
-          dist[(nr, nc)] = nd
-          heapq.heappush(queue, (nd, (nr, nc)))
-  return math.inf
-
-
 class Problem:
   """Random far-apart start / goal pairs on a random grid, one with start == goal and one with
   the goal in the walled pocket, as one batch of instances."""
@@ -62,7 +40,7 @@ class Problem:
     starts, goals = [], []
     while len(starts) < NUM_FOUND - 1:  # reachable, far-apart pairs
       a, b = outside[rng.choice(len(outside), 2, replace=False)]
-      if np.isfinite(_dijkstra(self.obstacles, tuple(a), tuple(b))) and np.abs(a - b).max() >= 7:
+      if np.isfinite(gridworld.shortest_path_cost(self.obstacles, tuple(a), tuple(b))) and np.abs(a - b).max() >= 7:
         starts.append(a)
         goals.append(b)
     starts.append(outside[0])
@@ -70,7 +48,7 @@ class Problem:
     starts.append(outside[1])
     goals.append(np.array(POCKET))  # unreachable
     self.starts, self.goals = np.array(starts), np.array(goals)
-    self.optimal = np.array([_dijkstra(self.obstacles, tuple(s), tuple(g))
+    self.optimal = np.array([gridworld.shortest_path_cost(self.obstacles, tuple(s), tuple(g))
                              for s, g in zip(starts, goals)])
     self.nodes = self.env.node(self.starts, self.goals)
     self.keys = instance_keys(jax.random.PRNGKey(0), len(starts))
@@ -163,7 +141,7 @@ def test_unreachable_goal_empties_open(problem, base_result):
   assert not res.found[i]
   assert res.stop_reason[i] == StopReason.OPEN_EMPTY
   # Every reachable cell was generated once (the lattice merges revisits) and expanded.
-  reachable = sum(np.isfinite(_dijkstra(problem.obstacles, tuple(problem.starts[i]), (r, c)))
+  reachable = sum(np.isfinite(gridworld.shortest_path_cost(problem.obstacles, tuple(problem.starts[i]), (r, c)))
                   for r in range(SIZE) for c in range(SIZE))
   assert res.generated[i] == reachable
   assert res.expanded[i] == reachable

@@ -10,6 +10,7 @@ grid and moves into an obstacle are invalid. Cost is the move's length (1 or sqr
 
 from __future__ import annotations
 
+import heapq
 import math
 
 import jax
@@ -20,6 +21,30 @@ from pachs_jax.envs import base
 
 MOVES_4 = ((1, 0), (-1, 0), (0, 1), (0, -1))
 MOVES_8 = MOVES_4 + ((1, 1), (1, -1), (-1, 1), (-1, -1))
+
+
+def shortest_path_cost(obstacles, start, goal, moves=MOVES_8) -> float:
+  """The reference answer for tests: Dijkstra's cheapest path cost (float64) from cell start to
+  cell goal over the free cells of obstacles [H, W], inf when unreachable."""
+  obstacles = np.asarray(obstacles, bool)
+  height, width = obstacles.shape
+  start, goal = tuple(int(x) for x in start), tuple(int(x) for x in goal)
+  dist = {start: 0.0}
+  queue = [(0.0, start)]
+  while queue:
+    d, (r, c) = heapq.heappop(queue)
+    if (r, c) == goal:
+      return d
+    if d > dist[(r, c)]:
+      continue
+    for dr, dc in moves:
+      nr, nc = r + dr, c + dc
+      if 0 <= nr < height and 0 <= nc < width and not obstacles[nr, nc]:
+        nd = d + math.hypot(dr, dc)
+        if nd < dist.get((nr, nc), math.inf):
+          dist[(nr, nc)] = nd
+          heapq.heappush(queue, (nd, (nr, nc)))
+  return math.inf
 
 
 class GridWorld(base.Env):
