@@ -1,16 +1,17 @@
 """PACHS over several devices of one host: the 150-run PushT-Obs benchmark on 1, 2 and 4 devices.
 
 The runs are the canonical instances x seeds (default 30 x 5 = 150 searches, PACHS with the
-task's tuned config and shipped model, 100,000 evaluations each): the runs and keys of
-`open_loop.py` (run r * I + i is round r of instance i, key fold_in(fold_in(PRNGKey(seed), r),
-i)); the recorded `bench_scale.md` predates this and used instance-major keys. For each device count all runs go into
-one `sharding.plan_sharded` call over a mesh of the first D devices (D = 1 too: the same
+task's tuned config and shipped model, 100,000 evaluations each; `--pop-sizes` repeats the
+measurement at other K), with the runs and keys of `open_loop.py` (run r * I + i is round r of
+instance i, key fold_in(fold_in(PRNGKey(seed), r), i)). For each K and device count all runs go
+into one `sharding.plan_sharded` call over a mesh of the first D devices (D = 1 too: the same
 code path), compile excluded. Reported per device count: wall time, edges evaluated per second,
 found count, speed-up over one device and efficiency (speed-up / D), and whether every run's
 result (found and cost; also every other field) is identical to that of the first device count.
 Device counts above `jax.device_count()` are skipped and recorded as such.
 
-  python experiments/bench_scale.py --devices 1,2,4 --out experiments/results/bench_scale.json
+  python experiments/bench_scale.py --devices 1,2,4 --pop-sizes 256,1024 \\
+      --out experiments/results/bench_scale.json
 
 CPU smoke test (4 simulated devices, MuJoCo C physics):
 
@@ -21,6 +22,7 @@ CPU smoke test (4 simulated devices, MuJoCo C physics):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 
@@ -48,6 +50,9 @@ def main():
   parser.add_argument('--seeds', type=int, default=5, help='runs (rounds) per instance')
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument('--budget', type=int, default=100_000, help='evaluations per run')
+  parser.add_argument('--pop-sizes', default=None,
+                      help="K values, comma separated (default: the task's tuned K); each K is "
+                      'measured on every device count')
   parser.add_argument('--repeats', type=int, default=1,
                       help='timed calls per device count (the median is reported)')
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
@@ -59,86 +64,106 @@ def main():
     parser.error('--devices, --instances, --seeds and --repeats must be positive')
 
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
-  config = planner.default_config(args.task, max_evaluations=args.budget)
+  tuned = planner.default_config(args.task, max_evaluations=args.budget)
+  pop_sizes = ([int(k) for k in args.pop_sizes.split(',')] if args.pop_sizes
+               else [tuned.pop_size])
+  if min(pop_sizes) < 1:
+    parser.error('--pop-sizes must be positive')
   num_runs = args.instances * args.seeds
   # the runs and keys of experiments/open_loop.py: run r * I + i is round r of instance i
   instance = np.tile(np.arange(args.instances), args.seeds)
   round_ = np.repeat(np.arange(args.seeds), args.instances)
   starts = jax.tree.map(lambda x: x[instance], env.canonical_instances(args.instances))
   keys = open_loop.run_keys(args.seed, args.instances, args.seeds)
-  search = pachs.make_search(env, model, config)
   available = jax.device_count()
   result = {'provenance': common.provenance(), 'task': args.task,
             'model': args.checkpoint or planner.checkpoint_path(args.task),
-            'backend': type(env).__name__, 'config': repr(config),
+            'backend': type(env).__name__, 'configs': {},
             'instances': args.instances, 'seeds': args.seeds, 'runs': num_runs,
-            'devices_available': available, 'rows': [], 'skipped': [], 'per_run': []}
-  reference = None  # (device count, host result) of the first count measured
-  for count in counts:
-    if count > available:
-      print(f'skipping {count} devices: only {available} available', flush=True)
-      result['skipped'].append({'devices': count,
-                                'reason': f'only {available} device(s) available'})
-      continue
-    mesh = sharding.instance_mesh(jax.devices()[:count])
-    walls, first = [], None
-    for _ in range(args.repeats):
-      t0 = time.perf_counter()
-      out = sharding.plan_sharded(env, model, starts, config, keys, mesh=mesh, search=search)
-      first = first if first is not None else time.perf_counter() - t0
-      walls.append(float(out.wall_time_s))
-    host = jax.tree.map(np.asarray, out.replace(wall_time_s=None))
-    wall = float(np.median(walls))
-    evaluated = int(host.evaluated.sum())
-    row = {'devices': count, 'runs_per_device': -(-num_runs // count), 'wall_s': wall,
-           'wall_s_all': walls, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
-           'edges_per_s': evaluated / wall, 'found': int(host.found.sum()),
-           'iterations_max': int(host.iterations.max()),
-           'stop_reasons': {StopReason.name(c): int(n) for c, n in
-                            enumerate(np.bincount(host.stop_reason, minlength=7)) if n},
-           'overflow': int((host.heap_overflow + host.pool_overflow
-                            + host.table_overflow).sum()),
-           'device0_peak_bytes_so_far': peak_memory_bytes(jax.devices()[0])}
-    if reference is None:
-      reference = (count, host)
-      result['per_run'] = [
-          {'instance': int(i), 'round': int(r), 'found': bool(f), 'cost': float(c),
-           'evaluated': int(e), 'stop': StopReason.name(s)}
-          for i, r, f, c, e, s in zip(instance, round_, host.found, host.cost, host.evaluated,
-                                      host.stop_reason)]
-    ref_count, ref = reference
-    same_found_cost = (np.array_equal(host.found, ref.found)
-                       and np.array_equal(host.cost, ref.cost, equal_nan=True))
-    differing = np.flatnonzero((host.found != ref.found)
-                               | ~((host.cost == ref.cost)
-                                   | (np.isnan(host.cost) & np.isnan(ref.cost))))
-    row.update({
-        'compared_with_devices': ref_count,
-        'identical_found_cost': bool(same_found_cost),
-        'identical_all_fields': all(np.array_equal(a, b, equal_nan=a.dtype.kind == 'f')
-                                    for a, b in zip(jax.tree.leaves(host), jax.tree.leaves(ref))),
-        'differing_runs': differing.tolist()[:20]})
-    print({k: v for k, v in row.items() if k != 'wall_s_all'}, flush=True)
-    result['rows'].append(row)
-    common.write_json(args.out, result)
+            'devices_available': available, 'rows': [], 'skipped': [], 'per_run': {}}
+  for pop_size in pop_sizes:
+    config = dataclasses.replace(tuned, pop_size=pop_size)
+    result['configs'][pop_size] = repr(config)
+    search = pachs.make_search(env, model, config)
+    reference = None  # (device count, host result) of the first count measured with this K
+    for count in counts:
+      if count > available:
+        print(f'skipping {count} devices: only {available} available', flush=True)
+        result['skipped'].append({'devices': count, 'K': pop_size,
+                                  'reason': f'only {available} device(s) available'})
+        continue
+      row, host = measure(env, model, starts, config, keys, count, args.repeats, search)
+      row = {'K': pop_size, **row}
+      if reference is None:
+        reference = (count, host)
+        result['per_run'][pop_size] = [
+            {'instance': int(i), 'round': int(r), 'found': bool(f), 'cost': float(c),
+             'evaluated': int(e), 'stop': StopReason.name(s)}
+            for i, r, f, c, e, s in zip(instance, round_, host.found, host.cost,
+                                        host.evaluated, host.stop_reason)]
+      row.update(compare(host, *reference))
+      print({k: v for k, v in row.items() if k != 'wall_s_all'}, flush=True)
+      result['rows'].append(row)
+      common.write_json(args.out, result)
 
-  one = next((r for r in result['rows'] if r['devices'] == 1), None)
   for row in result['rows']:
+    one = next((r for r in result['rows'] if r['devices'] == 1 and r['K'] == row['K']), None)
     row['speedup'] = one['wall_s'] / row['wall_s'] if one else None
     row['efficiency'] = row['speedup'] / row['devices'] if one else None
   result['all_identical_found_cost'] = all(r['identical_found_cost'] for r in result['rows'])
   common.write_json(args.out, result)
-  skipped = ''.join(f"\nskipped: {s['devices']} devices ({s['reason']})"
+  skipped = ''.join(f"\nskipped: {s['devices']} devices at K={s['K']} ({s['reason']})"
                     for s in result['skipped'])
   md = [f"# PACHS over devices ({args.task}, {num_runs} runs = {args.instances} instances x "
         f"{args.seeds} seeds, budget {args.budget}, env {result['backend']})\n\n"
         f"{result['provenance']}\n{skipped}\n",
         common.markdown_table(result['rows'], [
-            'devices', 'runs_per_device', 'wall_s', 'evaluated', 'edges_per_s', 'found',
-            'speedup', 'efficiency', 'identical_found_cost', 'identical_all_fields'])]
+            'K', 'devices', 'runs_per_device', 'wall_s', 'iterations_max', 'evaluated',
+            'edges_per_s', 'found', 'speedup', 'efficiency', 'identical_found_cost',
+            'identical_all_fields'])]
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write('\n'.join(md) + '\n')
   print('\n'.join(md))
+
+
+def measure(env, model, starts, config, keys, count, repeats, search):
+  """Plans all runs over the first `count` devices `repeats` times; returns (row, host result)."""
+  mesh = sharding.instance_mesh(jax.devices()[:count])
+  walls, first = [], None
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    out = sharding.plan_sharded(env, model, starts, config, keys, mesh=mesh, search=search)
+    first = first if first is not None else time.perf_counter() - t0
+    walls.append(float(out.wall_time_s))
+  host = jax.tree.map(np.asarray, out.replace(wall_time_s=None))
+  wall = float(np.median(walls))
+  evaluated = int(host.evaluated.sum())
+  num_runs = host.found.shape[0]
+  row = {'devices': count, 'runs_per_device': -(-num_runs // count), 'wall_s': wall,
+         'wall_s_all': walls, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
+         'edges_per_s': evaluated / wall, 'found': int(host.found.sum()),
+         'iterations_max': int(host.iterations.max()),
+         'stop_reasons': {StopReason.name(c): int(n) for c, n in
+                          enumerate(np.bincount(host.stop_reason, minlength=7)) if n},
+         'overflow': int((host.heap_overflow + host.pool_overflow
+                          + host.table_overflow).sum()),
+         'device0_peak_bytes_so_far': peak_memory_bytes(jax.devices()[0])}
+  return row, host
+
+
+def compare(host, ref_count, ref):
+  """Whether every run's result equals that of the reference device count."""
+  same_found_cost = (np.array_equal(host.found, ref.found)
+                     and np.array_equal(host.cost, ref.cost, equal_nan=True))
+  differing = np.flatnonzero((host.found != ref.found)
+                             | ~((host.cost == ref.cost)
+                                 | (np.isnan(host.cost) & np.isnan(ref.cost))))
+  return {'compared_with_devices': ref_count,
+          'identical_found_cost': bool(same_found_cost),
+          'identical_all_fields': all(np.array_equal(a, b, equal_nan=a.dtype.kind == 'f')
+                                      for a, b in zip(jax.tree.leaves(host),
+                                                      jax.tree.leaves(ref))),
+          'differing_runs': differing.tolist()[:20]}
 
 
 if __name__ == '__main__':

@@ -114,7 +114,7 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
     config = bl.BeamConfig(beam_width=args.beam_width, num_actions=16, max_evaluations=budget)
     shard_fn = bl.make_beam_search(env, model, config)
   elif name == 'epase':
-    setup = bl.shelf_setup(env)
+    setup = bl.shelf_setup(env, spread=args.epase_spread)
     config = bl.EpaseConfig(weight=args.epase_weight, pop_size=args.pop_size or 16,
                             max_evaluations=args.epase_budget,
                             lattice_resolution=setup.lattice_resolution)
@@ -278,6 +278,8 @@ def main():
   parser.add_argument('--beam-width', type=int, default=64)
   parser.add_argument('--epase-weight', type=float, default=10.0)
   parser.add_argument('--epase-budget', type=int, default=200_000)
+  parser.add_argument('--epase-spread', type=int, default=0,
+                      help='cells the BFS-3D distances extend into blocked cells')
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
   parser.add_argument('--devices', type=int, default=1,
                       help='shard the runs over this many local devices (no PACHS time limit)')
@@ -312,7 +314,8 @@ def main():
              'model': planner.MODEL_FOR_TASK[args.task],
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'budget': args.budget, 'time_limit_s': args.time_limit,
-                          'devices': args.devices},
+                          'devices': args.devices,
+                          **({'epase_spread_cells': args.epase_spread} if shelf else {})},
              'configs': {}, 'summary': [], 'runs': {}, 'curve_budgets': budgets,
              'success_curve': {}}
   for name in names:
