@@ -17,7 +17,8 @@ Planners:
   chunks, stopping when the next chunk, timed as the last, would end past the query time);
   without a goal it returns its best-reward finished rollout.
 - pachs: PACHS in real-time mode: anytime chunks until the query time, then the path to the
-  best-f state (or to a goal).
+  best-f state (or to a goal); `--realtime-answer min_h` returns the path to the generated state
+  of least estimated cost-to-go instead (SearchConfig.realtime_answer).
 - mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
   from its previous plan shifted by the executed actions afterwards, under the same query time.
 A returned path with no action (e.g. PACHS's best state is the start) executes one action of
@@ -114,7 +115,8 @@ def policy_actions(env, model):
 def make_query(name: str, task: str, env, model, args, num: int):
   """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E]) numpy."""
   if name == 'pachs':
-    config = planner.default_config(task, max_evaluations=args.budget)
+    config = dataclasses.replace(planner.default_config(task, max_evaluations=args.budget),
+                                 realtime_answer=args.realtime_answer)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):
@@ -250,6 +252,8 @@ def main():
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--realtime-answer', default='best_f', choices=['best_f', 'min_h'],
+                      help="PACHS's answer without a goal (SearchConfig.realtime_answer)")
   parser.add_argument('--chunk-iterations', type=int, default=8,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "

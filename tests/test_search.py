@@ -400,3 +400,36 @@ def test_coarse_lattice_merges_states_and_paths_replay(problem):
     cost, node = _replay(problem.env, res, i)
     np.testing.assert_allclose(cost, out.cost[i], rtol=1e-6)
     assert bool(problem.env.is_goal(node)[0]) == out.found[i]
+
+
+def test_min_h_realtime_answer(problem, config):
+  """'min_h' returns the path to the non-start node with the least (dummy key - g), the
+  answer that 'best_f' often leaves at the start early in a search."""
+  stop_early = dataclasses.replace(config, max_iterations=4)
+  best_f = _np(plan(problem.env, problem.actor_critic, problem.nodes, stop_early, problem.keys))
+  min_h_config = dataclasses.replace(stop_early, realtime_answer='min_h')
+  search = make_search(problem.env, problem.actor_critic, min_h_config)
+  state = search.run(search.init(problem.nodes, problem.keys))
+  res = _np(search.result(state))
+  pool = jax.tree.map(np.asarray, state.pool)
+  running = res.stop_reason == StopReason.ITERATIONS
+  assert running.sum() >= 2
+  # the search itself is the same; only the answer differs
+  np.testing.assert_array_equal(res.evaluated, best_f.evaluated)
+  for i in np.flatnonzero(running):
+    size = pool.size[i]
+    weighted_h = (pool.open_key[i] - pool.g[i])[1:size]
+    assert size > 1 and res.path_length[i] >= 1
+    cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
+    np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
+    end = 1 + int(np.argmin(weighted_h))  # the replayed path ends in that node's state
+    np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
+    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
+      np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])
+  # a different answer from 'best_f' for at least one instance
+  assert (res.path_length[running] != best_f.path_length[running]).any() or \
+      (res.cost[running] != best_f.cost[running]).any()
+  with pytest.raises(ValueError, match='realtime_answer'):
+    dataclasses.replace(config, realtime_answer='closest')
+  with pytest.raises(ValueError, match='weight > 0'):
+    dataclasses.replace(config, weight=0.0, realtime_answer='min_h')

@@ -140,7 +140,8 @@ class Search:
     (the input state's buffers are donated).
   run(state) -> state when every instance has stopped.
   result(state) -> SearchResult; an instance that has not found a goal gets the path to the
-    state of its best OPEN entry (the real-time answer; a real edge (s, a) names s).
+    state of its best OPEN entry (the real-time answer; a real edge (s, a) names s), or with
+    config.realtime_answer 'min_h' to its generated state of least estimated cost-to-go.
   """
 
   init: Callable[..., SearchState]
@@ -397,6 +398,9 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
 
   def result(state: SearchState) -> SearchResult:
     value, in_open = best_open(state)  # the real-time answer: a real edge names its source
+    if config.realtime_answer == 'min_h':
+      h_value, has = path_lib.min_h_answer(state.pool, n + 1)
+      value, in_open = jnp.where(has, h_value, value), has | in_open
     heap_overflow = heap_lib.overflow(state.heap)
     if state.dummy_heap is not None:
       heap_overflow = heap_overflow + heap_lib.overflow(state.dummy_heap)

@@ -3,6 +3,7 @@ pool-based edge search (PACHS, ePA*SE)."""
 
 from __future__ import annotations
 
+from typing import Tuple
 
 import jax
 import jax.numpy as jnp
@@ -58,13 +59,25 @@ def extract(pool: pool_lib.NodePool, final: jax.Array, max_len: int) -> Path:
   return Path(actions=actions, nodes=nodes, length=length, truncated=length > max_len)
 
 
+def min_h_answer(pool, slots: int) -> Tuple[jax.Array, jax.Array]:
+  """(value [I], has [I]): the generated node, the start excluded, with the smallest estimated
+  cost-to-go (key of its latest dummy edge - g = w * h), as an entry value node * slots; has is
+  False while the start is the only node."""
+  index = jnp.arange(pool.capacity)[None, :]
+  usable = (index < pool.size[:, None]) & (index != pool_lib.ROOT_INDEX)
+  weighted_h = jnp.where(usable, pool.open_key - pool.g, jnp.inf)
+  node = jnp.argmin(weighted_h, axis=1).astype(jnp.int32)
+  return node * slots, jnp.any(usable, axis=1)
+
+
 def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,
                   heap_overflow: jax.Array, max_len: int) -> SearchResult:
   """The SearchResult [I] of an edge search whose state has pool, table, stop_reason,
   goal_node, expanded, evaluated, invalid and iterations ([I] each).
 
   The path ends at the goal node when one was found, else at the real-time answer: the node of
-  the best OPEN entry (best_value [I], an entry value node * slots + slot, where in_open [I]),
+  an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's
+  or `min_h_answer`'s),
   or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
   pop_size evaluation lanes per iteration.
   """

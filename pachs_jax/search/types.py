@@ -19,6 +19,7 @@ from pachs_jax.envs import base
 
 HEAP_KINDS = ('flat', 'segmented', 'blocked')
 LOOP_MODES = ('split', 'mixed')
+REALTIME_ANSWERS = ('best_f', 'min_h')
 
 
 class StopReason:
@@ -159,6 +160,10 @@ class SearchConfig:
     dummy edges that come before R's K-th best key, then evaluates the K best real edges, so
     the physics batch stays full) or 'mixed' (one heap; the K popped entries are split between
     expansion and evaluation, which leaves evaluation lanes empty). See `pachs`.
+  realtime_answer: the path returned when no goal was found: 'best_f' (the original's
+    real-time variant: to the state of the best OPEN entry, often the start itself early in a
+    search) or 'min_h' (to the generated state, the start excluded, with the smallest
+    estimated cost-to-go h = (key of its latest dummy edge - g) / w; needs w > 0).
   """
 
   weight: float = 1.0
@@ -174,6 +179,7 @@ class SearchConfig:
   table_capacity: Optional[int] = None
   max_path_length: int = 1024
   loop: str = 'split'
+  realtime_answer: str = 'best_f'
 
   def __post_init__(self):
     def positive_int(name, allow_none=False):
@@ -191,6 +197,12 @@ class SearchConfig:
       positive_int(name, allow_none=True)
     if self.loop not in LOOP_MODES:
       raise ValueError(f'SearchConfig.loop must be one of {LOOP_MODES}, got {self.loop!r}')
+    if self.realtime_answer not in REALTIME_ANSWERS:
+      raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
+                       f'{self.realtime_answer!r}')
+    if self.realtime_answer == 'min_h' and not self.weight > 0:
+      raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
+                       f'and needs weight > 0, got {self.weight!r}')
     check_heap_and_table('SearchConfig', self.heap_kind, self.table_capacity)
     object.__setattr__(self, 'lattice_resolution',
                        lattice_resolution_tuple('SearchConfig', self.lattice_resolution))
