@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import time
 
@@ -58,7 +59,17 @@ def main():
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
                       help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
   parser.add_argument('--out', default='experiments/results/bench_scale.json')
+  parser.add_argument('--plot-from', default=None,
+                      help='only plot: speed-up against devices from these result JSON files '
+                      '(comma separated) into the --out stem + .png')
   args = parser.parse_args()
+  if args.plot_from:
+    rows = []
+    for path in args.plot_from.split(','):
+      with open(path) as f:
+        rows += [dict(r, source=os.path.basename(path)) for r in json.load(f)['rows']]
+    plot_speedup(rows, os.path.splitext(args.out)[0] + '.png')
+    return
   counts = [int(d) for d in args.devices.split(',')]
   if not counts or min(counts) < 1 or min(args.instances, args.seeds, args.repeats) < 1:
     parser.error('--devices, --instances, --seeds and --repeats must be positive')
@@ -123,7 +134,32 @@ def main():
             'identical_all_fields'])]
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write('\n'.join(md) + '\n')
+  plot_speedup(result['rows'], os.path.splitext(args.out)[0] + '.png')
   print('\n'.join(md))
+
+
+def plot_speedup(rows, path):
+  """Speed-up over one device against device count, one line per K (and source file)."""
+  import matplotlib
+  matplotlib.use('Agg')
+  import matplotlib.pyplot as plt
+  fig, ax = plt.subplots(figsize=(5, 4))
+  lines = {}
+  for r in rows:
+    if r.get('speedup') is not None:
+      lines.setdefault((r['K'], r.get('source', '')), []).append((r['devices'], r['speedup']))
+  most = max([d for pts in lines.values() for d, _ in pts] + [1])
+  ax.plot([1, most], [1, most], 'k:', label='linear')
+  for (k, source), pts in sorted(lines.items()):
+    d, s = zip(*sorted(pts))
+    ax.plot(d, s, 'o-', label=f'K={k}' + (f' ({source})' if source else ''))
+  ax.set_xlabel('devices')
+  ax.set_ylabel('speed-up over one device')
+  ax.set_title('PACHS, 150 PushT-Obs runs')
+  ax.legend(fontsize=7)
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+  plt.close(fig)
 
 
 def measure(env, model, starts, config, keys, count, repeats, search):

@@ -276,9 +276,10 @@ def main():
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
   parser.add_argument('--beam-width', type=int, default=64)
-  parser.add_argument('--epase-weight', type=float, default=10.0)
+  parser.add_argument('--epase-weight', type=float, default=20.0,
+                      help='w of ePA*SE (results/tune_epase.md)')
   parser.add_argument('--epase-budget', type=int, default=200_000)
-  parser.add_argument('--epase-spread', type=int, default=0,
+  parser.add_argument('--epase-spread', type=int, default=3,
                       help='cells the BFS-3D distances extend into blocked cells')
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
   parser.add_argument('--devices', type=int, default=1,

@@ -1,0 +1,122 @@
+"""Merges result files of one task (e.g. planners run on separate GPUs) into one JSON, markdown
+table and plot, keeping the provenance of every source.
+
+closed: closed_loop.py files. The protocol settings (task, instances, rounds, query time,
+  actions executed, queries, policy fill, perturbation, seed) must agree. A PACHS row run with
+  `--realtime-answer min_h` is labelled 'pachs-min_h'.
+open: open_loop.py files. The settings (instances, rounds, budget, time limit) must agree; a
+  planner of a later file replaces the same planner of an earlier one, and the pairwise cost
+  ratios are recomputed.
+
+  python experiments/merge_results.py closed --out experiments/results/closed_loop_pusht-obs.json \\
+      /tmp/r/closed_loop_pusht-obs.json /tmp/r/closed_loop_pusht-obs_mppi.json
+  python experiments/merge_results.py open --out experiments/results/open_loop_shelf.json \\
+      experiments/results/open_loop_shelf.json /tmp/r/open_loop_shelf_epase.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Dict, List
+
+import closed_loop
+import common
+import open_loop
+
+PROTOCOL = ('task', 'instances', 'rounds', 'query_time', 'execute', 'max_queries',
+            'fill_with_policy', 'perturb', 'seed')
+
+
+def label(planner: str, settings: Dict) -> str:
+  if planner == 'pachs' and settings.get('realtime_answer', 'best_f') != 'best_f':
+    return f'pachs-{settings["realtime_answer"]}'
+  return planner
+
+
+def merge_closed(payloads: List[Dict]) -> Dict:
+  """One closed-loop payload holding every source's planners (in order)."""
+  first = payloads[0]
+  for p in payloads[1:]:
+    for name in PROTOCOL:
+      if p['settings'].get(name) != first['settings'].get(name):
+        raise ValueError(f'the sources disagree on {name}: {first["settings"].get(name)!r} '
+                         f'vs {p["settings"].get(name)!r}')
+    if p['perturbation'] != first['perturbation']:
+      raise ValueError('the sources ran different world perturbations')
+  merged = {'provenance': {'merged_from': [p['provenance'] for p in payloads]},
+            'task': first['task'],
+            'settings': {name: first['settings'].get(name) for name in PROTOCOL},
+            'settings_per_source': [p['settings'] for p in payloads],
+            'perturbation': first['perturbation'], 'summary': [], 'episodes': {}}
+  for p in payloads:
+    for row in p['summary']:
+      name = label(row['planner'], p['settings'])
+      if name in merged['episodes']:
+        raise ValueError(f'planner {name!r} appears in two sources')
+      merged['summary'].append(dict(row, planner=name))
+      merged['episodes'][name] = p['episodes'][row['planner']]
+  return merged
+
+
+OPEN_PROTOCOL = ('instances', 'rounds', 'budget', 'time_limit_s')
+
+
+def merge_open(payloads: List[Dict]) -> Dict:
+  """One open-loop payload; a planner of a later payload replaces the same planner before."""
+  first = payloads[0]
+  for p in payloads[1:]:
+    if p['task'] != first['task'] or p['curve_budgets'] != first['curve_budgets']:
+      raise ValueError('the sources are of different tasks or success-curve budgets')
+    for name in OPEN_PROTOCOL:
+      if p['settings'].get(name) != first['settings'].get(name):
+        raise ValueError(f'the sources disagree on {name}: {first["settings"].get(name)!r} '
+                         f'vs {p["settings"].get(name)!r}')
+  merged = {'provenance': {'merged_from': []}, 'task': first['task'], 'model': first['model'],
+            'settings': {name: first['settings'].get(name) for name in OPEN_PROTOCOL},
+            'settings_per_planner': {}, 'configs': {}, 'summary': [], 'runs': {},
+            'curve_budgets': first['curve_budgets'], 'success_curve': {}}
+  summary = {}
+  for p in payloads:
+    merged['provenance']['merged_from'].append(
+        dict(p['provenance'], planners=[s['planner'] for s in p['summary']]))
+    for row in p['summary']:
+      name = row['planner']
+      summary[name] = row
+      merged['settings_per_planner'][name] = p['settings']
+      merged['configs'][name] = p['configs'][name]
+      merged['runs'][name] = p['runs'][name]
+      merged['success_curve'][name] = p['success_curve'][name]
+  merged['summary'] = list(summary.values())
+  merged['cost_ratios'] = open_loop.cost_ratios(merged['runs'])
+  return merged
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('kind', choices=['closed', 'open'])
+  parser.add_argument('sources', nargs='+', help='result JSON files of one task')
+  parser.add_argument('--out', required=True)
+  args = parser.parse_args()
+  payloads = []
+  for path in args.sources:
+    with open(path) as f:
+      payloads.append(json.load(f))
+  stem = os.path.splitext(args.out)[0]
+  if args.kind == 'closed':
+    merged = merge_closed(payloads)
+    common.write_json(args.out, merged)
+    closed_loop.write_markdown(merged, stem + '.md')
+    closed_loop.plot(merged, stem + '.png')
+  else:
+    merged = merge_open(payloads)
+    common.write_json(args.out, merged)
+    open_loop.write_markdown(merged['task'], merged, stem + '.md')
+    open_loop.plot(merged['task'], merged, stem + '.png')
+  with open(stem + '.md') as f:
+    print(f.read())
+
+
+if __name__ == '__main__':
+  main()
