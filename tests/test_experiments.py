@@ -10,6 +10,7 @@ import pytest
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
 
 import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
+import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
@@ -79,3 +80,45 @@ def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
   assert open_loop.instance_bootstrap_interval(np.ones(10, bool), np.arange(10)) == (1.0, 1.0)
   # resampling is seeded: the same interval every call
   assert open_loop.instance_bootstrap_interval(found, instance) == (low, high)
+
+
+def _closed(planners, **settings):
+  base = {'task': 'pusht-obs', 'instances': 2, 'rounds': 1, 'query_time': 3.0, 'execute': 10,
+          'max_queries': 30, 'fill_with_policy': 1, 'perturb': '', 'seed': 0}
+  return {'provenance': {'command': ' '.join(planners)}, 'task': 'pusht-obs',
+          'settings': {**base, **settings}, 'perturbation': {'friction': 1.0},
+          'summary': [{'planner': p, 'successes': i} for i, p in enumerate(planners)],
+          'episodes': {p: {'success': [i > 0, True]} for i, p in enumerate(planners)}}
+
+
+def test_merge_closed_keeps_every_planner_and_labels_min_h():
+  merged = merge_results.merge_closed([_closed(['single', 'pachs']),
+                                       _closed(['pachs'], realtime_answer='min_h')])
+  assert [r['planner'] for r in merged['summary']] == ['single', 'pachs', 'pachs-min_h']
+  assert merged['episodes']['pachs-min_h'] == {'success': [False, True]}
+  assert len(merged['provenance']['merged_from']) == 2
+  with pytest.raises(ValueError, match='query_time'):
+    merge_results.merge_closed([_closed(['single']), _closed(['pachs'], query_time=1.0)])
+  with pytest.raises(ValueError, match='two sources'):
+    merge_results.merge_closed([_closed(['pachs']), _closed(['pachs'])])
+
+
+def _open(costs):
+  runs = {p: [{'found': c is not None, 'cost': c if c is not None else float('nan')}
+              for c in cs] for p, cs in costs.items()}
+  return {'provenance': {}, 'task': 'shelf', 'model': 'm',
+          'settings': {'instances': 2, 'rounds': 1, 'budget': 10, 'time_limit_s': 60.0},
+          'configs': {p: p for p in costs}, 'summary': [{'planner': p} for p in costs],
+          'runs': runs, 'curve_budgets': [1, 10], 'success_curve': {p: [0, 1] for p in costs}}
+
+
+def test_merge_open_replaces_a_planner_and_recomputes_cost_ratios():
+  base = _open({'pachs': [1.0, 2.0], 'epase': [None, None]})
+  rerun = _open({'epase': [2.0, 8.0]})
+  merged = merge_results.merge_open([base, rerun])
+  assert [r['planner'] for r in merged['summary']] == ['pachs', 'epase']
+  assert merged['runs']['epase'] == rerun['runs']['epase']
+  ratio = merged['cost_ratios']['pachs']['epase']
+  assert ratio['runs'] == 2 and ratio['mean_ratio'] == pytest.approx((0.5 + 0.25) / 2)
+  with pytest.raises(ValueError, match='budget'):
+    merge_results.merge_open([base, dict(rerun, settings=dict(rerun['settings'], budget=5))])
