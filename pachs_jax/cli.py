@@ -77,7 +77,7 @@ def _plan(args: argparse.Namespace) -> int:
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
       weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
-      lattice_resolution=args.lattice_resolution)
+      lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer)
   budget = config.max_evaluations
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
@@ -150,6 +150,9 @@ def main(argv=None) -> int:
                     default=None, help='lattice cell sizes, comma separated')
   plan.add_argument('--time-limit', type=float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
+  plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h'],
+                    help='the state an unfinished search answers with: best_f (the best OPEN '
+                    "entry's, the default) or min_h (least estimated cost-to-go)")
   plan.add_argument('--devices', type=_devices_arg, default=1,
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "
