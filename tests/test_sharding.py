@@ -204,3 +204,50 @@ def test_bad_input_raises(search):
     other = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=400,
                          heap_kind='flat')
     sharding.plan_sharded(ENV, AC, NODES, other, key, search=search)
+
+
+# Two processes ("hosts") of 2 CPU devices each, joined by `initialize_multihost` through the
+# JAX_COORDINATOR_ADDRESS variables: 6 instances over the 4 global devices (padded to 8), the
+# result gathered whole on every process, equal to the unsharded plan field by field.
+TWO_HOSTS = textwrap.dedent('''
+    from pachs_jax.search import sharding as _sharding
+    assert _sharding.initialize_multihost(), 'the job was not joined'
+''') + SETUP + textwrap.dedent('''
+    from pachs_jax.search import plan, make_search
+    assert jax.process_count() == 2 and len(jax.devices()) == 4, jax.devices()
+    assert len(jax.local_devices()) == 2
+    key = jax.random.PRNGKey(3)
+    search = make_search(ENV, AC, CONFIG)
+    got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=sharding.instance_mesh(),
+                                search=search)
+    want = plan(ENV, AC, NODES, CONFIG, key, search=search)
+    assert np.asarray(got.found).shape == (6,) and np.asarray(got.found).sum() >= 4
+    for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
+                    jax.tree.leaves(got.replace(wall_time_s=None))):
+      assert np.array_equal(np.asarray(w), np.asarray(g)), (w, g)
+    print(f'PROCESS{jax.process_index()}_OK', flush=True)
+''')
+
+
+def test_two_processes_equal_unsharded():
+  import socket
+  with socket.socket() as s:
+    s.bind(('127.0.0.1', 0))
+    port = s.getsockname()[1]
+  procs = []
+  for i in range(2):
+    env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=2',
+               JAX_PLATFORMS='cpu', JAX_COORDINATOR_ADDRESS=f'127.0.0.1:{port}',
+               JAX_NUM_PROCESSES='2', JAX_PROCESS_ID=str(i))
+    procs.append(subprocess.Popen([sys.executable, '-c', TWO_HOSTS], env=env, text=True,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+  outputs = []
+  try:
+    for proc in procs:
+      out, err = proc.communicate(timeout=600)
+      outputs.append((proc.returncode, out, err))
+  finally:
+    for proc in procs:
+      proc.kill()
+  for i, (code, out, err) in enumerate(outputs):
+    assert code == 0 and f'PROCESS{i}_OK' in out, (out + err)[-4000:]
