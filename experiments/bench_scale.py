@@ -54,6 +54,8 @@ def main():
   parser.add_argument('--pop-sizes', default=None,
                       help="K values, comma separated (default: the task's tuned K); each K is "
                       'measured on every device count')
+  parser.add_argument('--compact-fractions', default='',
+                      help='SearchConfig.compact_fractions, comma separated (default: none)')
   parser.add_argument('--repeats', type=int, default=1,
                       help='timed calls per device count (the median is reported)')
   parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
@@ -93,7 +95,8 @@ def main():
             'instances': args.instances, 'seeds': args.seeds, 'runs': num_runs,
             'devices_available': available, 'rows': [], 'skipped': [], 'per_run': {}}
   for pop_size in pop_sizes:
-    config = dataclasses.replace(tuned, pop_size=pop_size)
+    config = dataclasses.replace(tuned, pop_size=pop_size, compact_fractions=tuple(
+        float(f) for f in args.compact_fractions.split(',') if f))
     result['configs'][pop_size] = repr(config)
     search = pachs.make_search(env, model, config)
     reference = None  # (device count, host result) of the first count measured with this K

@@ -84,6 +84,7 @@ from flax import struct
 
 from pachs_jax.envs import base
 from pachs_jax.search import anytime
+from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import path as path_lib
@@ -245,7 +246,10 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     rows = jnp.arange(num_instances)[:, None]
     action = pool.edge_actions[rows, popped.node, slot]
     q = pool.edge_q[rows, popped.node, slot]
-    outcome = env.evaluate(_flat(sources, num_instances * k), action.reshape(-1, action_size))
+    lanes = num_instances * k
+    outcome = compact.evaluate_live(
+        env.evaluate, _flat(sources, lanes), action.reshape(lanes, action_size),
+        within.reshape(lanes), compact.batch_sizes(lanes, config.compact_fractions))
     outcome = _unflat(outcome, num_instances)
     return outcome, within, jnp.any(real & ~within, axis=1), action, q
 

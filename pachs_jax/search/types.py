@@ -164,6 +164,11 @@ class SearchConfig:
     real-time variant: to the state of the best OPEN entry, often the start itself early in a
     search) or 'min_h' (to the generated state, the start excluded, with the smallest
     estimated cost-to-go h = (key of its latest dummy edge - g) / w; needs w > 0).
+  compact_fractions: smaller physics batches, as fractions in (0, 1) of the I * K lanes: when
+    the popped real edges of the instances still searching fit one, only they are simulated
+    (`compact.evaluate_live`), which speeds up the tail of a batched search where most
+    instances have stopped; () always simulates all I * K lanes. Each size adds a copy of the
+    physics to the compiled program.
   """
 
   weight: float = 1.0
@@ -180,6 +185,7 @@ class SearchConfig:
   max_path_length: int = 1024
   loop: str = 'split'
   realtime_answer: str = 'best_f'
+  compact_fractions: Tuple[float, ...] = ()
 
   def __post_init__(self):
     def positive_int(name, allow_none=False):
@@ -200,6 +206,12 @@ class SearchConfig:
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
+    fractions = tuple(self.compact_fractions)
+    if not all(isinstance(f, (int, float)) and not isinstance(f, bool) and 0 < f < 1
+               for f in fractions):
+      raise ValueError('SearchConfig.compact_fractions must be fractions in (0, 1), got '
+                       f'{self.compact_fractions!r}')
+    object.__setattr__(self, 'compact_fractions', tuple(float(f) for f in fractions))
     if self.realtime_answer == 'min_h' and not self.weight > 0:
       raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
                        f'and needs weight > 0, got {self.weight!r}')

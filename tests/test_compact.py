@@ -1,0 +1,68 @@
+"""Compacted edge evaluation: only the live lanes are simulated, with the same outcomes, and
+PACHS with compaction equals PACHS without on the grid world."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import gridworld
+from pachs_jax.search import SearchConfig, compact, plan
+
+
+def test_batch_sizes():
+  assert compact.batch_sizes(64, (0.25, 0.0625, 0.25)) == (4, 16)
+  assert compact.batch_sizes(64, ()) == ()
+  assert compact.batch_sizes(3, (0.1, 0.99)) == (1,)  # ceil(2.97) = 3 is no smaller batch
+
+
+@pytest.fixture(scope='module')
+def lanes():
+  env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
+  rng = np.random.default_rng(0)
+  nodes = env.node(rng.integers(0, 8, (16, 2)), rng.integers(0, 8, (16, 2)))
+  actions = jnp.asarray(rng.uniform(-1, 1, (16, 2)), jnp.float32)
+  return env, nodes, actions
+
+
+@pytest.mark.parametrize('num_live,compacted', [(0, True), (3, True), (4, True), (5, True),
+                                                (8, True), (9, False), (16, False)])
+def test_evaluate_live_matches_full_evaluation(lanes, num_live, compacted):
+  env, nodes, actions = lanes
+  live = np.zeros(16, bool)
+  live[np.random.default_rng(num_live).permutation(16)[:num_live]] = True
+  full = env.evaluate(nodes, actions)
+  got = jax.jit(lambda n, a, m: compact.evaluate_live(env.evaluate, n, a, m, (4, 8)))(
+      nodes, actions, jnp.asarray(live))
+  for g, f in zip(jax.tree.leaves(got), jax.tree.leaves(full)):
+    g, f = np.asarray(g), np.asarray(f)
+    np.testing.assert_array_equal(g[live], f[live])
+    if compacted:  # the other lanes were not simulated
+      assert not g[~live].any()
+    else:
+      np.testing.assert_array_equal(g, f)
+  if compacted:  # the zeros above are a real difference from the full evaluation
+    assert any(np.asarray(f)[~live].any() for f in jax.tree.leaves(full))
+
+
+def test_pachs_with_compaction_equals_without():
+  obstacles = np.zeros((10, 10), bool)
+  obstacles[3:7, 5] = True
+  env = gridworld.GridWorld(obstacles, connectivity=8)
+  ac = gridworld.GridActorCritic(env)
+  starts = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
+  goals = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])
+  nodes = env.node(starts, goals)
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
+  key = jax.random.PRNGKey(1)
+  want = plan(env, ac, nodes, config, key)
+  got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
+  assert np.asarray(want.found).sum() >= 4
+  assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
+  for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
+                  jax.tree.leaves(got.replace(wall_time_s=None))):
+    np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
+  with pytest.raises(ValueError, match='compact_fractions'):
+    dataclasses.replace(config, compact_fractions=(0.5, 1.0))
