@@ -77,7 +77,8 @@ def _plan(args: argparse.Namespace) -> int:
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
       weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
-      lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer)
+      lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
+      compact_fractions=args.compact_fractions)
   budget = config.max_evaluations
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
@@ -150,6 +151,11 @@ def main(argv=None) -> int:
                     default=None, help='lattice cell sizes, comma separated')
   plan.add_argument('--time-limit', type=float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
+  plan.add_argument('--compact-fractions', default=None,
+                    type=lambda s: tuple(float(x) for x in s.split(',') if x),
+                    help='smaller physics batches as fractions of the I x K lanes, comma '
+                    "separated ('' simulates every lane; default: "
+                    'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625)')
   plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h'],
                     help='the state an unfinished search answers with: best_f (the best OPEN '
                     "entry's, the default) or min_h (least estimated cost-to-go)")

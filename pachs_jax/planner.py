@@ -55,6 +55,14 @@ CPU_TASK_OVERRIDES = {
 }
 
 
+# On a GPU `pachs plan` simulates only the live edges once they fit an eighth (or a 64th) of the
+# I x K lanes (SearchConfig.compact_fractions): the 150-run PushT-Obs benchmark took 11.4 s
+# instead of 32.0 s on one H200 (experiments/results/bench_compact.md). On the CPU the search's
+# own work dominates and compaction did not pay (30 PushT-Obs instances, 2 cores: 45.9 s without,
+# 46.9-49.3 s with). The experiment scripts keep the tuned configs as recorded.
+COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
+
+
 def default_config(task: str, **overrides) -> search_types.SearchConfig:
   """The tuned SearchConfig of a task with fields replaced by the non-None overrides."""
   if task not in TASK_DEFAULTS:
@@ -67,8 +75,8 @@ def command_config(task: str, on_cpu: bool, mujoco_c: bool, budget: Optional[int
                    **explicit) -> search_types.SearchConfig:
   """The SearchConfig of `pachs plan`: the task's defaults; on a CPU-only machine without a
   given budget, the CPU budget (`CPU_DEFAULTS`, by physics backend) and `CPU_TASK_OVERRIDES`;
-  explicit non-None values (weight, num_actions, ...) win over both."""
-  settings = {}
+  on a GPU compaction (`COMMAND_COMPACT_FRACTIONS`); explicit non-None values (weight, num_actions, ...) win over both."""
+  settings = {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS}
   if on_cpu and budget is None:
     settings.update(CPU_TASK_OVERRIDES.get(task, {}))
     budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]
