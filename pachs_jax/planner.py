@@ -75,7 +75,8 @@ def command_config(task: str, on_cpu: bool, mujoco_c: bool, budget: Optional[int
                    **explicit) -> search_types.SearchConfig:
   """The SearchConfig of `pachs plan`: the task's defaults; on a CPU-only machine without a
   given budget, the CPU budget (`CPU_DEFAULTS`, by physics backend) and `CPU_TASK_OVERRIDES`;
-  on a GPU compaction (`COMMAND_COMPACT_FRACTIONS`); explicit non-None values (weight, num_actions, ...) win over both."""
+  on a GPU compaction (`COMMAND_COMPACT_FRACTIONS`); explicit non-None values (weight,
+  num_actions, ...) win over all of these."""
   settings = {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS}
   if on_cpu and budget is None:
     settings.update(CPU_TASK_OVERRIDES.get(task, {}))

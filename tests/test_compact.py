@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, compact, plan
+from pachs_jax.search import SearchConfig, compact, make_search, plan, sharding
 
 
 def test_batch_sizes():
@@ -64,5 +64,13 @@ def test_pachs_with_compaction_equals_without():
   for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
                   jax.tree.leaves(got.replace(wall_time_s=None))):
     np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
-  with pytest.raises(ValueError, match='compact_fractions'):
-    dataclasses.replace(config, compact_fractions=(0.5, 1.0))
+  # the same inside shard_map (the default mesh)
+  compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
+  sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
+                                  search=make_search(env, ac, compacted))
+  for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
+                  jax.tree.leaves(sharded.replace(wall_time_s=None))):
+    np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
+  for bad in ((0.5, 1.0), 0.5, (float('nan'),)):
+    with pytest.raises(ValueError, match='compact_fractions'):
+      dataclasses.replace(config, compact_fractions=bad)

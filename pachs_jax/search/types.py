@@ -206,7 +206,8 @@ class SearchConfig:
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
-    fractions = tuple(self.compact_fractions)
+    fractions = (tuple(self.compact_fractions)
+                 if isinstance(self.compact_fractions, (tuple, list)) else (None,))
     if not all(isinstance(f, (int, float)) and not isinstance(f, bool) and 0 < f < 1
                for f in fractions):
       raise ValueError('SearchConfig.compact_fractions must be fractions in (0, 1), got '
