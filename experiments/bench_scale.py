@@ -69,8 +69,10 @@ def main():
     rows = []
     for path in args.plot_from.split(','):
       with open(path) as f:
-        rows += [dict(r, source=os.path.basename(path)) for r in json.load(f)['rows']]
-    plot_speedup(rows, os.path.splitext(args.out)[0] + '.png')
+        payload = json.load(f)
+      rows += [dict(r, source=os.path.basename(path)) for r in payload['rows']]
+    plot_speedup(rows, os.path.splitext(args.out)[0] + '.png',
+                 f"{payload['task']}, {payload['runs']} runs")
     return
   counts = [int(d) for d in args.devices.split(',')]
   if not counts or min(counts) < 1 or min(args.instances, args.seeds, args.repeats) < 1:
@@ -78,8 +80,13 @@ def main():
 
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
   tuned = planner.default_config(args.task, max_evaluations=args.budget)
-  pop_sizes = ([int(k) for k in args.pop_sizes.split(',')] if args.pop_sizes
-               else [tuned.pop_size])
+  try:
+    pop_sizes = list(dict.fromkeys(int(k) for k in args.pop_sizes.split(','))) \
+        if args.pop_sizes else [tuned.pop_size]
+    fractions = tuple(float(f) for f in args.compact_fractions.split(',') if f)
+    config = dataclasses.replace(tuned, compact_fractions=fractions)
+  except ValueError as error:
+    parser.error(f'--pop-sizes / --compact-fractions: {error}')
   if min(pop_sizes) < 1:
     parser.error('--pop-sizes must be positive')
   num_runs = args.instances * args.seeds
@@ -95,8 +102,7 @@ def main():
             'instances': args.instances, 'seeds': args.seeds, 'runs': num_runs,
             'devices_available': available, 'rows': [], 'skipped': [], 'per_run': {}}
   for pop_size in pop_sizes:
-    config = dataclasses.replace(tuned, pop_size=pop_size, compact_fractions=tuple(
-        float(f) for f in args.compact_fractions.split(',') if f))
+    config = dataclasses.replace(tuned, pop_size=pop_size, compact_fractions=fractions)
     result['configs'][pop_size] = repr(config)
     search = pachs.make_search(env, model, config)
     reference = None  # (device count, host result) of the first count measured with this K
@@ -137,11 +143,12 @@ def main():
             'identical_all_fields'])]
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write('\n'.join(md) + '\n')
-  plot_speedup(result['rows'], os.path.splitext(args.out)[0] + '.png')
+  plot_speedup(result['rows'], os.path.splitext(args.out)[0] + '.png',
+               f'{args.task}, {num_runs} runs')
   print('\n'.join(md))
 
 
-def plot_speedup(rows, path):
+def plot_speedup(rows, path, what):
   """Speed-up over one device against device count, one line per K (and source file)."""
   import matplotlib
   matplotlib.use('Agg')
@@ -150,15 +157,17 @@ def plot_speedup(rows, path):
   lines = {}
   for r in rows:
     if r.get('speedup') is not None:
-      lines.setdefault((r['K'], r.get('source', '')), []).append((r['devices'], r['speedup']))
+      lines.setdefault((r.get('K', '?'), r.get('source', '')), []).append(
+          (r['devices'], r['speedup']))
   most = max([d for pts in lines.values() for d, _ in pts] + [1])
   ax.plot([1, most], [1, most], 'k:', label='linear')
-  for (k, source), pts in sorted(lines.items()):
+  for (k, source), pts in sorted(lines.items(), key=lambda item: (
+      item[0][1], item[0][0] if isinstance(item[0][0], int) else -1)):
     d, s = zip(*sorted(pts))
     ax.plot(d, s, 'o-', label=f'K={k}' + (f' ({source})' if source else ''))
   ax.set_xlabel('devices')
   ax.set_ylabel('speed-up over one device')
-  ax.set_title('PACHS, 150 PushT-Obs runs')
+  ax.set_title(f'PACHS over devices: {what}')
   ax.legend(fontsize=7)
   fig.tight_layout()
   fig.savefig(path, dpi=110)

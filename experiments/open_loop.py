@@ -316,7 +316,9 @@ def main():
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'budget': args.budget, 'time_limit_s': args.time_limit,
                           'devices': args.devices,
-                          **({'epase_spread_cells': args.epase_spread} if shelf else {})},
+                          **({'epase_weight': args.epase_weight,
+                              'epase_spread_cells': args.epase_spread}
+                             if 'epase' in names else {})},
              'configs': {}, 'summary': [], 'runs': {}, 'curve_budgets': budgets,
              'success_curve': {}}
   for name in names:

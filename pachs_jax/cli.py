@@ -154,8 +154,8 @@ def main(argv=None) -> int:
   plan.add_argument('--compact-fractions', default=None,
                     type=lambda s: tuple(float(x) for x in s.split(',') if x),
                     help='smaller physics batches as fractions of the I x K lanes, comma '
-                    "separated ('' simulates every lane; default: "
-                    'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625)')
+                    "separated ('' simulates every lane; default on a GPU: "
+                    'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625; on a CPU none)')
   plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h'],
                     help='the state an unfinished search answers with: best_f (the best OPEN '
                     "entry's, the default) or min_h (least estimated cost-to-go)")

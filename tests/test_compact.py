@@ -47,18 +47,36 @@ def test_evaluate_live_matches_full_evaluation(lanes, num_live, compacted):
     assert any(np.asarray(f)[~live].any() for f in jax.tree.leaves(full))
 
 
-def test_pachs_with_compaction_equals_without():
+class CountingGrid(gridworld.GridWorld):
+  """A grid world that records the batch size of every evaluation actually run."""
+
+  def __init__(self, *args, **kwargs):
+    super().__init__(*args, **kwargs)
+    self.batches = []
+
+  def evaluate(self, nodes, actions):
+    size = actions.shape[0]
+    jax.debug.callback(lambda: self.batches.append(size))  # at run time: the branch taken
+    return super().evaluate(nodes, actions)
+
+
+@pytest.mark.parametrize('loop', ['split', 'mixed'])
+def test_pachs_with_compaction_equals_without(loop):
   obstacles = np.zeros((10, 10), bool)
   obstacles[3:7, 5] = True
-  env = gridworld.GridWorld(obstacles, connectivity=8)
+  env = CountingGrid(obstacles, connectivity=8)
   ac = gridworld.GridActorCritic(env)
   starts = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
   goals = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])
   nodes = env.node(starts, goals)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300, loop=loop)
   key = jax.random.PRNGKey(1)
   want = plan(env, ac, nodes, config, key)
+  env.batches.clear()
   got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
+  jax.effects_barrier()
+  # 6 instances x K 4 = 24 lanes: the smaller batches (6, 12) ran once most instances stopped
+  assert {6, 12} <= set(env.batches) and 24 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
   for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),

@@ -422,7 +422,8 @@ def test_min_h_realtime_answer(problem, config):
     assert size > 1 and res.path_length[i] >= 1
     cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
     np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
-    end = 1 + int(np.argmin(weighted_h))  # the replayed path ends in that node's state
+    ties = np.flatnonzero(weighted_h == weighted_h.min()) + 1  # ties go to the smaller g
+    end = int(ties[np.argmin(pool.g[i, ties])])  # the replayed path ends in that node's state
     np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
     for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
       np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])

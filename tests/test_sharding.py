@@ -3,9 +3,11 @@ the baselines (`plan_sharded_fn`), on 4 simulated CPU devices (a subprocess, sin
 count is fixed when JAX starts) and on this process's default mesh."""
 
 import os
+import socket
 import subprocess
 import sys
 import textwrap
+import time
 
 import jax
 import jax.numpy as jnp
@@ -229,25 +231,41 @@ TWO_HOSTS = textwrap.dedent('''
 ''')
 
 
-def test_two_processes_equal_unsharded():
-  import socket
-  with socket.socket() as s:
-    s.bind(('127.0.0.1', 0))
-    port = s.getsockname()[1]
+def _run_two_processes(tmp_path, port):
+  """(return code, output) of each of the two processes joined at 127.0.0.1:port."""
   procs = []
   for i in range(2):
     env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=2',
                JAX_PLATFORMS='cpu', JAX_COORDINATOR_ADDRESS=f'127.0.0.1:{port}',
                JAX_NUM_PROCESSES='2', JAX_PROCESS_ID=str(i))
-    procs.append(subprocess.Popen([sys.executable, '-c', TWO_HOSTS], env=env, text=True,
-                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE))
-  outputs = []
+    log = open(tmp_path / f'process{i}_{port}.log', 'w+')  # files: no pipe can fill and stall
+    procs.append((subprocess.Popen([sys.executable, '-c', TWO_HOSTS], env=env, text=True,
+                                   stdout=log, stderr=subprocess.STDOUT), log))
+  deadline = time.monotonic() + 600
+  results = []
   try:
-    for proc in procs:
-      out, err = proc.communicate(timeout=600)
-      outputs.append((proc.returncode, out, err))
+    for proc, log in procs:
+      try:
+        code = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+      except subprocess.TimeoutExpired:
+        code = None
+      log.seek(0)
+      results.append((code, log.read()))
   finally:
-    for proc in procs:
+    for proc, log in procs:
       proc.kill()
-  for i, (code, out, err) in enumerate(outputs):
-    assert code == 0 and f'PROCESS{i}_OK' in out, (out + err)[-4000:]
+      log.close()
+  return results
+
+
+def test_two_processes_equal_unsharded(tmp_path):
+  for attempt in range(2):  # a second port if another program took the first one meanwhile
+    with socket.socket() as s:
+      s.bind(('127.0.0.1', 0))
+      port = s.getsockname()[1]
+    results = _run_two_processes(tmp_path, port)
+    if attempt == 0 and any('address already in use' in out.lower() for _, out in results):
+      continue
+    break
+  for i, (code, out) in enumerate(results):
+    assert code == 0 and f'PROCESS{i}_OK' in out, f'process {i}, exit {code}:\n{out[-4000:]}'

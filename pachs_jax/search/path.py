@@ -59,14 +59,15 @@ def extract(pool: pool_lib.NodePool, final: jax.Array, max_len: int) -> Path:
   return Path(actions=actions, nodes=nodes, length=length, truncated=length > max_len)
 
 
-def min_h_answer(pool, slots: int) -> Tuple[jax.Array, jax.Array]:
+def min_h_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax.Array]:
   """(value [I], has [I]): the generated node, the start excluded, with the smallest estimated
-  cost-to-go (key of its latest dummy edge - g = w * h), as an entry value node * slots; has is
-  False while the start is the only node."""
+  cost-to-go (key of its latest dummy edge - g = w * h; ties, e.g. h clipped at 0, go to the
+  smaller g), as an entry value node * slots; has is False while the start is the only node."""
   index = jnp.arange(pool.capacity)[None, :]
   usable = (index < pool.size[:, None]) & (index != pool_lib.ROOT_INDEX)
   weighted_h = jnp.where(usable, pool.open_key - pool.g, jnp.inf)
-  node = jnp.argmin(weighted_h, axis=1).astype(jnp.int32)
+  best = usable & (weighted_h == jnp.min(weighted_h, axis=1, keepdims=True))
+  node = jnp.argmin(jnp.where(best, pool.g, jnp.inf), axis=1).astype(jnp.int32)
   return node * slots, jnp.any(usable, axis=1)
 
 

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import math
 from typing import Optional, Protocol, Tuple
 
@@ -208,7 +209,7 @@ class SearchConfig:
                        f'{self.realtime_answer!r}')
     fractions = (tuple(self.compact_fractions)
                  if isinstance(self.compact_fractions, (tuple, list)) else (None,))
-    if not all(isinstance(f, (int, float)) and not isinstance(f, bool) and 0 < f < 1
+    if not all(isinstance(f, numbers.Real) and not isinstance(f, bool) and 0 < f < 1
                for f in fractions):
       raise ValueError('SearchConfig.compact_fractions must be fractions in (0, 1), got '
                        f'{self.compact_fractions!r}')
