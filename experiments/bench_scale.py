@@ -84,7 +84,7 @@ def main():
     pop_sizes = list(dict.fromkeys(int(k) for k in args.pop_sizes.split(','))) \
         if args.pop_sizes else [tuned.pop_size]
     fractions = tuple(float(f) for f in args.compact_fractions.split(',') if f)
-    config = dataclasses.replace(tuned, compact_fractions=fractions)
+    dataclasses.replace(tuned, compact_fractions=fractions)  # checks the fractions
   except ValueError as error:
     parser.error(f'--pop-sizes / --compact-fractions: {error}')
   if min(pop_sizes) < 1:

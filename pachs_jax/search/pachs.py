@@ -75,7 +75,6 @@ each, 'segmented' heap): about 0.3 ms per iteration at K = 16..256 and N = 8 or 
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Callable, NamedTuple, Optional
 
 import jax
@@ -451,12 +450,5 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   chunk = search.run_chunk.lower(shape, steps).compile()
   result = search.result.lower(shape).compile()
 
-  start = time.perf_counter()
-  state, active = anytime.run_until(lambda s: chunk(s, steps), init(start_nodes, keys),
-                                    time_limit_s)
-  out = jax.block_until_ready(result(state))
-  wall = time.perf_counter() - start
-  if active:
-    out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING,
-                                            StopReason.TIME_LIMIT, out.stop_reason))
-  return out.replace(wall_time_s=jnp.float32(wall))
+  return anytime.timed_result(lambda s: chunk(s, steps), init(start_nodes, keys), result,
+                              time_limit_s)

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from typing import Callable, Optional
 
 import jax
@@ -394,15 +393,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     loop_c = (run_jit if time_limit_s is None else step_jit).lower(shape).compile()
     result_c = result_jit.lower(shape).compile()
 
-    clock = time.perf_counter()
-    state, active = anytime.run_until(loop_c, init_c(start_nodes, keys, nominal),
-                                      time_limit_s)
-    out = jax.block_until_ready(result_c(state))
-    wall = time.perf_counter() - clock
-    if active:
-      out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING,
-                                              StopReason.TIME_LIMIT, out.stop_reason))
-    return out.replace(wall_time_s=jnp.float32(wall))
+    return anytime.timed_result(loop_c, init_c(start_nodes, keys, nominal), result_c,
+                                time_limit_s)
 
   return Mppi(init=init_jit, step=step_jit, run=run_jit, result=result_jit, plan=plan,
               config=config)
