@@ -1,17 +1,7 @@
-"""The original's architecture against ours, on one host and in one run: the same PACHS planning
-problems with MJX on the GPU, and on the CPU (JAX on the CPU, edges simulated by MuJoCo C on
-`--cpu-threads` threads, the original's thread-parallel edge evaluation).
+"""MJX against MuJoCo C physics on one host (README, 'The original's architecture, measured').
 
-Both runs plan the same instances with the same keys toward their budget (`bench_search.py
---run-to-budget`: goals are never accepted); an instance may still stop early when its OPEN
-list empties, so the two sides' edge counts can differ a little and both are reported (the
-comparison is of rates, edges per second). Each side runs in its own process (JAX_PLATFORMS=cpu for the CPU
-side); compilation is excluded. Reported: edges evaluated per second of each and their ratio,
-next to each side's raw batched env-step throughput at the same batch.
-
-  python experiments/bench_backends.py --task pusht-obs --instances 30 --pop-sizes 64 \
-      --budget 20000 --cpu-threads 16 --out experiments/results/bench_backends.json
-"""
+--mode search: PACHS run to budget with MJX on the accelerator and with MuJoCo C on CPU threads;
+--mode evaluate: one `env.evaluate` of PushT edges per backend on the CPU, and a MuJoCo C plan."""
 
 from __future__ import annotations
 
@@ -21,15 +11,24 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
 
 import common
+from pachs_jax import envs, planner
+from pachs_jax.envs import mujoco_c
+from pachs_jax.search import pachs
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def run_side(args, backend: str, out: str, cpu: bool) -> dict:
+  """One side of --mode search: `bench_search.py --run-to-budget` in its own process (JAX on
+  the CPU for the MuJoCo C side); compilation excluded."""
   cmd = [sys.executable, os.path.join(HERE, 'bench_search.py'), '--task', args.task,
-         '--instances', args.instances, '--pop-sizes', args.pop_sizes,
+         '--instances', str(args.instances), '--pop-sizes', args.pop_sizes,
          '--budget', str(args.budget), '--run-to-budget', '--backend', backend,
          '--raw-steps', str(args.raw_steps), '--out', out]
   env = dict(os.environ)
@@ -42,16 +41,9 @@ def run_side(args, backend: str, out: str, cpu: bool) -> dict:
     return json.load(f)
 
 
-def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--instances', default='30')
-  parser.add_argument('--pop-sizes', default='64')
-  parser.add_argument('--budget', type=int, default=20_000)
-  parser.add_argument('--cpu-threads', type=int, default=16)
-  parser.add_argument('--raw-steps', type=int, default=20)
-  parser.add_argument('--out', default='experiments/results/bench_backends.json')
-  args = parser.parse_args()
+def search_mode(args) -> None:
+  """The same instances and keys planned by both sides; an instance may still stop early when
+  its OPEN list empties, so both sides' edge counts are reported (the comparison is of rates)."""
   with tempfile.TemporaryDirectory() as tmp:
     gpu = run_side(args, 'mjx', os.path.join(tmp, 'gpu.json'), cpu=False)
     cpu = run_side(args, 'mujoco-c', os.path.join(tmp, 'cpu.json'), cpu=True)
@@ -79,6 +71,64 @@ def main():
     f.write(common.markdown_table(rows, list(rows[0])) + '\n\nStop reason counts: '
             '[running, goal, budget, iterations, open_empty, capacity, time_limit].\n')
   print(common.markdown_table(rows, list(rows[0])))
+
+
+def evaluate_speed(env, batch: int, repeats: int) -> dict:
+  """Edges/s of one jitted `env.evaluate` of `batch` edges from the canonical instances."""
+  nodes = env.canonical_instances(30)
+  nodes = jax.tree.map(lambda x: x[jnp.arange(batch) % 30], nodes)
+  actions = jax.random.uniform(jax.random.PRNGKey(0), (batch, env.action_size), minval=-1,
+                               maxval=1)
+  fn = jax.jit(env.evaluate)
+  t = common.time_call(lambda: fn(nodes, actions), repeats=repeats)
+  return {'batch': batch, **t, 'edges_per_s': batch / t['median_s']}
+
+
+def evaluate_mode(args) -> None:
+  """PushT-Fixed edges with MJX and with MuJoCo C on this host's CPU, then one PACHS plan of
+  PushT-Obs instance 0 with MuJoCo C (budget 2000)."""
+  mjx_env = envs.make('pusht-fixed')
+  c_env = mujoco_c.MujocoCEnv(mjx_env)
+  rows = [{'backend': 'mjx (cpu)', **evaluate_speed(mjx_env, args.batch, 2)},
+          {'backend': 'mujoco-c', **evaluate_speed(c_env, args.batch, 5)}]
+  rows.append({'backend': 'speed-up', 'edges_per_s': rows[1]['edges_per_s'] /
+               rows[0]['edges_per_s']})
+  for r in rows:
+    print(r, flush=True)
+  env, model = planner.load_model('pusht-obs', backend='mujoco-c')
+  starts = jax.tree.map(lambda x: x[:1], env.canonical_instances(30))
+  config = planner.default_config('pusht-obs', max_evaluations=2000)
+  start = time.perf_counter()
+  result = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0))
+  plan_row = {'task': 'pusht-obs', 'instance': 0, 'budget': 2000,
+              'search_s': float(result.wall_time_s),
+              'total_s_incl_compile': time.perf_counter() - start,
+              **planner.result_rows(result, [0])[0]}
+  print(plan_row)
+  out = {'provenance': common.provenance(), 'evaluate': rows, 'plan': plan_row}
+  common.write_json(args.out, out)
+  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+    f.write(f"# CPU physics backends (this host)\n\n{out['provenance']}\n\n")
+    f.write(common.markdown_table(rows, ['backend', 'batch', 'median_s', 'edges_per_s']))
+    f.write('\n\nPACHS with MuJoCo C, PushT-Obs instance 0, budget 2000: ' +
+            ', '.join(f'{k} {v}' for k, v in plan_row.items()) + '\n')
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--mode', default='search', choices=['search', 'evaluate'])
+  parser.add_argument('--task', default='pusht-obs', help='search: the task')
+  parser.add_argument('--pop-sizes', default='64', help='search: K values, comma separated')
+  parser.add_argument('--budget', type=int, default=20_000, help='search: evaluations per run')
+  parser.add_argument('--cpu-threads', type=int, default=16, help='search: MuJoCo C threads')
+  parser.add_argument('--raw-steps', type=int, default=20,
+                      help='search: evaluate calls per raw-throughput measurement')
+  parser.add_argument('--batch', type=int, default=64, help='evaluate: edges per call')
+  common.add_common_args(parser, out=None, instances=30)
+  args = parser.parse_args()
+  args.out = args.out or {'search': 'experiments/results/bench_backends.json',
+                          'evaluate': 'experiments/results/bench_cpu_backend.json'}[args.mode]
+  (search_mode if args.mode == 'search' else evaluate_mode)(args)
 
 
 if __name__ == '__main__':

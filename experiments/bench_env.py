@@ -1,14 +1,7 @@
 """Batched env-step throughput: MJX on the accelerator against MuJoCo C on all CPU threads.
 
-For each task and batch size W, one timed call runs `--steps` control steps of `env.evaluate` for
-W worlds inside one jitted `lax.scan` (random actions); env steps/s = W * steps / median time.
-MuJoCo C runs the same model with `mujoco.rollout` (all host threads, and one thread) over the
-same number of physics steps. For PushT a physics sweep compares timestep / substep / solver
-settings for speed and for accuracy against a fine-timestep MuJoCo C reference on a pushing
-trajectory.
-
-  python experiments/bench_env.py --out experiments/results/bench_env.json
-"""
+Per task and batch size: `env.evaluate` steps in one jitted scan, `mujoco.rollout` on the same
+model; for PushT a sweep of physics settings, timed and checked against a 1 ms reference."""
 
 from __future__ import annotations
 
@@ -90,16 +83,11 @@ def pushing_actions(config: pusht.PushTConfig, num_steps: int = 40) -> tuple:
   d.qpos[7:] = [-0.25, -0.15, 0.3]
   d.ctrl[:] = d.qpos[:7]
   start = d.qpos.copy()
-  tip = m.site('tip').id
   actions = []
   for k in range(num_steps):
     mujoco.mj_forward(m, d)
-    jac = np.zeros((3, m.nv))
-    mujoco.mj_jacSite(m, d, jac, None, tip)
     goal = np.array([-0.25, -0.32, 0.015]) if k < 10 else np.array([-0.22, 0.05, 0.015])
-    dx = np.clip(goal - d.site_xpos[tip], -0.02, 0.02)
-    j = jac[:, :7]
-    a = np.clip(j.T @ np.linalg.solve(j @ j.T + 1e-4 * np.eye(3), dx) / 0.1, -1, 1)
+    a = pusht.jacobian_action(m, d, goal)
     actions.append(a)
     d.ctrl[:] = np.clip(d.qpos[:7] + 0.1 * a, panda.JOINT_LOWER, panda.JOINT_UPPER)
     for _ in range(config.substeps):
@@ -178,7 +166,7 @@ def main():
   parser.add_argument('--cpu-worlds', default='1024,4096')
   parser.add_argument('--sweep-worlds', type=int, default=4096)
   parser.add_argument('--no-sweep', action='store_true')
-  parser.add_argument('--out', default='experiments/results/bench_env.json')
+  common.add_common_args(parser, out='experiments/results/bench_env.json')
   args = parser.parse_args()
   worlds = [int(w) for w in args.worlds.split(',')]
   cpu_worlds = [int(w) for w in args.cpu_worlds.split(',') if w]

@@ -1,23 +1,7 @@
 """PACHS over several devices of one host: the 150-run PushT-Obs benchmark on 1, 2 and 4 devices.
 
-The runs are the canonical instances x seeds (default 30 x 5 = 150 searches, PACHS with the
-task's tuned config and shipped model, 100,000 evaluations each; `--pop-sizes` repeats the
-measurement at other K), with the runs and keys of `open_loop.py` (run r * I + i is round r of
-instance i, key fold_in(fold_in(PRNGKey(seed), r), i)). For each K and device count all runs go
-into one `sharding.plan_sharded` call over a mesh of the first D devices (D = 1 too: the same
-code path), compile excluded. Reported per device count: wall time, edges evaluated per second,
-found count, speed-up over one device and efficiency (speed-up / D), and whether every run's
-result (found and cost; also every other field) is identical to that of the first device count.
-Device counts above `jax.device_count()` are skipped and recorded as such.
-
-  python experiments/bench_scale.py --devices 1,2,4 --pop-sizes 256,1024 \\
-      --out experiments/results/bench_scale.json
-
-CPU smoke test (4 simulated devices, MuJoCo C physics):
-
-  XLA_FLAGS=--xla_force_host_platform_device_count=4 python experiments/bench_scale.py \\
-      --devices 1,2,4 --budget 200 --instances 6 --backend mujoco-c --out /tmp/scale.json
-"""
+Per device count: wall time, edges/s, speed-up and whether the results equal the first count's
+(README, 'Several GPUs and hosts'); CPU: XLA_FLAGS=--xla_force_host_platform_device_count=4."""
 
 from __future__ import annotations
 
@@ -32,6 +16,7 @@ import numpy as np
 
 import common
 import open_loop
+import stats
 from pachs_jax import planner
 from pachs_jax.search import pachs, sharding
 from pachs_jax.search.types import StopReason
@@ -47,9 +32,7 @@ def main():
   parser.add_argument('--task', default='pusht-obs')
   parser.add_argument('--checkpoint', default=None, help='default: the shipped model')
   parser.add_argument('--devices', default='1,2,4', help='device counts, comma separated')
-  parser.add_argument('--instances', type=int, default=30, help='canonical instances 0..n-1')
   parser.add_argument('--seeds', type=int, default=5, help='runs (rounds) per instance')
-  parser.add_argument('--seed', type=int, default=0)
   parser.add_argument('--budget', type=int, default=100_000, help='evaluations per run')
   parser.add_argument('--pop-sizes', default=None,
                       help="K values, comma separated (default: the task's tuned K); each K is "
@@ -58,9 +41,8 @@ def main():
                       help='SearchConfig.compact_fractions, comma separated (default: none)')
   parser.add_argument('--repeats', type=int, default=1,
                       help='timed calls per device count (the median is reported)')
-  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
-                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
-  parser.add_argument('--out', default='experiments/results/bench_scale.json')
+  common.add_common_args(parser, out='experiments/results/bench_scale.json', instances=30,
+                         backend=True, seed=True)
   parser.add_argument('--plot-from', default=None,
                       help='only plot: speed-up against devices from these result JSON files '
                       '(comma separated) into the --out stem + .png')
@@ -191,8 +173,7 @@ def measure(env, model, starts, config, keys, count, repeats, search):
          'wall_s_all': walls, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
          'edges_per_s': evaluated / wall, 'found': int(host.found.sum()),
          'iterations_max': int(host.iterations.max()),
-         'stop_reasons': {StopReason.name(c): int(n) for c, n in
-                          enumerate(np.bincount(host.stop_reason, minlength=7)) if n},
+         'stop_reasons': stats.stop_counts(host.stop_reason),
          'overflow': int((host.heap_overflow + host.pool_overflow
                           + host.table_overflow).sum()),
          'device0_peak_bytes_so_far': peak_memory_bytes(jax.devices()[0])}

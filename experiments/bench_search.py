@@ -25,11 +25,11 @@ import numpy as np
 import bench_env
 import common
 from pachs_jax import planner
-from pachs_jax.search import pachs
+from pachs_jax.search import pachs, types
 from pachs_jax.sac import actor_critic as ac_lib
 
 
-def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.ActorCritic:
+def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.SacActorCritic:
   """A randomly initialised actor-critic of the task's shapes (throughput only)."""
   config = ac_lib.ModelConfig(task=env.name, observation_size=env.observation_size,
                               action_size=env.action_size, actor_hidden=hidden,
@@ -39,7 +39,7 @@ def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.ActorCritic:
   params = ac_lib.ActorCriticParams(
       normalizer={'mean': jnp.zeros(env.observation_size), 'std': jnp.ones(env.observation_size)},
       policy=nets.policy_init(kp), q=nets.q_init(kq))
-  return ac_lib.ActorCritic(params=params, config=config)
+  return ac_lib.SacActorCritic(params=params, config=config)
 
 
 class NeverGoal:
@@ -88,8 +88,6 @@ def main():
                       help='MuJoCo C threads of --backend mujoco-c (default: all CPUs)')
   parser.add_argument('--run-to-budget', action='store_true',
                       help='never accept a goal: every instance spends its whole budget')
-  parser.add_argument('--loops', default='split',
-                      help="loop modes to compare: 'split' (two heaps, full lanes), 'mixed'")
   parser.add_argument('--out', default='experiments/results/bench_search.json')
   args = parser.parse_args()
 
@@ -106,11 +104,10 @@ def main():
   starts_all = env.canonical_instances(30)
   if args.run_to_budget:
     env = NeverGoal(env)
-  for num_instances, k, loop in [(i, k, loop) for i in map(int, args.instances.split(','))
-                                 for k in map(int, args.pop_sizes.split(','))
-                                 for loop in args.loops.split(',')]:
+  for num_instances, k in [(i, k) for i in map(int, args.instances.split(','))
+                           for k in map(int, args.pop_sizes.split(','))]:
     config = planner.default_config(args.task, pop_size=k, num_actions=args.num_actions,
-                                    max_evaluations=args.budget, weight=args.weight, loop=loop)
+                                    max_evaluations=args.budget, weight=args.weight)
     index = np.arange(num_instances) % 30
     starts = jax.tree.map(lambda x: x[index], starts_all)
     search = pachs.make_search(env, model, config)
@@ -121,10 +118,10 @@ def main():
     evaluated = int(np.sum(out.evaluated))
     iterations = int(np.max(out.iterations))
     raw = bench_env.mjx_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
-    state_shape = jax.eval_shape(search.init, starts, pachs.instance_keys(
+    state_shape = jax.eval_shape(search.init, starts, types.instance_keys(
         jax.random.PRNGKey(0), num_instances))
     row = {
-        'loop': loop, 'instances': num_instances, 'K': k, 'N': args.num_actions,
+        'instances': num_instances, 'K': k, 'N': args.num_actions,
         'budget': args.budget,
         'wall_s': wall, 'first_call_s_incl_compile': first, 'evaluated': evaluated,
         'iterations': iterations, 'found': int(np.sum(out.found)),
@@ -135,7 +132,7 @@ def main():
         'raw_env_steps_per_s_same_batch': raw['env_steps_per_s'],
         'search_over_raw': evaluated / wall / raw['env_steps_per_s'],
         'state_bytes_per_instance': tree_bytes(state_shape) // num_instances,
-        'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool),
+        'pool_bytes_per_node': tree_bytes(state_shape.pool) // (num_instances * config.pool_size),
         'stop_reasons': np.bincount(np.asarray(out.stop_reason), minlength=7).tolist(),
         'overflow': int(np.sum(out.heap_overflow + out.pool_overflow + out.table_overflow)),
         'device_peak_bytes_so_far': peak_memory_bytes(),
@@ -148,7 +145,7 @@ def main():
         f"{', run to budget (goals never accepted)' if args.run_to_budget else ''})\n\n"
         f"{result['provenance']}\n",
         common.markdown_table(result['rows'], [
-            'loop', 'instances', 'K', 'N', 'budget', 'wall_s', 'first_call_s_incl_compile',
+            'instances', 'K', 'N', 'budget', 'wall_s', 'first_call_s_incl_compile',
             'evaluated', 'iterations', 'found', 'edges_per_s', 'raw_env_steps_per_s_same_batch', 'search_over_raw',
             'lane_utilization_mean', 'evaluated_per_iteration_per_instance',
             'state_bytes_per_instance', 'device_peak_bytes_so_far'])]

@@ -1,39 +1,7 @@
-"""Closed loop: plans made with MJX (float32) executed in a MuJoCo C world (float64), PushT.
+"""Closed loop, PushT: plans made with MJX (float32) executed in MuJoCo C worlds (float64).
 
-Protocol (the original's, DESIGN.md): for each task, `--instances` canonical instances x
-`--rounds` rounds (20 x 5 = 100 episodes); each planning query gets `--query-time` seconds of
-wall clock (3 s); the first `--execute` actions (10) of the returned, possibly partial, path are
-executed in the world, one control step at a time; the world's state is observed and planned
-from again, at most `--max-queries` queries (30). Success is judged in the world after every
-executed action (the env's goal rule on the observed state); a successful episode stops.
-
-All episodes of a planner share each query: one batched planning call over the E = 100 current
-world states (episodes that already ended stay in the batch, their answers are ignored), so the
-3 s budget is for all 100 queries of that step together, a stricter budget than one query each.
-Planners:
-- single: the deterministic policy acting in the world, one action per world step, up to
-  max_queries x execute steps (no planning).
-- parallel: the parallel rollout under the same query time and evaluation budget (steps in
-  chunks, stopping when the next chunk, timed as the last, would end past the query time);
-  without a goal it returns its best-reward finished rollout.
-- pachs: PACHS in real-time mode: anytime chunks until the query time, then the path to the
-  best-f state (or to a goal); `--realtime-answer min_h` returns the path to the generated state
-  of least estimated cost-to-go instead (SearchConfig.realtime_answer).
-- mppi: MPPI over action sequences on MJX, warm-started from the policy at the first query and
-  from its previous plan shifted by the executed actions afterwards, under the same query time.
-A returned path with no action (e.g. PACHS's best state is the start) executes one action of
-the deterministic policy, so no episode stalls. With `--fill-with-policy 1` (the default) a path
-shorter than `--execute` actions is followed by the policy's own actions in the world up to
-`--execute` steps, so every planner acts for the same number of world steps per query (at most
-max_queries x execute in all, the single rollout's horizon). Without it (the first recorded
-runs), PACHS's and the parallel rollout's failed PushT-Obs episodes ended after about 60 world
-steps against 300 for the single rollout and MPPI: short real-time answers used up the queries.
-
-Each world is a `mujoco_c.World` (its own MjModel copy; `--perturb friction=1.2,t_mass=0.8`
-scales its parameters, see `mujoco_c.Perturbation`).
-
-  python experiments/closed_loop.py --task pusht-fixed --out experiments/results/closed_loop_pusht-fixed.json
-"""
+The protocol is the original's (README, 'Closed loop'); all episodes of a planner share each
+query's wall clock; `--perturb` scales the worlds' parameters (`mujoco_c.Perturbation`)."""
 
 from __future__ import annotations
 
@@ -48,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import common
-import open_loop
+import stats
 from pachs_jax import planner
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
@@ -113,7 +81,11 @@ def policy_actions(env, model):
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
-  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E]) numpy."""
+  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E]) numpy.
+
+  parallel: steps in chunks until the next would end past the query time, then its best
+  rollout; pachs: real-time mode (`--realtime-answer`); mppi: warm-started from the policy, then
+  from its previous plan shifted by the executed actions."""
   if name == 'pachs':
     config = dataclasses.replace(planner.default_config(task, max_evaluations=args.budget),
                                  realtime_answer=args.realtime_answer)
@@ -228,12 +200,11 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
         policy_steps += int(need.sum())
         episodes.execute(np.asarray(fallback(episodes.batch())), need.astype(np.int64))
   return {'config': repr(config), 'queries_per_episode_mean': float(np.mean(queries)),
-          'query_time_s_mean': float(np.mean(query_times)) if query_times else None,
+          'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
           'policy_fill_steps': policy_steps,
-          'actions_per_query_mean': float(np.mean(actions_per_query)) if actions_per_query
-          else None}
+          'actions_per_query_mean': stats.mean_or_none(actions_per_query)}
 
 
 def main():
@@ -241,7 +212,6 @@ def main():
   parser.add_argument('--task', default='pusht-fixed',
                       choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
   parser.add_argument('--planners', default=','.join(PLANNERS))
-  parser.add_argument('--instances', type=int, default=20)
   parser.add_argument('--rounds', type=int, default=5)
   parser.add_argument('--query-time', type=float, default=3.0, help='s per planning query')
   parser.add_argument('--execute', type=int, default=10, help='actions executed per query')
@@ -258,10 +228,7 @@ def main():
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
-  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
-                      help='physics of the planners (the world is always MuJoCo C)')
-  parser.add_argument('--seed', type=int, default=0)
-  parser.add_argument('--out', default=None)
+  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True)
   args = parser.parse_args()
   out = args.out or f'experiments/results/closed_loop_{args.task}.json'
   perturbation = parse_perturbation(args.perturb)
@@ -280,15 +247,13 @@ def main():
                        jax.random.PRNGKey(args.seed))
     total = time.perf_counter() - start
     k, n = int(episodes.success.sum()), len(episodes.worlds)
-    low, high = open_loop.instance_bootstrap_interval(
-        episodes.success, np.arange(n) % args.instances)
-    wilson = open_loop.wilson_interval(k, n)
+    low, high = stats.instance_bootstrap_interval(episodes.success, np.arange(n) % args.instances)
+    wilson = stats.wilson_interval(k, n)
     won = episodes.success_step[episodes.success]
     row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
            'ci95_low': low, 'ci95_high': high, 'wilson_ci95': list(wilson),
-           'world_steps_failed_mean': float(np.mean(episodes.steps[~episodes.success]))
-           if (~episodes.success).any() else None,
-           'steps_to_success_mean': float(np.mean(won)) if len(won) else None,
+           'world_steps_failed_mean': stats.mean_where(episodes.steps, ~episodes.success),
+           'steps_to_success_mean': stats.mean_or_none(won),
            'total_s': total, **info}
     print(row, flush=True)
     payload['summary'].append(row)

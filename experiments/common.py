@@ -1,17 +1,52 @@
-"""Shared helpers of the experiment scripts: provenance, timing, result files."""
+"""Shared helpers of the experiment scripts: flags, provenance, timing, result files."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
 import subprocess
 import sys
 import time
-from typing import Any, Callable, Dict, List
+from typing import Any, Callable, Dict, List, Optional, Union
 
 import jax
 import numpy as np
+
+from pachs_jax import envs
+
+
+def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
+                    instances: Union[bool, None, int] = False, backend: bool = False,
+                    seed: bool = False) -> None:
+  """Adds the flags the experiments share.
+
+  --out: the results JSON (markdown and pictures go next to it); default `out`, or where None,
+    a path the script derives from its other flags.
+  --instances N (unless `instances` is False): the first N canonical instances of the task
+    (0..N-1), its one meaning in every experiment; default `instances`, None: the task's whole
+    canonical set (30 PushT, 100 shelf; `task_instances`).
+  --backend (if `backend`): the planners' edge physics, `planner.load_model`'s backend.
+  --seed (if `seed`): the runs' PRNG seed, default 0.
+  """
+  if instances is not False:
+    parser.add_argument('--instances', type=int, default=instances, metavar='N',
+                        help='the first N canonical instances, 0..N-1 (default: '
+                        f'{instances or "the task set: 30 PushT, 100 shelf"})')
+  if backend:
+    parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
+                        help="edge physics (mujoco-c: MuJoCo C on the CPU threads; auto: "
+                        "mujoco-c for PushT without an accelerator)")
+  if seed:
+    parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--out', default=out, help='results JSON, other outputs next to it '
+                      f'(default: {out or "in experiments/results/, named after the flags"})')
+
+
+def task_instances(task: str, instances: Optional[int] = None) -> int:
+  """`instances`, or where None the size of the task's canonical set."""
+  return instances or envs.spec(task).num_instances
 
 
 def git_revision() -> str:

@@ -1,18 +1,5 @@
 """Merges result files of one task (e.g. planners run on separate GPUs) into one JSON, markdown
-table and plot, keeping the provenance of every source.
-
-closed: closed_loop.py files. The protocol settings (task, instances, rounds, query time,
-  actions executed, queries, policy fill, perturbation, seed) must agree. A PACHS row run with
-  `--realtime-answer min_h` is labelled 'pachs-min_h'.
-open: open_loop.py files. The settings (instances, rounds, budget, time limit) must agree; a
-  planner of a later file replaces the same planner of an earlier one, and the pairwise cost
-  ratios are recomputed.
-
-  python experiments/merge_results.py closed --out experiments/results/closed_loop_pusht-obs.json \\
-      /tmp/r/closed_loop_pusht-obs.json /tmp/r/closed_loop_pusht-obs_mppi.json
-  python experiments/merge_results.py open --out experiments/results/open_loop_shelf.json \\
-      experiments/results/open_loop_shelf.json /tmp/r/open_loop_shelf_epase.json
-"""
+table and plot, keeping every source's provenance; the sources' protocol settings must agree."""
 
 from __future__ import annotations
 
@@ -24,12 +11,14 @@ from typing import Dict, List
 import closed_loop
 import common
 import open_loop
+import stats
 
 PROTOCOL = ('task', 'instances', 'rounds', 'query_time', 'execute', 'max_queries',
             'fill_with_policy', 'perturb', 'seed')
 
 
 def label(planner: str, settings: Dict) -> str:
+  """The planner's name; PACHS run with `--realtime-answer min_h` is 'pachs-min_h'."""
   if planner == 'pachs' and settings.get('realtime_answer', 'best_f') != 'best_f':
     return f'pachs-{settings["realtime_answer"]}'
   return planner
@@ -64,7 +53,8 @@ OPEN_PROTOCOL = ('instances', 'rounds', 'budget', 'time_limit_s')
 
 
 def merge_open(payloads: List[Dict]) -> Dict:
-  """One open-loop payload; a planner of a later payload replaces the same planner before."""
+  """One open-loop payload; a planner of a later payload replaces the same planner before, and
+  the pairwise cost ratios are recomputed."""
   first = payloads[0]
   for p in payloads[1:]:
     if p['task'] != first['task'] or p['curve_budgets'] != first['curve_budgets']:
@@ -89,7 +79,7 @@ def merge_open(payloads: List[Dict]) -> Dict:
       merged['runs'][name] = p['runs'][name]
       merged['success_curve'][name] = p['success_curve'][name]
   merged['summary'] = list(summary.values())
-  merged['cost_ratios'] = open_loop.cost_ratios(merged['runs'])
+  merged['cost_ratios'] = stats.cost_ratios(merged['runs'])
   return merged
 
 

@@ -1,30 +1,12 @@
-"""The original's open-loop experiments: PushT x3 (PACHS against the policy, parallel rollout
-and beam search) and Panda-Shelf (PACHS against ePA*SE, parallel rollout and beam search).
+"""The original's open-loop experiments on PushT and Panda-Shelf (README, 'Open loop').
 
-PushT (each task): the 30 canonical instances x `--rounds` seeds (150 runs), every planner with
-the same budget of edge evaluations per run (100,000). All runs of one planner go into ONE
-batched, jitted call (I = 150); the call's wall time (compilation excluded) is the time of the
-150 runs. A run's own planning time is estimated as the call's wall time x its iterations / the
-call's largest iteration count (instances finish at different iterations of one loop).
-Success rates get Wilson 95% intervals; cost and time are over successful runs. The success rate
-against edges evaluated comes from the same runs: a run that found its goal after e evaluations
-finds it with any budget >= e (the search up to a budget is a prefix of the full search).
-
-Shelf: the 100 canonical targets once, each planner with a 60 s wall-clock limit for the whole
-batch (PACHS: anytime chunks; the baselines are budget-bound, their wall time is checked against
-the limit and reported). Also: the matrix of pairwise cost ratios (mean over targets both
-planners solved of cost_row / cost_column; written for PushT too) and edges evaluated against
-states expanded.
-
-  python experiments/open_loop.py --task pusht-obs --out experiments/results/open_loop_pusht-obs.json
-  python experiments/open_loop.py --task shelf --out experiments/results/open_loop_shelf.json
-"""
+Each planner plans all runs in one batched call: success with 95% intervals, cost, time, success
+against edges evaluated and pairwise cost ratios (JSON, markdown table, plot)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import time
 from typing import Dict, List
@@ -34,44 +16,21 @@ import jax.numpy as jnp
 import numpy as np
 
 import common
-from pachs_jax import planner
+import stats
+from pachs_jax import envs, planner
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs, sharding
 from pachs_jax.search.types import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'single', 'parallel', 'beam')
 SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
-# The original's open-loop success rates (DESIGN.md), where it states them.
+# The original's open-loop success rates where it states them (quoted in the README).
 ORIGINAL = {
     'pusht-fixed': {'pachs': '100%', 'single': '93%'},
     'pusht-rand': {'pachs': '100%', 'single': '20%'},
     'pusht-obs': {'pachs': 'far above both rollouts'},
     'shelf': {'pachs': '100%', 'epase': '100%'},
 }
-
-
-def wilson_interval(successes: int, total: int, z: float = 1.96):
-  """95% Wilson score interval (lower, upper) of a success rate."""
-  if total == 0:
-    return (math.nan, math.nan)
-  p = successes / total
-  centre = (p + z * z / (2 * total)) / (1 + z * z / total)
-  half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
-  low = 0.0 if successes == 0 else max(0.0, centre - half)
-  high = 1.0 if successes == total else min(1.0, centre + half)
-  return (low, high)
-
-
-def instance_bootstrap_interval(found, instance, repeats: int = 10_000, seed: int = 0):
-  """95% interval of the success rate with the instances resampled (a cluster bootstrap): the
-  rounds of one instance are not independent runs (a deterministic planner repeats itself), so
-  the instance is the unit of resampling. found, instance: [runs]."""
-  found, instance = np.asarray(found, float), np.asarray(instance)
-  ids = np.unique(instance)
-  per_instance = np.array([found[instance == i].mean() for i in ids])
-  rng = np.random.default_rng(seed)
-  means = per_instance[rng.integers(0, len(ids), (repeats, len(ids)))].mean(axis=1)
-  return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
 def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
@@ -129,7 +88,8 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
 
 
 def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
-  """Per-run rows with the estimated finish time of each run in the batched call."""
+  """Per-run rows; a run's time is estimated as the call's wall time x its iterations / the
+  call's largest iteration count (the runs finish at different iterations of one loop)."""
   r = jax.tree.map(np.asarray, result)
   wall = float(r.wall_time_s)
   most = max(int(r.iterations.max()), 1)
@@ -148,10 +108,10 @@ def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
 def summarise(name: str, rows: List[Dict], wall: float, compile_s: float) -> Dict:
   ok = [r for r in rows if r['found']]
   n, k = len(rows), len(ok)
-  low, high = wilson_interval(k, n)
-  boot_low, boot_high = instance_bootstrap_interval([r['found'] for r in rows],
-                                                    [r['instance'] for r in rows])
-  mean = lambda xs: float(np.mean(xs)) if xs else None
+  low, high = stats.wilson_interval(k, n)
+  boot_low, boot_high = stats.instance_bootstrap_interval([r['found'] for r in rows],
+                                                          [r['instance'] for r in rows])
+  mean = stats.mean_or_none
   stops = {}
   for r in rows:
     stops[r['stop']] = stops.get(r['stop'], 0) + 1
@@ -167,24 +127,6 @@ def summarise(name: str, rows: List[Dict], wall: float, compile_s: float) -> Dic
                                  / max(1, sum(r['expanded'] for r in rows))),
       'edges_per_s': sum(r['evaluated'] for r in rows) / max(wall, 1e-9),
       'overflow_runs': sum(r['overflow'] > 0 for r in rows), 'stop_reasons': stops}
-
-
-def success_curve(rows: List[Dict], budgets) -> List[float]:
-  """Share of runs that found the goal within each budget of evaluations."""
-  return [float(np.mean([r['found'] and r['evaluated'] <= b for r in rows])) for b in budgets]
-
-
-def cost_ratios(per_planner: Dict[str, List[Dict]]) -> Dict[str, Dict[str, Dict]]:
-  """ratio[a][b]: mean over runs both solved of cost_a / cost_b, and how many runs."""
-  out = {}
-  for a, rows_a in per_planner.items():
-    out[a] = {}
-    for b, rows_b in per_planner.items():
-      pairs = [(x['cost'], y['cost']) for x, y in zip(rows_a, rows_b)
-               if x['found'] and y['found'] and y['cost'] > 0]
-      out[a][b] = {'mean_ratio': float(np.mean([x / y for x, y in pairs])) if pairs else None,
-                   'runs': len(pairs)}
-  return out
 
 
 def plot(task: str, payload: Dict, path: str) -> None:
@@ -261,8 +203,6 @@ def main():
   parser.add_argument('--task', default='pusht-obs',
                       choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
   parser.add_argument('--planners', default=None, help='comma list (default: all of the task)')
-  parser.add_argument('--instances', type=int, default=None,
-                      help='canonical instances (default: 30 PushT, 100 shelf)')
   parser.add_argument('--rounds', type=int, default=None, help='runs per instance (default: '
                       '5 PushT, 1 shelf)')
   parser.add_argument('--budget', type=int, default=None,
@@ -281,14 +221,12 @@ def main():
   parser.add_argument('--epase-budget', type=int, default=200_000)
   parser.add_argument('--epase-spread', type=int, default=3,
                       help='cells the BFS-3D distances extend into blocked cells')
-  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
   parser.add_argument('--devices', type=int, default=1,
                       help='shard the runs over this many local devices (no PACHS time limit)')
-  parser.add_argument('--seed', type=int, default=0)
-  parser.add_argument('--out', default=None)
+  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True)
   args = parser.parse_args()
   shelf = args.task == 'shelf'
-  args.instances = args.instances or (100 if shelf else 30)
+  args.instances = common.task_instances(args.task, args.instances)
   args.rounds = args.rounds or (1 if shelf else 5)
   args.budget = args.budget or (20_000 if shelf else 100_000)
   if shelf and args.devices > 1:
@@ -312,7 +250,7 @@ def main():
   budgets = np.unique(np.geomspace(100, max(args.budget, args.epase_budget if shelf else 0),
                                    40).astype(int)).tolist()
   payload = {'provenance': common.provenance(), 'task': args.task,
-             'model': planner.MODEL_FOR_TASK[args.task],
+             'model': envs.spec(args.task).model_task,
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'budget': args.budget, 'time_limit_s': args.time_limit,
                           'devices': args.devices,
@@ -334,8 +272,8 @@ def main():
     print(summary, flush=True)
     payload['summary'].append(summary)
     payload['runs'][name] = rows
-    payload['success_curve'][name] = success_curve(rows, budgets)
-    payload['cost_ratios'] = cost_ratios(payload['runs'])
+    payload['success_curve'][name] = stats.success_curve(rows, budgets)
+    payload['cost_ratios'] = stats.cost_ratios(payload['runs'])
     common.write_json(out, payload)
     write_markdown(args.task, payload, os.path.splitext(out)[0] + '.md')
   plot(args.task, payload, os.path.splitext(out)[0] + '.png')

@@ -17,6 +17,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+import common
+
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'results', 'training')
 
 # The runs, the command that made each (on one NVIDIA H200, jax 0.11.2; the PushT runs and the
@@ -89,12 +91,10 @@ def main():
   ax_sps.grid(alpha=0.3)
   fig.tight_layout()
   fig.savefig(os.path.join(args.dir, 'training_curves.png'), dpi=110)
-  cols = list(table[0])
   lines = ['# SAC training runs (one NVIDIA H200, jax 0.11.2, python 3.12)', '',
            'Runs made with experiments/train.py on the GPU machine; metrics.csv of each run is '
            'in this folder. Wall time includes compilation and periodic evaluation.', '',
-           '| ' + ' | '.join(cols) + ' |', '|' + '---|' * len(cols)]
-  lines += ['| ' + ' | '.join(str(r[c]) for c in cols) + ' |' for r in table]
+           common.markdown_table(table, list(table[0]))]
   with open(os.path.join(args.dir, 'training.md'), 'w') as f:
     f.write('\n'.join(lines) + '\n')
   print(json.dumps(table, indent=1))

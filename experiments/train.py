@@ -1,18 +1,7 @@
 """Train the SAC actor-critic of a task; resumable and time-bounded for 10-minute GPU commands.
 
-  python experiments/train.py --task pusht-fixed --steps 20000000 --seed 0 --out runs/fixed \
-      --minutes 8 [--resume]
-
-The run directory gets state/<epoch>/ (full training checkpoints, the last --keep kept),
-model/ (the exported actor-critic for the search: `pachs_jax.sac.load_actor_critic(out)`),
-metrics.csv, tensorboard/ (when tensorboardX is installed) and status.json. A call that runs out
-of --minutes checkpoints and exits with status.json saying finished=false; call it again with
---resume (same --task/--out/--steps) to continue. A resumed run ends with the same parameters as
-an uninterrupted one, bit for bit on the same device: on GPUs this needs XLA's deterministic ops
-(set here unless --nondeterministic), which also turns off autotuning.
-Hyperparameters come from `pachs_jax.sac.presets` for the task; flags override them (on
---resume, flags must agree with the stored config).
-"""
+--out gets checkpoints, model/ (for the search), metrics.csv and status.json; a call stopped by
+--minutes continues with --resume, bit for bit (XLA deterministic ops unless --nondeterministic)."""
 
 from __future__ import annotations
 
@@ -112,7 +101,8 @@ def main(argv=None) -> int:
 
   import jax  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac import presets, train  # pylint: disable=import-outside-toplevel
-  from pachs_jax.sac.config import SACConfig  # pylint: disable=import-outside-toplevel
+  from pachs_jax.sac.config import (  # pylint: disable=import-outside-toplevel
+      SACConfig, config_from_dict, config_to_dict)
   from pachs_jax.sac.reporting import RunReporter  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
 
@@ -120,7 +110,7 @@ def main(argv=None) -> int:
   changes = overrides(args)
   meta = train.read_run_config(args.out)
   if meta is not None and args.resume:
-    config = SACConfig.from_dict(meta['sac_config'])
+    config = config_from_dict(SACConfig, meta['sac_config'])
     clash = {k: (getattr(config, k), v) for k, v in changes.items() if getattr(config, k) != v}
     if clash:
       listed = ', '.join(f'{k} stored {a!r} vs flag {b!r}' for k, (a, b) in clash.items())
@@ -140,7 +130,8 @@ def main(argv=None) -> int:
     except ValueError as e:
       raise SystemExit(str(e)) from None
   print(f'task {env.name}: obs {env.observation_size}, action {env.action_size}, episode '
-        f'{env.episode_length}; device {jax.devices()[0]}; config {json.dumps(config.to_dict())}',
+        f'{env.episode_length}; device {jax.devices()[0]}; '
+        f'config {json.dumps(config_to_dict(config))}',
         flush=True)
   trainer = make_trainer(env, config)
   progress = args.progress or ('bar' if sys.stderr.isatty() else 'lines')

@@ -1,15 +1,7 @@
-"""A documented sweep of PACHS's parameters (w, N, K, lattice resolution) on a task's canonical
-instances: one parameter at a time around the task's defaults (`planner.TASK_DEFAULTS`; 'res xV'
-scales the task's lattice cells). The recorded `tune_pusht-obs.md` was made when PushT-Obs's
-defaults were K = 64 with the env's default cells; its K = 256 and 'res x0.5' rows became the
-new defaults.
+"""A sweep of PACHS's parameters (w, N, K, lattice cells), one at a time around the task's defaults.
 
-Each setting plans the `--instances` canonical instances (one run each, seed 0) in one batched
-call with the task's budget; the table gives success, the call's wall time (compilation
-excluded), mean edges evaluated and mean cost over successes.
-
-  python experiments/tune.py --task pusht-obs --out experiments/results/tune_pusht-obs.json
-"""
+Each setting plans the canonical instances once in one batched call; `tune_pusht-obs.md` predates
+PushT-Obs's current defaults (its K = 256 and 'res x0.5' rows became them)."""
 
 from __future__ import annotations
 
@@ -23,9 +15,9 @@ import numpy as np
 
 import common
 import open_loop
+import stats
 from pachs_jax import planner
 from pachs_jax.search import pachs
-from pachs_jax.search.types import StopReason
 
 # One-at-a-time variations around the defaults; 'res' scales the env's lattice resolution.
 SWEEP = {'weight': (1.0, 3.0, 5.0), 'num_actions': (4, 16), 'pop_size': (16, 256),
@@ -50,15 +42,13 @@ def settings(task: str, env, sweep=SWEEP):
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--instances', type=int, default=None)
   parser.add_argument('--budget', type=int, default=None)
   parser.add_argument('--only', default=None, help='comma list of setting labels to run')
-  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'])
-  parser.add_argument('--out', default=None)
+  common.add_common_args(parser, out=None, instances=None, backend=True)
   args = parser.parse_args()
   out = args.out or f'experiments/results/tune_{args.task}.json'
   env, model = planner.load_model(args.task, backend=args.backend)
-  num = args.instances or (100 if args.task == 'shelf' else 30)
+  num = common.task_instances(args.task, args.instances)
   starts = env.canonical_instances(num)
   keys = open_loop.run_keys(0, num, 1)
   payload = {'provenance': common.provenance(), 'task': args.task, 'instances': num,
@@ -79,10 +69,9 @@ def main():
            'budget': config.max_evaluations, 'found': int(r.found.sum()), 'runs': num,
            'success_rate': float(r.found.mean()), 'wall_s': float(r.wall_time_s),
            'compile_s': compile_s, 'evaluated_mean': float(r.evaluated.mean()),
-           'cost_success_mean': float(r.cost[r.found].mean()) if r.found.any() else None,
+           'cost_success_mean': stats.mean_where(r.cost, r.found),
            'overflow': int((r.heap_overflow + r.pool_overflow + r.table_overflow).sum()),
-           'stops': {StopReason.name(c): int(n) for c, n in
-                     zip(*np.unique(r.stop_reason, return_counts=True))}}
+           'stops': stats.stop_counts(r.stop_reason)}
     print(row, flush=True)
     payload['rows'].append(row)
     common.write_json(out, payload)

@@ -1,13 +1,5 @@
-"""A sweep of the shelf's ePA*SE baseline: heuristic weight w, obstacle inflation of the BFS-3D
-grid, the primitive step and the heuristic's spread into blocked cells, on the first
-`--targets` canonical shelf targets.
-
-Each setting plans all targets in one batched call with `--budget` evaluations per target and
-reports success, evaluations, expansions and cost (JSON and a markdown table).
-
-  python experiments/tune_epase.py --weights 2,5,10,20 --targets 100 --budget 120000 \
-      --out experiments/results/tune_epase.json
-"""
+"""A sweep of the shelf's ePA*SE baseline: heuristic weight, obstacle inflation of the BFS-3D
+grid, primitive step and the heuristic's spread into blocked cells, on the canonical targets."""
 
 from __future__ import annotations
 
@@ -21,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import common
+import stats
 from pachs_jax import envs
 from pachs_jax.search import baselines as bl
-from pachs_jax.search.types import StopReason
 
 
 def main():
@@ -33,10 +25,11 @@ def main():
   parser.add_argument('--steps', default='7', help='primitive steps in degrees, comma separated')
   parser.add_argument('--spreads', default='0', help='cells the BFS distances extend into the '
                       'blocked cells (voxel.grid_heuristic), comma separated')
-  parser.add_argument('--targets', type=int, default=100)
+  parser.add_argument('--targets', type=int, default=100, metavar='N',
+                      help='the first N canonical shelf targets')
   parser.add_argument('--pop-size', type=int, default=16)
   parser.add_argument('--budget', type=int, default=120_000)
-  parser.add_argument('--out', default='experiments/results/tune_epase.json')
+  common.add_common_args(parser, out='experiments/results/tune_epase.json')
   args = parser.parse_args()
   env = envs.make('shelf')
   starts = env.canonical_instances(100)
@@ -61,10 +54,9 @@ def main():
            'found': int(r.found.sum()), 'targets': args.targets,
            'wall_s': float(r.wall_time_s), 'compile_s': compile_s,
            'evaluated_mean': float(r.evaluated.mean()), 'expanded_mean': float(r.expanded.mean()),
-           'cost_success_mean': float(r.cost[r.found].mean()) if r.found.any() else None,
+           'cost_success_mean': stats.mean_where(r.cost, r.found),
            'h_start_mean': float(h0.mean()),
-           'stops': {StopReason.name(c): int(n) for c, n in
-                     zip(*np.unique(r.stop_reason, return_counts=True))}}
+           'stops': stats.stop_counts(r.stop_reason)}
     print(row, flush=True)
     payload['rows'].append(row)
     common.write_json(args.out, payload)

@@ -60,13 +60,13 @@ def _plan(args: argparse.Namespace) -> int:
   import jax
   import numpy as np
 
-  from pachs_jax import planner
+  from pachs_jax import envs, planner
   from pachs_jax.search import pachs, sharding
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
-  num_available = 100 if args.task == 'shelf' else 30
+  num_available = envs.spec(args.task).num_instances
   mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
   cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
   if args.instances is None:
@@ -105,8 +105,8 @@ def _plan(args: argparse.Namespace) -> int:
   rows = planner.result_rows(result, instances)
   if jax.process_index() != 0:
     return 0  # every host got the whole result; the first one reports it
-  print(planner.format_table(rows, ['instance', 'found', 'cost', 'path_length', 'expanded', 'evaluated',
-                            'stop', 'overflow']))
+  print(planner.format_table(rows, ['instance', 'found', 'cost', 'path_length', 'expanded',
+                                    'evaluated', 'stop', 'overflow']))
   found = sum(r['found'] for r in rows)
   print(f'found {found}/{len(rows)}; search time {float(result.wall_time_s):.2f} s '
         f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
@@ -114,7 +114,6 @@ def _plan(args: argparse.Namespace) -> int:
     path = planner.draw_result(env, result, instances, args.render)
     print(f'drew instance {instances[0]} to {path}')
   if args.json:
-    import json
     with open(args.json, 'w') as f:
       json.dump({'task': args.task, 'config': repr(config), 'rows': rows,
                  'devices': 1 if devices is None else len(devices),
@@ -123,20 +122,21 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
+  """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
   os.environ.setdefault('MUJOCO_GL', 'egl')
+  from pachs_jax import envs
+  pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argparse.ArgumentParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
-  demo.add_argument('--task', default='pusht-obs',
-                    choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
+  demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
   demo.add_argument('--steps', type=int, default=60, help='control steps (20 Hz)')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
   plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
-  plan.add_argument('--task', default='pusht-obs',
-                    choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
+  plan.add_argument('--task', default='pusht-obs', choices=envs.TASKS)
   plan.add_argument('--instances', default=None,
                     help="canonical instances, e.g. '0-29', '0,4' or 'all' (default: all; "
                          "on a CPU with MJX physics, '0')")
@@ -170,8 +170,9 @@ def main(argv=None) -> int:
   plan.add_argument('--json', default=None, help='write the result rows as JSON')
   plan.set_defaults(func=_plan)
   args = parser.parse_args(argv)
-  if args.command == 'demo' and not 0 <= args.instance < 30:
-    parser.error(f'--instance must be in 0..29, got {args.instance}')
+  num_instances = envs.spec(args.task).num_instances
+  if args.command == 'demo' and not 0 <= args.instance < num_instances:
+    parser.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')
   try:
     return args.func(args)
   except (ValueError, FileNotFoundError) as err:

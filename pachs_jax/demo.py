@@ -1,9 +1,5 @@
-"""A scripted demonstration of a task: a Jacobian pusher (PushT) rolled out through `evaluate`.
-
-No learning involved: the stick tip is steered behind the T and then through the T's centre
-towards the goal, with joint deltas from a damped least-squares step on MuJoCo C's Jacobian. It
-shows the task, its physics and the drawings; planning replaces it as the main job.
-"""
+"""`pachs demo`: a scripted Jacobian pusher rolled out through a PushT task and drawn, with no
+learning involved."""
 
 from __future__ import annotations
 
@@ -18,24 +14,12 @@ import numpy as np
 from pachs_jax.envs import coverage, pusht, render
 
 
-def jacobian_action(env: pusht.PushTEnv, qpos: np.ndarray, tip_goal: np.ndarray,
-                    data: mujoco.MjData) -> np.ndarray:
-  """[7] action in [-1, 1] moving the stick tip towards tip_goal [3] (at most 2 cm)."""
-  m = env.mj_model
-  data.qpos[:] = qpos
-  mujoco.mj_kinematics(m, data)
-  mujoco.mj_comPos(m, data)
-  site = m.site('tip').id
-  jac = np.zeros((3, m.nv))
-  mujoco.mj_jacSite(m, data, jac, None, site)
-  jac = jac[:, :7]
-  dx = np.clip(tip_goal - data.site_xpos[site], -0.02, 0.02)
-  dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(3), dx)
-  return np.clip(dq / pusht.ARM_ACTION_SCALE, -1.0, 1.0)
-
-
 def scripted_push(env: pusht.PushTEnv, node, num_steps: int = 60):
-  """Rolls a scripted pusher out; returns (qpos [T+1, 10], tip_xy [T+1, 2], coverage [T+1])."""
+  """Rolls a scripted pusher out of a single node for num_steps (T) control steps.
+
+  The tip goes behind the T (lifted 6 cm when it must pass it), then pushes through the T's
+  centre towards the goal. Returns (qpos [T+1, 10], tip xy [T+1, 2] (m), coverage [T+1]).
+  """
   transition = jax.jit(env.transition)
   tip_fn = jax.jit(env.tip_position)
   data = mujoco.MjData(env.mj_model)
@@ -54,7 +38,7 @@ def scripted_push(env: pusht.PushTEnv, node, num_steps: int = 60):
       target = np.array([behind[0], behind[1], 0.06 if ahead else 0.015])
     else:  # push through the T's centre towards the goal
       target = np.array([*(t_xy + 0.05 * direction), 0.015])
-    action = jacobian_action(env, q, target, data)
+    action = pusht.jacobian_action(env.mj_model, data, target, qpos=q)
     node = transition(node, jnp.asarray(action, jnp.float32)).next_node
     qposes.append(np.asarray(node.qpos))
     tips.append(np.asarray(tip_fn(node))[:2])
@@ -64,6 +48,8 @@ def scripted_push(env: pusht.PushTEnv, node, num_steps: int = 60):
 
 
 def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None) -> dict:
+  """Runs `scripted_push` on a canonical instance of a PushT task, draws it to the PNG `out`
+  (and, with `gif`, renders a MuJoCo GIF); returns a JSON-ready summary."""
   from pachs_jax import envs
   env = envs.make(task)
   if not isinstance(env, pusht.PushTEnv):

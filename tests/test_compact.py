@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, compact, make_search, plan, sharding
 
@@ -60,8 +61,7 @@ class CountingGrid(gridworld.GridWorld):
     return super().evaluate(nodes, actions)
 
 
-@pytest.mark.parametrize('loop', ['split', 'mixed'])
-def test_pachs_with_compaction_equals_without(loop):
+def test_pachs_with_compaction_equals_without():
   obstacles = np.zeros((10, 10), bool)
   obstacles[3:7, 5] = True
   env = CountingGrid(obstacles, connectivity=8)
@@ -69,7 +69,7 @@ def test_pachs_with_compaction_equals_without(loop):
   starts = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
   goals = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])
   nodes = env.node(starts, goals)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300, loop=loop)
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
   key = jax.random.PRNGKey(1)
   want = plan(env, ac, nodes, config, key)
   env.batches.clear()
@@ -79,16 +79,12 @@ def test_pachs_with_compaction_equals_without(loop):
   assert {6, 12} <= set(env.batches) and 24 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
-  for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
-                  jax.tree.leaves(got.replace(wall_time_s=None))):
-    np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
+  assert_results_equal(got, want)
   # the same inside shard_map (the default mesh)
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
   sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
                                   search=make_search(env, ac, compacted))
-  for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
-                  jax.tree.leaves(sharded.replace(wall_time_s=None))):
-    np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
+  assert_results_equal(sharded, want)
   for bad in ((0.5, 1.0), 0.5, (float('nan'),)):
     with pytest.raises(ValueError, match='compact_fractions'):
       dataclasses.replace(config, compact_fractions=bad)

@@ -12,23 +12,24 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'exp
 import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
 import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
+import stats  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
 
 
 def test_wilson_interval_known_values_and_edges():
-  low, high = open_loop.wilson_interval(137, 150)
+  low, high = stats.wilson_interval(137, 150)
   assert low == pytest.approx(0.8566, abs=1e-3) and high == pytest.approx(0.9489, abs=1e-3)
-  assert open_loop.wilson_interval(150, 150)[1] == 1.0  # exactly 1, not 0.99999...
-  assert open_loop.wilson_interval(0, 10) == (0.0, pytest.approx(0.2775, abs=1e-3))
-  low, high = open_loop.wilson_interval(5, 10)
+  assert stats.wilson_interval(150, 150)[1] == 1.0  # exactly 1, not 0.99999...
+  assert stats.wilson_interval(0, 10) == (0.0, pytest.approx(0.2775, abs=1e-3))
+  low, high = stats.wilson_interval(5, 10)
   assert low < 0.5 < high and low == pytest.approx(1 - high)
 
 
 def test_success_curve_counts_runs_found_within_budget():
   rows = [{'found': True, 'evaluated': 50}, {'found': True, 'evaluated': 500},
           {'found': False, 'evaluated': 1000}, {'found': True, 'evaluated': 5000}]
-  assert open_loop.success_curve(rows, [10, 50, 499, 500, 10_000]) == [0, 0.25, 0.25, 0.5, 0.75]
+  assert stats.success_curve(rows, [10, 50, 499, 500, 10_000]) == [0, 0.25, 0.25, 0.5, 0.75]
 
 
 def test_cost_ratios_use_runs_both_solved():
@@ -36,7 +37,7 @@ def test_cost_ratios_use_runs_both_solved():
                 {'found': False, 'cost': 9.0}],
           'b': [{'found': True, 'cost': 1.0}, {'found': False, 'cost': 1.0},
                 {'found': True, 'cost': 3.0}]}
-  ratios = open_loop.cost_ratios(rows)
+  ratios = stats.cost_ratios(rows)
   assert ratios['a']['b'] == {'mean_ratio': 2.0, 'runs': 1}
   assert ratios['b']['a'] == {'mean_ratio': 0.5, 'runs': 1}
   assert ratios['a']['a'] == {'mean_ratio': 1.0, 'runs': 2}
@@ -74,12 +75,12 @@ def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
   # 30 instances x 5 rounds of a deterministic planner: one instance fails all its rounds
   instance = np.tile(np.arange(30), 5)
   found = instance != 7
-  low, high = open_loop.instance_bootstrap_interval(found, instance)
-  wilson_low, _ = open_loop.wilson_interval(int(found.sum()), found.size)
+  low, high = stats.instance_bootstrap_interval(found, instance)
+  wilson_low, _ = stats.wilson_interval(int(found.sum()), found.size)
   assert low < wilson_low < 29 / 30 <= high <= 1.0  # wider than 150 independent runs
-  assert open_loop.instance_bootstrap_interval(np.ones(10, bool), np.arange(10)) == (1.0, 1.0)
+  assert stats.instance_bootstrap_interval(np.ones(10, bool), np.arange(10)) == (1.0, 1.0)
   # resampling is seeded: the same interval every call
-  assert open_loop.instance_bootstrap_interval(found, instance) == (low, high)
+  assert stats.instance_bootstrap_interval(found, instance) == (low, high)
 
 
 def _closed(planners, **settings):

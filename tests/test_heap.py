@@ -1,4 +1,4 @@
-"""The edge heap designs against Python's heapq on random push / pop sequences."""
+"""The edge heap against Python's heapq on random push / pop sequences."""
 
 import functools
 import heapq
@@ -14,16 +14,15 @@ NUM_INSTANCES = 3
 K = 4
 M = 9  # entries offered per push
 
-# (kind, capacity, segment size): the segmented heap with small segments (many segments) and
-# with segments larger than K entries, plus a K larger than the number of segments.
-DESIGNS = [('flat', 600, None), ('segmented', 600, 4), ('segmented', 600, 64),
-           ('segmented', 40, 16), ('blocked', 600, None)]
+# (capacity, segment size): small segments (many segments), segments larger than K entries,
+# a K larger than the number of segments, and the default segment size.
+DESIGNS = [(600, 4), (600, 64), (40, 16), (600, None)]
 
 
 @functools.lru_cache(maxsize=None)
-def _ops(kind, capacity, segment, k=K):
+def _ops(capacity, segment, k=K):
   """(init, jitted push, jitted pop) of one design, shared by the tests."""
-  init = lambda: heap_lib.init(kind, NUM_INSTANCES, capacity, k, segment_size=segment)
+  init = lambda: heap_lib.init(NUM_INSTANCES, capacity, k, segment_size=segment)
   push = jax.jit(heap_lib.push)
   pop = jax.jit(lambda h, active: heap_lib.pop(h, k, active))
   return init, push, pop
@@ -33,12 +32,12 @@ peek = jax.jit(heap_lib.peek)
 
 
 class Model:
-  """heapq per instance, with the flat designs' rule that capacity counts all stored pushes."""
+  """heapq per instance, with the rule that capacity counts all stored pushes."""
 
-  def __init__(self, capacity, append_only):
+  def __init__(self, capacity):
     self.queues = [[] for _ in range(NUM_INSTANCES)]
     self.seq = [0] * NUM_INSTANCES
-    self.capacity, self.append_only = capacity, append_only
+    self.capacity = capacity
     self.overflow = [0] * NUM_INSTANCES
 
   def push(self, keys, values, mask):
@@ -46,8 +45,7 @@ class Model:
       for key, value, m in zip(keys[i], values[i], mask[i]):
         if not m or not key < np.inf:
           continue
-        used = self.seq[i] if self.append_only else len(self.queues[i])
-        if used >= self.capacity:
+        if self.seq[i] >= self.capacity:
           self.overflow[i] += 1
           continue
         heapq.heappush(self.queues[i], (float(key), self.seq[i], int(value)))
@@ -88,11 +86,11 @@ def _check_pop(model, got_keys, got_values, got_mask, active, limit=None):
     assert pairs == want[i], (i, pairs, want[i])
 
 
-@pytest.mark.parametrize('kind,capacity,segment', DESIGNS)
-def test_matches_heapq(kind, capacity, segment):
-  init, push, pop = _ops(kind, capacity, segment)
+@pytest.mark.parametrize('capacity,segment', DESIGNS)
+def test_matches_heapq(capacity, segment):
+  init, push, pop = _ops(capacity, segment)
   rng = np.random.default_rng(0)
-  model = Model(capacity, append_only=kind != 'blocked')
+  model = Model(capacity)
   heap = init()
   for step in range(60):
     if rng.random() < 0.55 or step < 3:
@@ -108,7 +106,7 @@ def test_matches_heapq(kind, capacity, segment):
       active = rng.random(NUM_INSTANCES) < 0.8
       heap, k, v, m = pop(heap, jnp.asarray(active))
       _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), active)
-    np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)),
+    np.testing.assert_array_equal(np.asarray(heap.count),
                                   [len(q) for q in model.queues])
   # Drain everything.
   while any(model.queues):
@@ -116,17 +114,17 @@ def test_matches_heapq(kind, capacity, segment):
     _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), [True] * NUM_INSTANCES)
   heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
   assert not np.asarray(m).any()  # empty
-  np.testing.assert_array_equal(np.asarray(heap_lib.overflow(heap)), model.overflow)
+  np.testing.assert_array_equal(np.asarray(heap.overflow), model.overflow)
 
 
-@pytest.mark.parametrize('kind,capacity,segment', DESIGNS)
-def test_limited_pop_and_kth_key_match_heapq(kind, capacity, segment):
+@pytest.mark.parametrize('capacity,segment', DESIGNS)
+def test_limited_pop_and_kth_key_match_heapq(capacity, segment):
   # A pop up to a key limit takes only the entries <= limit and leaves the others in place:
   # later pops see them in the same (key, insertion) order.
-  init, push, _ = _ops(kind, capacity, segment)
-  pop_limited = _limited_pop(kind, capacity, segment)
+  init, push, _ = _ops(capacity, segment)
+  pop_limited = _limited_pop(capacity, segment)
   rng = np.random.default_rng(3)
-  model = Model(capacity, append_only=kind != 'blocked')
+  model = Model(capacity)
   heap = init()
   limited = 0
   for step in range(50):
@@ -142,25 +140,24 @@ def test_limited_pop_and_kth_key_match_heapq(kind, capacity, segment):
       limited += int(np.sum(active & (np.asarray(m).sum(axis=1) < np.minimum(
           K, [len(q) for q in model.queues]))))
       _check_pop(model, np.asarray(k), np.asarray(v), np.asarray(m), active, limit)
-    np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)),
+    np.testing.assert_array_equal(np.asarray(heap.count),
                                   [len(q) for q in model.queues])
   assert limited >= 5  # the limit held entries back in several pops
-  np.testing.assert_array_equal(np.asarray(heap_lib.overflow(heap)), model.overflow)
+  np.testing.assert_array_equal(np.asarray(heap.overflow), model.overflow)
 
 
 @functools.lru_cache(maxsize=None)
-def _limited_pop(kind, capacity, segment):
+def _limited_pop(capacity, segment):
   return jax.jit(lambda h, active, limit: heap_lib.pop(h, K, active, limit))
 
 
 _kth_key = jax.jit(lambda h: heap_lib.kth_key(h, K))
 
 
-@pytest.mark.parametrize('kind', ['flat', 'segmented'])
-def test_flat_overflow_is_counted(kind):
+def test_overflow_is_counted():
   capacity = 20
-  init, push, pop = _ops(kind, capacity, 8)
-  model = Model(capacity, append_only=True)
+  init, push, pop = _ops(capacity, 8)
+  model = Model(capacity)
   heap = init()
   rng = np.random.default_rng(1)
   for _ in range(4):
@@ -173,39 +170,13 @@ def test_flat_overflow_is_counted(kind):
   np.testing.assert_array_equal(np.asarray(heap.overflow), model.overflow)
 
 
-def test_blocked_overflow_is_counted():
-  capacity = 8  # two blocks of K = 4
-  init, push, pop = _ops('blocked', capacity, None)
-  heap = init()
-  rng = np.random.default_rng(2)
-  pushed = np.zeros(NUM_INSTANCES, int)
-  for _ in range(3):
-    keys, values, mask = _random_push(rng)
-    heap = push(heap, jnp.asarray(keys), jnp.asarray(values), jnp.asarray(mask))
-    pushed += mask.sum(axis=1)
-  overflow = np.asarray(heap.overflow)
-  assert (overflow > 0).all()
-  assert (overflow % K == 0).all()  # whole blocks are dropped
-  # Conservation: stored + dropped = pushed, and exactly the stored entries come out again.
-  popped = np.zeros(NUM_INSTANCES, int)
-  for _ in range(10):
-    heap, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
-    m = np.asarray(m)
-    popped += m.sum(axis=1)
-    k = np.asarray(k)
-    for i in range(NUM_INSTANCES):  # each pop comes out sorted
-      assert (np.diff(k[i][m[i]]) >= 0).all()
-  np.testing.assert_array_equal(popped + overflow, pushed)
-  assert (popped <= capacity + K - 1).all()
-
-
-@pytest.mark.parametrize('kind,capacity,segment', DESIGNS[:1] + DESIGNS[2:3] + DESIGNS[4:])
-def test_non_finite_keys_are_not_stored(kind, capacity, segment):
-  init, push, pop = _ops(kind, capacity, segment)
+@pytest.mark.parametrize('capacity,segment', DESIGNS[1:3])
+def test_non_finite_keys_are_not_stored(capacity, segment):
+  init, push, pop = _ops(capacity, segment)
   keys = jnp.array([[jnp.nan, jnp.inf, 3.0, -jnp.inf, 1.0]] * NUM_INSTANCES, jnp.float32)
   values = jnp.broadcast_to(jnp.arange(5, dtype=jnp.int32), keys.shape)
   heap = push(init(), keys, values, jnp.ones(keys.shape, bool))
-  np.testing.assert_array_equal(np.asarray(heap_lib.size(heap)), [3] * NUM_INSTANCES)
+  np.testing.assert_array_equal(np.asarray(heap.count), [3] * NUM_INSTANCES)
   _, k, v, m = pop(heap, jnp.ones(NUM_INSTANCES, bool))
   np.testing.assert_array_equal(np.asarray(v)[:, :3], [[3, 4, 2]] * NUM_INSTANCES)
   np.testing.assert_array_equal(np.asarray(m)[:, :4], [[True, True, True, False]] * NUM_INSTANCES)
@@ -213,7 +184,7 @@ def test_non_finite_keys_are_not_stored(kind, capacity, segment):
 
 
 def test_inactive_instances_do_not_change():
-  init, push, pop = _ops('blocked', 600, None)
+  init, push, pop = _ops(600, None)
   keys = jnp.arange(2 * NUM_INSTANCES * M, dtype=jnp.float32).reshape(NUM_INSTANCES, 2 * M)
   heap = push(init(), keys, keys.astype(jnp.int32), jnp.ones(keys.shape, bool))
   active = jnp.array([True, False, True])
@@ -224,13 +195,7 @@ def test_inactive_instances_do_not_change():
 
 
 def test_bad_arguments():
-  with pytest.raises(ValueError, match='heap kind'):
-    heap_lib.init('fibonacci', 1, 10, 2)
   with pytest.raises(ValueError, match='capacity'):
-    heap_lib.init('flat', 1, 0, 2)
-  with pytest.raises(ValueError, match='block size'):
-    heap_lib.pop(heap_lib.init('blocked', 1, 16, 4), 3)
-  with pytest.raises(ValueError, match='block size'):
-    heap_lib.kth_key(heap_lib.init('blocked', 1, 16, 4), 5)
+    heap_lib.init(1, 0, 2)
   with pytest.raises(ValueError, match='k >= 1'):
-    heap_lib.kth_key(heap_lib.init('flat', 1, 16, 4), 0)
+    heap_lib.kth_key(heap_lib.init(1, 16, 4), 0)

@@ -6,27 +6,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import UniformActorCritic, assert_results_equal, take
 
 from pachs_jax.envs.point_mass import PointMassEnv
 from pachs_jax.search import StopReason
 from pachs_jax.search import baselines as bl
 from pachs_jax.search.baselines import common
+from pachs_jax.search import instance_keys
 
 DIM = 2
-
-
-class ZeroPolicy:
-  """A poor actor-critic: the deterministic policy stays put, the stochastic one is uniform
-  noise, and the critic knows nothing (Q = 0)."""
-
-  def deterministic_action(self, obs):
-    return jnp.zeros((obs.shape[0], DIM), jnp.float32)
-
-  def sample_actions(self, key, obs, num):
-    return jax.random.uniform(key, (obs.shape[0], num, DIM), jnp.float32, -1.0, 1.0)
-
-  def q_values(self, obs, actions):
-    return jnp.zeros(actions.shape[:2], jnp.float32)
 
 
 class Attractor:
@@ -42,10 +30,6 @@ class Attractor:
   def q_values(self, obs, actions):
     moved = obs[:, None, :DIM] + 0.1 * actions
     return -10.0 * jnp.linalg.norm(moved - self.POINT, axis=-1)
-
-
-def _take(tree, i):
-  return jax.tree.map(lambda x: x[i:i + 1] if jnp.ndim(x) else x, tree)
 
 
 def _nodes(env, starts, goals):
@@ -76,7 +60,9 @@ def start(env):
 def planner(env):
   config = bl.MppiConfig(num_samples=64, horizon=12, temperature=0.1, noise_std=0.5,
                          max_iterations=20, policy_prior_samples=8)
-  return bl.make_mppi(env, ZeroPolicy(), config)
+  # a poor actor-critic: the deterministic policy stays put, the proposals are uniform noise
+  # and the critic knows nothing
+  return bl.make_mppi(env, UniformActorCritic(DIM), config)
 
 
 @pytest.fixture(scope='module')
@@ -142,12 +128,10 @@ def test_result_reaches_goal_and_replays(env, start, planner, result):
 
 
 def test_batch_equals_one_by_one(start, planner, result):
-  keys = common.instance_keys(jax.random.PRNGKey(0), 3)
+  keys = instance_keys(jax.random.PRNGKey(0), 3)
   for i in range(3):
-    one = planner.plan(_take(start, i), keys[i:i + 1], time_limit_s=1e6)
-    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(_take(result, i))):
-      if a.ndim:
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    one = planner.plan(take(start, i), keys[i:i + 1], time_limit_s=1e6)
+    assert_results_equal(one, take(result, i))
 
 
 def test_time_limit_stops_after_one_iteration(start, planner):
@@ -228,7 +212,7 @@ class Wall(PointMassEnv):
     return out.replace(is_valid=out.is_valid & ~inside, is_goal=out.is_goal & ~inside)
 
 
-class PushRight(ZeroPolicy):
+class PushRight(UniformActorCritic):
   """A stochastic policy that always pushes right (into the Wall)."""
 
   def sample_actions(self, key, obs, num):
@@ -239,7 +223,7 @@ class PushRight(ZeroPolicy):
 def test_invalid_edges_are_penalised_and_cut(far, small_config):
   env = Wall()
   config = dataclasses.replace(small_config, policy_prior_samples=16, max_evaluations=1024)
-  planner = bl.make_mppi(env, PushRight(), config)
+  planner = bl.make_mppi(env, PushRight(DIM), config)
   state = planner.run(planner.init(far, jax.random.PRNGKey(2)))
   iterations = int(state.iterations[0])
   assert iterations == 8
@@ -284,7 +268,7 @@ def test_bad_configs_raise(kwargs, match):
 
 def test_bad_inputs_raise(env, start, planner):
   with pytest.raises(ValueError, match='MppiConfig'):
-    bl.make_mppi(env, ZeroPolicy(), bl.BeamConfig())
+    bl.make_mppi(env, UniformActorCritic(DIM), bl.BeamConfig())
   with pytest.raises(ValueError, match='sample_actions'):
     bl.make_mppi(env, Attractor(), bl.MppiConfig(policy_prior_samples=1))
   with pytest.raises(ValueError, match='time_limit_s'):

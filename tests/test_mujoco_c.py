@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import UniformActorCritic, pad_rows
 
 from pachs_jax import envs
 from pachs_jax.envs import panda, pusht
@@ -55,17 +56,12 @@ def _push(env, num_steps=30):
   d.qpos[:7] = pusht.HOME_QPOS
   d.qpos[7:] = [-0.25, -0.18, 0.3]
   d.ctrl[:] = d.qpos[:7]
-  tip = m.site('tip').id
   nodes, actions = [], []
   for k in range(num_steps):
     mujoco.mj_forward(m, d)
     nodes.append(mujoco_c.mjdata_to_node(env, d, pusht.FIXED_GOAL, k))
-    jac = np.zeros((3, m.nv))
-    mujoco.mj_jacSite(m, d, jac, None, tip)
     goal = np.array([-0.25, -0.32, 0.015]) if k < 8 else np.array([-0.22, 0.05, 0.015])
-    dx = np.clip(goal - d.site_xpos[tip], -0.02, 0.02)
-    j = jac[:, :7]
-    a = np.clip(j.T @ np.linalg.solve(j @ j.T + 1e-4 * np.eye(3), dx) / 0.1, -1, 1)
+    a = pusht.jacobian_action(m, d, goal)
     actions.append(a.astype(np.float32))
     d.ctrl[:] = np.clip(d.qpos[:7] + 0.1 * a, panda.JOINT_LOWER, panda.JOINT_UPPER)
     mujoco.mj_step(m, d, nstep=env.config.substeps)
@@ -112,17 +108,12 @@ def test_batched_round_trip_is_exact_and_matches_mj_get_state(env):
 
 # ---- physics: MuJoCo C against MJX ----
 
-def _pad(tree, size):
-  return jax.tree.map(lambda x: jnp.concatenate(
-      [jnp.asarray(x)] + [jnp.asarray(x)[-1:]] * (size - len(x))), tree)
-
-
 def test_c_step_matches_mjx_step_along_a_push(env, push, mjx_evaluate, c_evaluate):
   nodes, actions = push
   num = len(actions)
   # The push moves the T (so contacts are exercised).
   assert np.linalg.norm(nodes.qpos[-1, 7:9] - nodes.qpos[0, 7:9]) > 0.02
-  padded, padded_actions = _pad(nodes, BATCH), _pad(actions, BATCH)
+  padded, padded_actions = pad_rows(nodes, BATCH), pad_rows(actions, BATCH)
   mjx_out = jax.tree.map(lambda x: np.asarray(x)[:num], mjx_evaluate(padded, padded_actions))
   c_out = jax.tree.map(lambda x: np.asarray(x)[:num], c_evaluate(padded, padded_actions))
   assert mjx_out.is_valid.all() and c_out.is_valid.all()
@@ -226,25 +217,25 @@ def test_world_executes_and_perturbations_change_the_outcome(env, push):
 
 # ---- the search end to end ----
 
-class _RandomActorCritic:
-  """Zero-mean uniform random actions, zero Q."""
-
-  def sample_actions(self, key, obs, num):
-    return jax.random.uniform(key, (obs.shape[0], num, 7), minval=-1.0, maxval=1.0)
-
-  def q_values(self, obs, actions):
-    return jnp.zeros(actions.shape[:2], jnp.float32)
-
-
-def test_search_runs_on_the_cpu_backend(env, cenv):
+def test_search_on_the_cpu_backend_stops_at_its_iteration_limit(env, cenv):
   from pachs_jax.search import pachs
   from pachs_jax.search.types import SearchConfig, StopReason
+  from pachs_jax.search.baselines import replay
   starts = env.canonical_instances(2)
+  # two iterations evaluate at most 2 K = 8 edges, far below the budget of 64, and no canonical
+  # instance starts at its goal or is reached in two random steps: the iteration limit stops both
   config = SearchConfig(num_actions=4, pop_size=4, max_evaluations=64, max_iterations=2)
-  result = pachs.plan(cenv, _RandomActorCritic(), starts, config, jax.random.PRNGKey(0))
-  reasons = np.asarray(result.stop_reason)
-  assert reasons.shape == (2,)
-  assert all(StopReason.name(r) in ('iterations', 'goal', 'budget', 'open_empty') for r in reasons)
-  assert (np.asarray(result.iterations) >= 1).all()
-  assert (np.asarray(result.evaluated) >= 1).all()
+  result = pachs.plan(cenv, UniformActorCritic(7), starts, config, jax.random.PRNGKey(0))
+  np.testing.assert_array_equal(np.asarray(result.stop_reason), StopReason.ITERATIONS)
+  np.testing.assert_array_equal(np.asarray(result.found), False)
+  np.testing.assert_array_equal(np.asarray(result.iterations), 2)
+  evaluated = np.asarray(result.evaluated)
+  assert (evaluated >= 1).all() and (evaluated <= 2 * config.pop_size).all(), evaluated
   assert (np.asarray(result.generated) > 1).all()  # successors from MuJoCo C entered the pool
+  # the returned partial paths (an edge or more) replay in MuJoCo C: valid, not at the goal,
+  # the same cost
+  assert (np.asarray(result.path_length) >= 1).all()
+  _, cost, valid, is_goal = replay(cenv, starts, result.path_actions, result.path_length)
+  np.testing.assert_array_equal(np.asarray(valid), True)
+  np.testing.assert_array_equal(np.asarray(is_goal), False)
+  np.testing.assert_allclose(np.asarray(cost), np.asarray(result.cost), rtol=1e-5, atol=1e-6)

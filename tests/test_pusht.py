@@ -127,19 +127,11 @@ def test_restored_node_continues_a_carried_simulation_exactly(env):
 def test_stick_pushes_the_t(env, jitted):
   """A Jacobian controller drives the tip through the T: the T moves the same way."""
   node = env.node_from_pose(jnp.array([-0.25, -0.15, 0.0]), jnp.asarray(pusht.FIXED_GOAL))
-  m, data = env.mj_model, mujoco.MjData(env.mj_model)
-  tip_site = m.site('tip').id
+  data = mujoco.MjData(env.mj_model)
   waypoints = [np.array([-0.25, -0.32, 0.015])] * 10 + [np.array([-0.25, 0.05, 0.015])] * 20
   for goal in waypoints:
-    data.qpos[:] = np.asarray(node.qpos)
-    mujoco.mj_kinematics(m, data)
-    mujoco.mj_comPos(m, data)
-    jac = np.zeros((3, m.nv))
-    mujoco.mj_jacSite(m, data, jac, None, tip_site)
-    jac = jac[:, :7]
-    dx = np.clip(goal - data.site_xpos[tip_site], -0.02, 0.02)
-    dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(3), dx)
-    out = jitted['transition'](node, jnp.asarray(np.clip(dq / 0.1, -1, 1), jnp.float32))
+    action = pusht.jacobian_action(env.mj_model, data, goal, qpos=np.asarray(node.qpos))
+    out = jitted['transition'](node, jnp.asarray(action, jnp.float32))
     assert bool(out.is_valid)
     node = out.next_node
   tip = np.asarray(jitted['tip'](node))

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import trees_equal
 
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.sac import checkpoint, evaluator, presets, train
@@ -20,14 +21,6 @@ from pachs_jax.sac.trainer import make_trainer
 
 TOTAL_STEPS = 4000  # env steps of the shared training run (10 epochs of 400 after prefill)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _leaves_equal(a, b) -> bool:
-  """Bit-for-bit equality of two pytrees (NaNs included)."""
-  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
-  return len(la) == len(lb) and all(
-      x.shape == y.shape and x.dtype == y.dtype
-      and np.asarray(x).tobytes() == np.asarray(y).tobytes() for x, y in zip(la, lb))
 
 
 @pytest.fixture(scope='module')
@@ -193,15 +186,15 @@ def test_resume_is_bit_exact(trainer, trained, tmp_path):
   assert train.read_run_config(killed)['epoch'] == 4
   resumed = train.train(trainer, killed, TOTAL_STEPS, resume=True)
   assert resumed.finished and resumed.epoch == uninterrupted.epoch
-  assert _leaves_equal(resumed.state, uninterrupted.state)
+  assert trees_equal(resumed.state, uninterrupted.state)
   # A time budget that ends the first call after one epoch, then a resumed second call.
   chunked = str(tmp_path / 'chunked')
   first = train.train(trainer, chunked, TOTAL_STEPS, max_minutes=1e-4)
   assert not first.finished and first.epoch == 1
   second = train.train(trainer, chunked, TOTAL_STEPS, resume=True)
   assert second.finished
-  assert _leaves_equal(second.state.policy_params, uninterrupted.state.policy_params)
-  assert _leaves_equal(second.state, uninterrupted.state)
+  assert trees_equal(second.state.policy_params, uninterrupted.state.policy_params)
+  assert trees_equal(second.state, uninterrupted.state)
 
 
 def test_restored_state_compiles_like_the_live_one(trainer, trained):
@@ -211,7 +204,7 @@ def test_restored_state_compiles_like_the_live_one(trainer, trained):
   ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, train.STATE_SUBDIR))
   restored = ckpts.restore(ckpts.latest_epoch(), jax.eval_shape(trainer.init))
   ckpts.close()
-  assert _leaves_equal(restored, result.state)
+  assert trees_equal(restored, result.state)
   assert trainer.epoch.lower(restored).as_text() == trainer.epoch.lower(result.state).as_text()
 
 

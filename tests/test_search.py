@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import assert_results_equal, take
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search, plan
-from pachs_jax.search import heap as heap_lib
 
 SIZE = 14
 POCKET = (1, 12)  # a free cell walled in: unreachable from outside
@@ -54,12 +54,10 @@ class Problem:
     self.keys = instance_keys(jax.random.PRNGKey(0), len(starts))
 
   def subset(self, i):
-    return jax.tree.map(lambda x: x[i:i + 1], self.nodes), self.keys[i:i + 1]
+    return take(self.nodes, i), self.keys[i:i + 1]
 
 
-BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, max_evaluations=3000,
-                    heap_kind='flat')
-LOOPS = ('split', 'mixed')
+BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, max_evaluations=3000)
 
 
 @pytest.fixture(scope='module')
@@ -67,9 +65,9 @@ def problem():
   return Problem(seed=4)
 
 
-@pytest.fixture(scope='module', params=LOOPS)
-def config(request):
-  return dataclasses.replace(BASE, loop=request.param)
+@pytest.fixture(scope='module')
+def config():
+  return BASE
 
 
 @pytest.fixture(scope='module')
@@ -85,11 +83,6 @@ def base_result(problem, config, search):
 
 def _np(tree):
   return jax.tree.map(np.asarray, tree)
-
-
-def _leaves(result):
-  """The result's arrays with a leading instance axis (all but the wall time)."""
-  return jax.tree.leaves(result.replace(wall_time_s=None))
 
 
 @functools.lru_cache(maxsize=None)
@@ -147,16 +140,13 @@ def test_unreachable_goal_empties_open(problem, base_result):
   assert res.expanded[i] == reachable
 
 
-def test_replay_reproduces_path_states(problem, config, search, base_result):
+def test_replay_reproduces_path_states(problem, search, base_result):
   # The run replaced the state of some open node by a cheaper one found later (its dummy
   # edges: one per new node and one per improvement), so replay covers that case too.
   state = search.run(search.init(problem.nodes, problem.keys))
-  if config.loop == 'split':  # the flat heaps' size counts every push
-    dummy_pushes = np.asarray(state.dummy_heap.size) - 1
-    np.testing.assert_array_equal(state.heap.size, BASE.num_actions * np.asarray(state.expanded))
-  else:
-    dummy_pushes = (np.asarray(state.heap.size) - 1
-                    - BASE.num_actions * np.asarray(state.expanded))
+  dummy_pushes = np.asarray(state.dummy_heap.size) - 1  # a heap's size counts every push
+  np.testing.assert_array_equal(state.edge_heap.size,
+                                BASE.num_actions * np.asarray(state.expanded))
   improvements = dummy_pushes - (np.asarray(state.pool.size) - 1)
   assert improvements.sum() > 0
   for i in range(NUM_FOUND + 1):  # the goal paths and the unreachable goal's best-state path
@@ -169,8 +159,7 @@ def test_batch_equals_one_by_one(problem, config, search, base_result):
   for i in (0, 3, NUM_FOUND):
     nodes, keys = problem.subset(i)
     single = plan(problem.env, problem.actor_critic, nodes, config, keys, search=search)
-    for got, want in zip(_leaves(single), _leaves(base_result)):
-      np.testing.assert_array_equal(np.asarray(got)[0], np.asarray(want)[i])
+    assert_results_equal(single, take(base_result, i))
 
 
 def test_anytime_chunks_equal_one_run(problem, search, base_result):
@@ -183,8 +172,7 @@ def test_anytime_chunks_equal_one_run(problem, search, base_result):
     if not bool(jnp.any(state.active)):
       break
   chunked = search.result(state)
-  for got, want in zip(_leaves(chunked), _leaves(base_result)):
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+  assert_results_equal(chunked, base_result)
   # Mid-run (8 iterations): unfinished instances return a replayable path to an open node.
   running = partial.stop_reason == StopReason.RUNNING
   assert running[:NUM_FOUND - 1].all()
@@ -209,11 +197,9 @@ def test_time_limit_returns_best_open_paths(problem, config, search):
     np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
 
 
-@pytest.mark.parametrize('kind,weight,loop', [('segmented', 2.0, 'split'),
-                                              ('blocked', 1.5, 'split'),
-                                              ('segmented', 2.0, 'mixed')])
-def test_weighted_within_bound(problem, kind, weight, loop):
-  config = dataclasses.replace(BASE, heap_kind=kind, weight=weight, segment_size=16, loop=loop)
+@pytest.mark.parametrize('weight', [1.5, 2.0])
+def test_weighted_within_bound(problem, weight):
+  config = dataclasses.replace(BASE, weight=weight)
   res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
   reachable = np.isfinite(problem.optimal)
   np.testing.assert_array_equal(np.asarray(res.found), reachable)
@@ -225,9 +211,8 @@ def test_weighted_within_bound(problem, kind, weight, loop):
     np.testing.assert_allclose(replayed, cost[i], rtol=1e-6)
 
 
-@pytest.mark.parametrize('loop', LOOPS)
-def test_pop_many_finds_paths_with_correct_cost(problem, loop):
-  config = dataclasses.replace(BASE, heap_kind='blocked', pop_size=6, loop=loop)
+def test_pop_many_finds_paths_with_correct_cost(problem):
+  config = dataclasses.replace(BASE, pop_size=6)
   res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
   reachable = np.isfinite(problem.optimal)
   np.testing.assert_array_equal(np.asarray(res.found), reachable)
@@ -240,10 +225,8 @@ def test_pop_many_finds_paths_with_correct_cost(problem, loop):
     assert bool(problem.env.is_goal(node)[0])
 
 
-@pytest.mark.parametrize('loop', LOOPS)
-def test_tiny_budget_stops_on_budget(problem, loop):
-  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6, heap_kind='segmented',
-                               loop=loop)
+def test_tiny_budget_stops_on_budget(problem):
+  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6)
   res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
   hit = res.stop_reason == StopReason.BUDGET
   assert hit[:NUM_FOUND - 1].all()
@@ -271,60 +254,47 @@ def test_tiny_heap_stops_on_capacity(problem):
   assert (res.evaluated[hit] <= 20).all() and not res.found[hit].any()
 
 
-@pytest.mark.parametrize('loop', LOOPS)
-def test_iteration_limit(problem, loop):
-  config = dataclasses.replace(BASE, max_iterations=3, loop=loop)
+def test_iteration_limit(problem):
+  config = dataclasses.replace(BASE, max_iterations=3)
   res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
   running = slice(0, NUM_FOUND - 1)
   np.testing.assert_array_equal(res.stop_reason[running], StopReason.ITERATIONS)
   np.testing.assert_array_equal(res.iterations[running], 3)
-  if loop == 'mixed':
-    # K = 1: the first iteration expands the start, the others evaluate or expand one edge.
-    np.testing.assert_array_equal((res.evaluated + res.expanded)[running], 3)
-  else:
-    # Each iteration evaluates one edge (R is never empty), after expanding at most one node.
-    np.testing.assert_array_equal(res.evaluated[running], 3)
-    assert ((res.expanded[running] >= 1) & (res.expanded[running] <= 3)).all()
-    np.testing.assert_allclose(res.lane_utilization[running], 1.0)
+  # Each iteration evaluates one edge (R is never empty), after expanding at most one node.
+  np.testing.assert_array_equal(res.evaluated[running], 3)
+  assert ((res.expanded[running] >= 1) & (res.expanded[running] <= 3)).all()
+  np.testing.assert_allclose(res.lane_utilization[running], 1.0)
 
 
-LANES = dataclasses.replace(BASE, pop_size=8, heap_kind='segmented')
+LANES = dataclasses.replace(BASE, pop_size=8)
 
 
 @pytest.fixture(scope='module')
-def lane_searches(problem):
-  """Searches with K = 8 per loop mode (sharing their compiled functions between tests)."""
-  return {loop: make_search(problem.env, problem.actor_critic,
-                            dataclasses.replace(LANES, loop=loop)) for loop in LOOPS}
+def lane_search(problem):
+  return make_search(problem.env, problem.actor_critic, LANES)
 
 
-def test_split_fills_more_lanes_than_mixed(problem, lane_searches):
-  out = {}
-  for loop, search in lane_searches.items():
-    out[loop] = _np(search.result(search.run(search.init(problem.nodes, problem.keys))))
-    np.testing.assert_array_equal(out[loop].found, np.isfinite(problem.optimal))
-    lanes = LANES.pop_size * out[loop].iterations
-    np.testing.assert_allclose(out[loop].lane_utilization,
-                               np.where(lanes > 0, out[loop].evaluated / np.maximum(lanes, 1), 0))
+def test_lanes_idle_only_in_the_last_iteration(problem, lane_search):
+  out = _np(lane_search.result(lane_search.run(lane_search.init(problem.nodes, problem.keys))))
+  np.testing.assert_array_equal(out.found, np.isfinite(problem.optimal))
+  lanes = LANES.pop_size * out.iterations
+  np.testing.assert_allclose(out.lane_utilization,
+                             np.where(lanes > 0, out.evaluated / np.maximum(lanes, 1), 0))
   searched = np.arange(len(problem.optimal)) != NUM_FOUND - 1  # all but start == goal
-  split, mixed = out['split'].lane_utilization, out['mixed'].lane_utilization
-  assert (split[searched] > mixed[searched]).all(), (split, mixed)
   # Here the lanes idle only in the last iteration (goal popped or OPEN empty).
-  np.testing.assert_array_equal(out['split'].evaluated[searched],
-                                LANES.pop_size * (out['split'].iterations[searched] - 1))
-  # The goal dummy edges wait for fewer real-edge pops: fewer iterations.
-  assert (out['split'].iterations[searched] < out['mixed'].iterations[searched]).all()
+  np.testing.assert_array_equal(out.evaluated[searched],
+                                LANES.pop_size * (out.iterations[searched] - 1))
 
 
-def test_split_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_searches):
+def test_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_search):
   # Every iteration evaluates min(K, edges in R after the expansion phase) edges, and none in
   # the iteration that pops a goal.
   k, n = LANES.pop_size, LANES.num_actions
-  search = lane_searches['split']
+  search = lane_search
   state = search.init(problem.nodes, problem.keys)
   full = 0
   while bool(jnp.any(state.active)):
-    before = _np((state.active, state.evaluated, state.expanded, heap_lib.size(state.heap)))
+    before = _np((state.active, state.evaluated, state.expanded, state.edge_heap.count))
     state = search.run_chunk(state, jnp.int32(1))
     active, evaluated, expanded, r_size = before
     found = active & (np.asarray(state.stop_reason) == StopReason.GOAL)
@@ -335,16 +305,15 @@ def test_split_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_searche
     np.testing.assert_array_equal(delta[~active], 0)
     full += int(np.sum(active & (delta == k)))
   assert full >= 100  # the pocket instance alone runs > 100 full iterations
-  assert not np.asarray(state.heap.overflow + state.dummy_heap.overflow).any()
+  assert not np.asarray(state.edge_heap.overflow + state.dummy_heap.overflow).any()
 
 
 @pytest.mark.parametrize('changes,match', [
     (dict(max_evaluations=0), 'max_evaluations'), (dict(pop_size=0), 'pop_size'),
     (dict(num_actions=0), 'num_actions'), (dict(weight=-1.0), 'weight'),
-    (dict(weight=float('nan')), 'weight'), (dict(heap_kind='pairing'), 'heap_kind'),
+    (dict(weight=float('nan')), 'weight'),
     (dict(table_capacity=100), 'power of two'), (dict(lattice_resolution=(1.0, 0.0)), 'lattice'),
-    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations'),
-    (dict(loop='both'), 'loop')])
+    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations')])
 def test_config_validation(changes, match):
   with pytest.raises(ValueError, match=match):
     dataclasses.replace(BASE, **changes)
@@ -391,8 +360,7 @@ def test_stand_in_critic_is_exact_on_free_moves(problem):
 def test_coarse_lattice_merges_states_and_paths_replay(problem):
   # 2 x 2 grid cells share a lattice cell, so at most (SIZE / 2)^2 nodes exist; most moves
   # land in an already closed lattice cell and are dropped.
-  config = dataclasses.replace(BASE, lattice_resolution=(2.0, 2.0), pop_size=2,
-                               heap_kind='segmented')
+  config = dataclasses.replace(BASE, lattice_resolution=(2.0, 2.0), pop_size=2)
   res = plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys)
   out = _np(res)
   assert (out.generated <= (SIZE // 2) ** 2).all()

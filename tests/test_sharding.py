@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import assert_results_equal, result_leaves
 from pachs_jax.search import SearchConfig, make_search, plan
 from pachs_jax.search import sharding
 
@@ -37,8 +38,7 @@ SETUP = textwrap.dedent('''
     STARTS = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
     GOALS = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])  # the last: start == goal
     NODES = ENV.node(STARTS, GOALS)
-    CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400,
-                          heap_kind='flat')
+    CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400)
 
     from pachs_jax.search import baselines as bl
     from pachs_jax.search import sharding
@@ -110,10 +110,6 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
 ''')
 
 
-def _leaves(result):
-  return [np.asarray(x) for x in jax.tree.leaves(result.replace(wall_time_s=None))]
-
-
 @pytest.fixture(scope='module')
 def four_devices():
   """stdout of the 4-device script (run once for the module)."""
@@ -141,11 +137,10 @@ def test_default_mesh_equals_plan(search):
   got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, search=search)
   assert np.asarray(want.found).sum() >= 4  # most instances finish with real paths
   assert (np.asarray(want.path_length) > 0).sum() >= 4
-  for w, g in zip(_leaves(want), _leaves(got)):
-    np.testing.assert_array_equal(g, w)
+  assert_results_equal(got, want)
   # The keys matter (so equal results also check that each instance got its own key).
   other = plan(ENV, AC, NODES, CONFIG, jax.random.PRNGKey(8), search=search)
-  assert any(not np.array_equal(w, o) for w, o in zip(_leaves(want), _leaves(other)))
+  assert any(not np.array_equal(w, o) for w, o in zip(result_leaves(want), result_leaves(other)))
   assert got.found.shape == (NODES.qpos.shape[0],)
   assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
 
@@ -163,16 +158,14 @@ def test_baseline_default_mesh_equals_unsharded(baselines, name):
   got = sharding.plan_sharded_fn(shard_fn, NODES, key)
   assert got.found.shape == (NODES.qpos.shape[0],)
   assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
-  for w, g in zip(_leaves(want), _leaves(got)):
-    np.testing.assert_array_equal(g, w)
+  assert_results_equal(got, want)
   if name in ('rollout', 'beam'):  # random proposals: each instance must get its own key
     other = unsharded(NODES, jax.random.PRNGKey(6))
-    assert any(not np.array_equal(w, o) for w, o in zip(_leaves(want), _leaves(other)))
+    assert any(not np.array_equal(w, o) for w, o in zip(result_leaves(want), result_leaves(other)))
   # per-instance keys [I, 2] are taken as they are
   keys = jax.random.split(key, NODES.qpos.shape[0])
   again = sharding.plan_sharded_fn(shard_fn, NODES, keys)
-  for w, g in zip(_leaves(want), _leaves(again)):
-    np.testing.assert_array_equal(g, w)
+  assert_results_equal(again, want)
 
 
 def test_initialize_multihost_needs_a_job(monkeypatch):
@@ -203,8 +196,7 @@ def test_bad_input_raises(search):
   with pytest.raises(ValueError, match='keys'):
     sharding.plan_sharded(ENV, AC, NODES, CONFIG, jnp.zeros((4, 2), jnp.uint32), search=search)
   with pytest.raises(ValueError, match='another config'):
-    other = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=400,
-                         heap_kind='flat')
+    other = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=400)
     sharding.plan_sharded(ENV, AC, NODES, other, key, search=search)
 
 

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import pad_rows
 
 from pachs_jax.envs import ik, panda, shelf
 
@@ -49,29 +50,21 @@ def _batch(node):
   return jax.tree.map(lambda x: x[None], node)
 
 
-def _pad(tree, rows):
-  """The batch padded to `rows` rows by repeating its first row."""
-  def pad(x):
-    x = jnp.asarray(x)
-    return jnp.concatenate([x, jnp.repeat(x[:1], rows - x.shape[0], axis=0)])
-  return jax.tree.map(pad, tree)
-
-
 def _evaluate(fns, nodes, actions):
   b = actions.shape[0]
-  out = fns['evaluate'](_pad(nodes, PAD), _pad(jnp.asarray(actions, jnp.float32), PAD))
+  out = fns['evaluate'](pad_rows(nodes, PAD), pad_rows(jnp.asarray(actions, jnp.float32), PAD))
   return jax.tree.map(lambda x: x[:b], out)
 
 
 def _observe(fns, nodes):
   b = nodes.qpos.shape[0]
-  return fns['observe'](_pad(nodes, PAD))[:b]
+  return fns['observe'](pad_rows(nodes, PAD))[:b]
 
 
 def _geometry(fns, qs):
   """(tips [B, 3], per-geom distances [B, G]) of configurations qs [B, 7]."""
   b = qs.shape[0]
-  tips, dists = fns['geometry'](_pad(jnp.asarray(qs, jnp.float32), GEOMETRY_PAD))
+  tips, dists = fns['geometry'](pad_rows(jnp.asarray(qs, jnp.float32), GEOMETRY_PAD))
   return np.asarray(tips[:b]), np.asarray(dists[:b])
 
 

@@ -1,10 +1,5 @@
-"""The one environment interface shared by SAC training and the search.
-
-Training uses the Brax-style half (`reset`, `step`, `State`); the search uses only the
-search half (`initial_nodes`, `evaluate`, `observe`, `lattice_key`, `is_goal`) on compact
-`NodeState`s. `step` is implemented *through* `evaluate` on the compact node state, so a node
-restored from a training state and stepped reproduces the training transition bit for bit.
-"""
+"""The environment interface shared by SAC training (Brax-style `reset`, `step`, `State`) and
+the search (batched `evaluate`, `observe`, `lattice_key`, `is_goal` on compact `NodeState`s)."""
 
 from __future__ import annotations
 
@@ -73,7 +68,11 @@ class State:
 
 
 class Env(abc.ABC):
-  """A task with a training interface and a search interface over the same transition."""
+  """A task with a training interface and a search interface over the same transition.
+
+  `step` goes through `transition` on the compact node state, so a node restored from a
+  training state and stepped reproduces the training transition bit for bit.
+  """
 
   name: str
   episode_length: int
@@ -134,6 +133,7 @@ class Env(abc.ABC):
 
   @property
   def observation_size(self) -> int:
+    """Length O of `observation` (traced, not computed)."""
     node = jax.eval_shape(self.sample_instance, jax.random.PRNGKey(0))
     return int(jax.eval_shape(self.observation, node).shape[-1])
 

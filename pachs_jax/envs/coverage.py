@@ -1,13 +1,6 @@
-"""PushT success measure: the fraction of the goal T's area that the T covers.
-
-As in ManiSkill's PushT-v1, both shapes are rasterised on a 64 x 64 grid of cells spanning
-+-0.15 m around the goal, in the goal's frame. A cell belongs to a shape when its centre lies
-inside it; coverage = #(goal cells inside the T) / #(goal cells). Only the goal's own cells can
-count, so the grid is reduced once, at import, to the centres of the goal T's cells (a constant);
-per pose the work is one point-in-T test per goal cell.
-
-Poses are (x, y, yaw) in metres / radians; yaw turns the T frame counter-clockwise about world z.
-"""
+"""PushT success measure: the fraction of the goal T's area that the T covers, rasterised on a
+64 x 64 grid over +-0.15 m in the goal frame (ManiSkill's PushT-v1). Poses are x, y (m) and
+yaw (rad), which turns the T frame counter-clockwise about world z."""
 
 from __future__ import annotations
 
@@ -46,7 +39,6 @@ GRID_HALF_EXTENT = 0.15  # m, the grid spans [-0.15, 0.15]^2 in the goal frame
 GRID_CELL = 2.0 * GRID_HALF_EXTENT / GRID_SIZE  # m, side of one cell
 
 SUCCESS_THRESHOLD = 0.9  # coverage needed for success
-success_threshold = SUCCESS_THRESHOLD  # the lower-case name used in the design notes
 
 
 def _points_in_boxes(points: np.ndarray | jax.Array, xp=jnp):
@@ -58,7 +50,7 @@ def _points_in_boxes(points: np.ndarray | jax.Array, xp=jnp):
   return xp.any(inside_x & inside_y, axis=-1)
 
 
-def grid_cell_centres() -> np.ndarray:
+def _grid_cell_centres() -> np.ndarray:
   """[GRID_SIZE, GRID_SIZE, 2] float32 cell centres in the goal frame (m); [i, j] is (x_i, y_j)."""
   axis = -GRID_HALF_EXTENT + (np.arange(GRID_SIZE) + 0.5) * GRID_CELL
   gx, gy = np.meshgrid(axis, axis, indexing='ij')
@@ -67,10 +59,10 @@ def grid_cell_centres() -> np.ndarray:
 
 def goal_mask() -> np.ndarray:
   """[GRID_SIZE, GRID_SIZE] bool: the cells whose centre lies inside the goal T."""
-  return _points_in_boxes(grid_cell_centres(), xp=np)
+  return _points_in_boxes(_grid_cell_centres(), xp=np)
 
 
-GOAL_CELLS = grid_cell_centres()[goal_mask()]  # [P, 2] goal-frame centres of the goal T's cells
+GOAL_CELLS = _grid_cell_centres()[goal_mask()]  # [P, 2] goal-frame centres of the goal T's cells
 GOAL_CELL_COUNT = int(GOAL_CELLS.shape[0])  # P (740 for this T and grid)
 
 
@@ -105,7 +97,9 @@ def _check_poses(t_pose, goal_pose) -> tuple[jax.Array, jax.Array]:
 def coverage(t_pose: jax.Array, goal_pose: jax.Array) -> jax.Array:
   """[...] float32 area(T n goal T) / area(goal T), rasterised; t_pose, goal_pose [..., 3].
 
-  Leading axes broadcast. A non-finite pose gives 0.
+  A grid cell belongs to a shape when its centre lies inside it; the result is the fraction of
+  the goal T's cells (`GOAL_CELLS`) inside the T. Leading axes broadcast; a non-finite pose
+  gives 0.
   """
   t_pose, goal_pose = _check_poses(t_pose, goal_pose)
   # Pose of the goal frame in the T frame: a goal-frame point p maps to R(d) p + offset.

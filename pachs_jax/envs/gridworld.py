@@ -1,12 +1,5 @@
-"""A 2D grid world with obstacles: an analytic `Env` for testing the search, and a stand-in
-actor-critic whose critic is exact up to a consistent heuristic.
-
-A node's qpos [2] holds the cell (row, column) as floats; goal [2] the goal cell; the other
-NodeState fields are zero arrays of size 1 and t counts moves. The action in [-1, 1]^2 is
-rounded to a move: with 8 moves each coordinate becomes -1, 0 or 1 (|a| >= 0.5 counts); with
-4 moves only the larger coordinate moves (ties: the row). The zero move, moves leaving the
-grid and moves into an obstacle are invalid. Cost is the move's length (1 or sqrt(2)).
-"""
+"""A 2D grid world with obstacles, an analytic `Env` for testing the search, and a stand-in
+actor-critic whose critic is exact up to a consistent heuristic."""
 
 from __future__ import annotations
 
@@ -48,7 +41,14 @@ def shortest_path_cost(obstacles, start, goal, moves=MOVES_8) -> float:
 
 
 class GridWorld(base.Env):
-  """Grid world on obstacles [H, W] bool (True = blocked), 4- or 8-connected."""
+  """Grid world on obstacles [H, W] bool (True = blocked), 4- or 8-connected.
+
+  A node's qpos [2] holds the cell (row, column) as floats; goal [2] the goal cell; the other
+  NodeState fields are zero arrays of size 1 and t counts moves. The action in [-1, 1]^2 is
+  rounded to a move: with 8 moves each coordinate becomes -1, 0 or 1 (|a| >= 0.5 counts); with
+  4 moves only the larger coordinate moves (ties: the row). The zero move, moves leaving the
+  grid and moves into an obstacle are invalid. Cost is the move's length (1 or sqrt(2)).
+  """
 
   goal_size = 2
 
@@ -139,11 +139,13 @@ class GridActorCritic:
     self.env = env
 
   def sample_actions(self, key: jax.Array, obs: jax.Array, num: int) -> jax.Array:
+    """[..., num, 2] the moves in their fixed order for obs [..., 4] (key unused)."""
     del key
     moves = jnp.asarray(self.env.moves)[jnp.arange(num) % len(self.env.moves)]
     return jnp.broadcast_to(moves, obs.shape[:-1] + (num, 2))
 
   def heuristic(self, cell: jax.Array, goal: jax.Array) -> jax.Array:
+    """[...] octile (8 moves) or Manhattan (4 moves) distance of cell [..., 2] to goal [..., 2]."""
     d = jnp.abs(cell - goal)
     if self.env.connectivity == 4:
       return d[..., 0] + d[..., 1]
@@ -151,6 +153,7 @@ class GridActorCritic:
     return hi + (math.sqrt(2.0) - 1.0) * lo
 
   def q_values(self, obs: jax.Array, actions: jax.Array) -> jax.Array:
+    """[..., num] -(move cost + heuristic of the successor) of actions [..., num, 2]."""
     step = self.env.move(actions)
     cell, goal = obs[..., None, :2], obs[..., None, 2:]
     cost = jnp.sqrt(jnp.sum(step * step, axis=-1))

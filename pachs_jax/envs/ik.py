@@ -1,13 +1,5 @@
-"""Inverse kinematics of a site position on the host (MuJoCo C, numpy) and reachable targets.
-
-Damped least squares: dq = J^T (J J^T + lambda^2 I)^-1 e on the stacked residual of the site's
-position (m) and, optionally, the alignment of the site's z axis (the approach direction of the
-hand) with a wanted direction (weighted, as a soft secondary task), clipped to the joint limits
-after every step. Collision clearance is measured with `mujoco.mj_geomDistance` over the
-model's explicit contact pairs, which also drive a collision-avoidance task (pairs closer than
-an activation distance are pushed apart). Everything here is deterministic for a given seed and
-runs once per target set, off the hot path.
-"""
+"""Inverse kinematics of a site position (MuJoCo C, damped least squares, with collision
+clearance) and sets of IK-reachable targets; method: docs/shelf_model.md."""
 
 from __future__ import annotations
 
@@ -16,13 +8,13 @@ from typing import Optional, Tuple
 import mujoco
 import numpy as np
 
-APPROACH_X = np.array([1.0, 0.0, 0.0])  # the hand pointing into the shelf (+x)
+_APPROACH_X = np.array([1.0, 0.0, 0.0])  # the hand pointing into the shelf (+x)
 
 
-def site_ik(model: mujoco.MjModel, data: mujoco.MjData, site: int, target: np.ndarray,
-            q0: np.ndarray, approach: Optional[np.ndarray] = None, approach_weight: float = 0.3,
-            clearance: Optional[float] = None, iterations: int = 150, damping: float = 0.05,
-            max_step: float = 0.2, tolerance: float = 1e-3) -> Tuple[np.ndarray, float, float]:
+def _site_ik(model: mujoco.MjModel, data: mujoco.MjData, site: int, target: np.ndarray,
+             q0: np.ndarray, approach: Optional[np.ndarray] = None, approach_weight: float = 0.3,
+             clearance: Optional[float] = None, iterations: int = 150, damping: float = 0.05,
+             max_step: float = 0.2, tolerance: float = 1e-3) -> Tuple[np.ndarray, float, float]:
   """(configuration [nq], position error (m), pair clearance (m)) putting `site` at target [3].
 
   q0 [nq]: the start (the model's joints: all hinges, all limited). approach [3] or None: a
@@ -67,7 +59,7 @@ def site_ik(model: mujoco.MjModel, data: mujoco.MjData, site: int, target: np.nd
   data.qpos[:] = q
   mujoco.mj_kinematics(model, data)
   err = float(np.linalg.norm(target - data.site_xpos[site]))
-  gap = np.inf if clearance is None else pair_clearance(model, data, q, clearance + 0.03)
+  gap = np.inf if clearance is None else _pair_clearance(model, data, q, clearance + 0.03)
   return q, err, gap
 
 
@@ -103,8 +95,8 @@ def _avoidance(model: mujoco.MjModel, data: mujoco.MjData, activation: float):
   return gap, rows, residuals
 
 
-def pair_clearance(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray,
-                   distmax: float = 1.0) -> float:
+def _pair_clearance(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray,
+                    distmax: float = 1.0) -> float:
   """Smallest signed distance (m) over the model's contact pairs at configuration q [nq],
   capped at distmax."""
   data.qpos[:] = q
@@ -116,18 +108,18 @@ def pair_clearance(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray,
   return best
 
 
-def solve_reachable(model: mujoco.MjModel, data: mujoco.MjData, site: int, target: np.ndarray,
-                    starts: list, clearance: float,
-                    tolerance: float = 1e-3) -> Optional[np.ndarray]:
+def _solve_reachable(model: mujoco.MjModel, data: mujoco.MjData, site: int, target: np.ndarray,
+                     starts: list, clearance: float,
+                     tolerance: float = 1e-3) -> Optional[np.ndarray]:
   """A configuration [nq] with the site on target and pair clearance >= `clearance`, or None.
 
   Tries each start [nq] in order, first without an orientation preference and then with the
   hand approaching along +x.
   """
   for q0 in starts:
-    for approach in (None, APPROACH_X):
-      q, err, gap = site_ik(model, data, site, target, q0, approach=approach,
-                            clearance=clearance)
+    for approach in (None, _APPROACH_X):
+      q, err, gap = _site_ik(model, data, site, target, q0, approach=approach,
+                             clearance=clearance)
       if err < tolerance and gap >= clearance:
         return q
   return None
@@ -138,7 +130,7 @@ def reachable_targets(model: mujoco.MjModel, regions: np.ndarray, num: int, seed
                       neighbours: int = 2, max_tries: int = 50) -> Tuple[np.ndarray, np.ndarray]:
   """(targets [num, 3], configurations [num, nq]) drawn in regions [R, 2, 3] (m), fixed by seed.
 
-  A target is drawn uniformly in a uniformly chosen region and kept when `solve_reachable`
+  A target is drawn uniformly in a uniformly chosen region and kept when `_solve_reachable`
   finds a configuration for it from these starts: home turned towards the target (joint 1),
   home, the solutions of the `neighbours` nearest targets kept so far, and `restarts` uniform
   random configurations. Raises ValueError when `max_tries * num` draws do not suffice.
@@ -161,7 +153,7 @@ def reachable_targets(model: mujoco.MjModel, regions: np.ndarray, num: int, seed
       near = np.argsort(np.linalg.norm(np.array(targets) - target, axis=1))[:neighbours]
       starts += [configs[i] for i in near]
     starts += [rng.uniform(lower, upper) for _ in range(restarts)]
-    q = solve_reachable(model, data, site_id, target, starts, clearance)
+    q = _solve_reachable(model, data, site_id, target, starts, clearance)
     if q is not None:
       targets.append(target)
       configs.append(q)

@@ -1,23 +1,5 @@
-"""MuJoCo C (float64, CPU threads) for PushT: state conversion, a search backend and a world.
-
-- Conversion between the compact `NodeState` (float32) and MuJoCo C state (float64): one node
-  to / from an `MjData`, and batches to / from the full-physics state vectors
-  (`mjSTATE_FULLPHYSICS`) and warm starts that `mujoco.rollout` takes.
-- `MujocoCEnv`: a `base.Env` wrapping a `PushTEnv` whose `evaluate` runs the physics of a batch of
-  edges in MuJoCo C on all CPU threads (one persistent `mujoco.rollout.Rollout`, reached through
-  `jax.pure_callback`, so it works under jit and vmap) and scores the successors with the MJX
-  env's own JAX code (cost, success, validity). Everything else delegates to the wrapped env.
-- `World`: a float64 MjData for closed-loop execution, optionally with a perturbed model.
-
-Differences from the MJX transition: the physics is float64 (MJX float32; over one control step
-of a push the state agrees to about 1e-4 m / rad, see tests/test_mujoco_c.py); the successor's
-`qacc_warmstart` is the last physics step's finite-difference acceleration (qvel_n - qvel_n-1)
-/ dt, since `mujoco.rollout` does not return the solver's warm start (it is only the Newton
-solver's initial guess); the tip position (reach cost, observation, lattice) is MuJoCo C forward kinematics
-at the node's qpos (`MujocoCEnv.tip_position`; equal to the MJX env's `tip_position` to float32
-rounding), where the MJX transition's reach cost reads `site_xpos` of the start of the last
-physics step.
-"""
+"""MuJoCo C (float64, CPU threads) for PushT: NodeState <-> MuJoCo C state conversion, the
+`MujocoCEnv` search backend and a `World` for closed-loop execution; docs/pusht_model.md."""
 
 from __future__ import annotations
 
@@ -77,7 +59,7 @@ def _check_single(env: pusht.PushTEnv, node: base.NodeState) -> None:
 # ---- batches <-> full-physics state vectors ----
 
 @dataclasses.dataclass(frozen=True)
-class StateLayout:
+class _StateLayout:
   """Where qpos, qvel and time sit in a model's mjSTATE_FULLPHYSICS vector.
 
   size: entries per state vector; time, qpos, qvel: offsets; nq, nv: sizes.
@@ -93,7 +75,7 @@ class StateLayout:
   template: np.ndarray
 
 
-def state_layout(model: mujoco.MjModel) -> StateLayout:
+def _state_layout(model: mujoco.MjModel) -> _StateLayout:
   """The layout of the full-physics state: its components in increasing mjtState bit order."""
   offsets, offset = {}, 0
   for bit in range(int(mujoco.mjtState.mjNSTATE)):
@@ -108,11 +90,11 @@ def state_layout(model: mujoco.MjModel) -> StateLayout:
   template = np.zeros(size)
   mujoco.mj_getState(model, data, template, FULLPHYSICS)
   s = mujoco.mjtState
-  return StateLayout(size, offsets[int(s.mjSTATE_TIME)], offsets[int(s.mjSTATE_QPOS)],
+  return _StateLayout(size, offsets[int(s.mjSTATE_TIME)], offsets[int(s.mjSTATE_QPOS)],
                      offsets[int(s.mjSTATE_QVEL)], model.nq, model.nv, template)
 
 
-def nodes_to_states(layout: StateLayout, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+def _nodes_to_states(layout: _StateLayout, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
   """[B, size] float64 full-physics states (time 0) of qpos [B, nq] and qvel [B, nv]."""
   state = np.tile(layout.template, (qpos.shape[0], 1))
   state[:, layout.time] = 0.0
@@ -121,7 +103,7 @@ def nodes_to_states(layout: StateLayout, qpos: np.ndarray, qvel: np.ndarray) -> 
   return state
 
 
-def states_to_qpos_qvel(layout: StateLayout, state: np.ndarray) -> tuple:
+def _states_to_qpos_qvel(layout: _StateLayout, state: np.ndarray) -> tuple:
   """(qpos [..., nq], qvel [..., nv], time [...]) float64 of states [..., size]."""
   qpos = state[..., layout.qpos:layout.qpos + layout.nq]
   qvel = state[..., layout.qvel:layout.qvel + layout.nv]
@@ -130,11 +112,11 @@ def states_to_qpos_qvel(layout: StateLayout, state: np.ndarray) -> tuple:
 
 def batch_to_rollout(env: pusht.PushTEnv, nodes: base.NodeState) -> tuple:
   """(initial_state [B, size], initial_warmstart [B, nv], ctrl [B, nu]) float64 of nodes [B]."""
-  layout = state_layout(env.mj_model)
+  layout = _state_layout(env.mj_model)
   qpos = np.asarray(nodes.qpos, np.float64)
   if qpos.ndim != 2 or qpos.shape[1] != layout.nq:
     raise ValueError(f'nodes.qpos must have shape [B, {layout.nq}], got {qpos.shape}')
-  state = nodes_to_states(layout, qpos, np.asarray(nodes.qvel, np.float64))
+  state = _nodes_to_states(layout, qpos, np.asarray(nodes.qvel, np.float64))
   return (state, np.asarray(nodes.qacc_warmstart, np.float64),
           np.asarray(nodes.ctrl, np.float64))
 
@@ -142,8 +124,8 @@ def batch_to_rollout(env: pusht.PushTEnv, nodes: base.NodeState) -> tuple:
 def rollout_to_batch(env: pusht.PushTEnv, state: np.ndarray, warmstart: np.ndarray,
                      ctrl: np.ndarray, goal, t) -> base.NodeState:
   """Float32 nodes [B] of full-physics states [B, size], warm starts [B, nv], ctrl [B, nu]."""
-  layout = state_layout(env.mj_model)
-  qpos, qvel, _ = states_to_qpos_qvel(layout, np.asarray(state))
+  layout = _state_layout(env.mj_model)
+  qpos, qvel, _ = _states_to_qpos_qvel(layout, np.asarray(state))
   return base.NodeState(qpos=qpos.astype(np.float32), qvel=qvel.astype(np.float32),
                         ctrl=np.asarray(ctrl, np.float32),
                         qacc_warmstart=np.asarray(warmstart, np.float32),
@@ -158,7 +140,7 @@ class _Simulator:
   def __init__(self, model: mujoco.MjModel, substeps: int, nthread: int):
     self.model = model
     self.substeps = substeps
-    self.layout = state_layout(model)
+    self.layout = _state_layout(model)
     self.nthread = nthread
     self._runner = rollout.Rollout(nthread=nthread)
     self._datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
@@ -208,14 +190,14 @@ class _Simulator:
     out_warm = np.zeros((num, m.nv), np.float32)
     ok = np.zeros((num,), bool)
     if num:
-      state = nodes_to_states(lay, qpos, qvel)
+      state = _nodes_to_states(lay, qpos, qvel)
       if self._runner is None:
         raise RuntimeError('the MuJoCo C simulator was closed')
       with self._lock:
         traj, _ = self._runner.rollout([m] * num, self._datas[:max(self.nthread, 1)], state,
                                        ctrl[:, None, :], nstep=self.substeps,
                                        initial_warmstart=warm)
-      q, v, time = states_to_qpos_qvel(lay, traj)
+      q, v, time = _states_to_qpos_qvel(lay, traj)
       prev_v = v[:, -2] if self.substeps > 1 else qvel
       acc = (v[:, -1] - prev_v) / m.opt.timestep
       # mj_step resets the data (time back to 0) when the state diverges.

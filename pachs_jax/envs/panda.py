@@ -1,13 +1,5 @@
-"""A Franka Panda arm written from the public modified-DH table, as MJCF built in code.
-
-Frames follow Craig's modified DH convention: frame i = RotX(alpha_i) TransX(a_i) RotZ(q_i)
-TransZ(d_i) relative to frame i-1. Translation along z commutes with the rotation about z, so
-body i sits at `TransX(a_i) RotX(alpha_i) TransZ(d_i)` in its parent with a hinge about its own z
-axis. `d_7 = 0.107` folds the flange into link 7, so the flange is the origin of body 7 (site
-'flange'). Collision geometry is capsules, spheres and boxes only; no geom collides unless a task
-names it in an explicit contact pair (arm self-collision is off: the joint limits keep the links
-apart for the motions our tasks need).
-"""
+"""A Franka Panda arm written from the public modified-DH table, as MJCF built in code
+(conventions: docs/panda_arm.md)."""
 
 from __future__ import annotations
 
@@ -36,11 +28,7 @@ NUM_JOINTS = 7
 
 @dataclasses.dataclass(frozen=True)
 class ArmConfig:
-  """Actuation of the arm: position servos on every joint.
-
-  The gains place each joint's servo near 50 rad/s (kp = 50^2 I, kv = 80 I for an effective
-  joint inertia I incl. armature), so a 0.1 rad target offset is mostly reached within one
-  50 ms control step, and stay stable for physics steps up to about 15 ms.
+  """Actuation of the arm: position servos on every joint (gains: docs/panda_arm.md).
 
   kp: [7] position gains (N m / rad); kv: [7] velocity gains (N m s / rad).
   armature: [7] reflected rotor inertia (kg m^2); damping: [7] joint damping (N m s / rad).
@@ -52,7 +40,7 @@ class ArmConfig:
   damping: tuple = (0.5,) * 7
 
 
-def link_offset(i: int) -> tuple[np.ndarray, np.ndarray]:
+def _link_offset(i: int) -> tuple[np.ndarray, np.ndarray]:
   """Position [3] (m) and quaternion [4] (w, x, y, z) of body i+1 (0-based i) in its parent."""
   a, d, alpha = DH_A[i], DH_D[i], DH_ALPHA[i]
   pos = np.array([a, -np.sin(alpha) * d, np.cos(alpha) * d])
@@ -68,7 +56,7 @@ def _link_geoms(i: int, prefix: str) -> str:
   """Collision geoms of body i+1: a capsule to the next joint, or a sphere if it coincides."""
   r = LINK_RADIUS[i]
   if i + 1 < NUM_JOINTS:
-    nxt, _ = link_offset(i + 1)
+    nxt, _ = _link_offset(i + 1)
   else:
     nxt = np.zeros(3)
   geoms = [f'<geom name="{prefix}link{i + 1}_joint" type="sphere" size="{r}" class="arm"/>']
@@ -106,7 +94,7 @@ def arm_body_xml(end_effector: str = 'stick', base_pos=(0.0, 0.0, 0.0), prefix: 
            f'<geom name="{prefix}link0" type="capsule" size="0.07" fromto="0 0 0.05 0 0 0.25" '
            f'class="arm"/>']
   for i in range(NUM_JOINTS):
-    pos, quat = link_offset(i)
+    pos, quat = _link_offset(i)
     lo, hi = JOINT_LOWER[i], JOINT_UPPER[i]
     parts.append(f'<body name="{prefix}link{i + 1}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">')
     parts.append(f'<inertial pos="0 0 0" mass="{LINK_MASS[i]}" '

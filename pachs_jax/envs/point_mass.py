@@ -1,12 +1,4 @@
-"""Point mass: an analytic task for fast tests of training and search (no physics engine).
-
-A point in the plane moves by `step_size * action` per control step (clipped to the arena)
-toward a goal; start and goal are uniform in a smaller box. Cost per step (= -reward) is the
-distance to the goal after the move plus a small quadratic action cost; success is being within
-`success_radius` of the goal. A non-finite action is an invalid edge (the node does not move).
-The node state follows the MJX layout so that the search treats it like any other task:
-qpos = position [D], qvel, ctrl and qacc_warmstart = zeros [D], goal = goal position [D].
-"""
+"""Point mass: an analytic task for fast tests of training and search (no physics engine)."""
 
 from __future__ import annotations
 
@@ -51,7 +43,14 @@ class PointMassConfig:
 
 
 class PointMassEnv(base.Env):
-  """A point that moves toward a random goal; observation = [position, goal - position]."""
+  """A point that moves toward a random goal; observation = [position, goal - position].
+
+  The point moves by `step_size * action` per control step (clipped to the arena); start and
+  goal are uniform in a smaller box. Cost per step (= -reward): the distance to the goal after
+  the move plus a small quadratic action cost; success: within `success_radius` of the goal. A
+  non-finite action is an invalid edge (the node does not move). Node layout as in MJX:
+  qpos = position [D]; qvel, ctrl, qacc_warmstart = zeros [D]; goal = goal position [D].
+  """
 
   name = 'point-mass'
 

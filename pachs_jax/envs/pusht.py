@@ -1,20 +1,5 @@
-"""PushT-Fixed / -Rand / -Obs: a Panda with a stick pushes a T-shaped block to a goal pose.
-
-Model (after ManiSkill's PushT-v1; numbers in DESIGN.md). The table top is z = 0, the robot base
-sits at (-0.615, 0, 0). The T slides on the table: it has planar joints (slide x, slide y, hinge
-yaw) instead of a free joint, and the table's Coulomb friction is a joint friction loss equal to
-mu * m * g (torsion: times an effective radius). That removes all T-table contacts, the most
-expensive part of the scene in MJX, and makes the T pose three numbers. The arm has position
-servos and no gravity (the T, being planar, does not feel gravity either; a real Panda compensates
-its own), so the only contacts are the stick against the T, the table and the obstacles.
-
-Control: action in [-1, 1]^7 scaled to a 0.1 rad joint-position target offset from the current
-joint angles; `substeps` physics steps per control step (default 4 x 12.5 ms = 20 Hz control;
-DESIGN.md's 5 x 10 ms tracks the same, see experiments/bench_env.py).
-Cost per step (= -reward) is the sum of three non-negative terms of the next state: the T's
-angular distance to the goal (rad / pi), its position distance (m) and the stick tip's distance to
-the T (m), weighted by `PushTConfig`. Success: the T covers >= 90% of the goal T's area.
-"""
+"""PushT-Fixed / -Rand / -Obs: a Panda with a stick pushes a T-shaped block to a goal pose
+(model and its choices: docs/pusht_model.md)."""
 
 from __future__ import annotations
 
@@ -154,13 +139,40 @@ def _t_points_in_box(poses: np.ndarray, box_points: np.ndarray) -> np.ndarray:
   return np.any((wx >= lo[0]) & (wx <= hi[0]) & (wy >= lo[1]) & (wy <= hi[1]), axis=-1)
 
 
-def wrap_angle(a: jax.Array) -> jax.Array:
+def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.ndarray,
+                    qpos: np.ndarray | None = None) -> np.ndarray:
+  """[7] float64 action in [-1, 1] moving the stick tip towards tip_goal [3] (m, world frame).
+
+  One damped least-squares step on the tip's Jacobian towards a point at most 2 cm away per
+  axis. With `qpos` [10], data's kinematics are computed there first; without, data must hold
+  the kinematics of its own qpos (e.g. after mj_forward). A scripted pusher for demos and tests.
+  """
+  if qpos is not None:
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+  site = model.site('tip').id
+  jac = np.zeros((3, model.nv))
+  mujoco.mj_jacSite(model, data, jac, None, site)
+  jac = jac[:, :panda.NUM_JOINTS]
+  dx = np.clip(tip_goal - data.site_xpos[site], -0.02, 0.02)
+  dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(3), dx)
+  return np.clip(dq / ARM_ACTION_SCALE, -1.0, 1.0)
+
+
+def _wrap_angle(a: jax.Array) -> jax.Array:
   """Angle wrapped into [-pi, pi)."""
   return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
 
 
 class PushTEnv(base.Env):
-  """PushT on MJX. qpos = [7 arm joints, T x, T y, T yaw]; goal = [x, y, yaw]."""
+  """PushT on MJX. qpos = [7 arm joints (rad), T x, T y (m), T yaw (rad)]; goal = [x, y, yaw].
+
+  Action: [-1, 1]^7 scaled by ARM_ACTION_SCALE to a joint-position target offset from the
+  current joint angles, held for `substeps` physics steps. Cost per step (= -reward):
+  w_angle * |yaw error| / pi + w_position * position error (m) + w_reach * distance of the tip
+  from the T's centre beyond 5 cm (m). Success: `coverage.coverage` >= `success_coverage`.
+  """
 
   goal_size = 3
 
@@ -283,7 +295,7 @@ class PushTEnv(base.Env):
   def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
     c = self.config
     pose, goal = node.qpos[7:10], node.goal
-    angle = jnp.abs(wrap_angle(pose[2] - goal[2])) / jnp.pi
+    angle = jnp.abs(_wrap_angle(pose[2] - goal[2])) / jnp.pi
     position = jnp.linalg.norm(pose[:2] - goal[:2])
     reach = jnp.maximum(jnp.linalg.norm(tip_xy - pose[:2]) - 0.05, 0.0)
     return c.w_angle * angle + c.w_position * position + c.w_reach * reach

@@ -1,8 +1,5 @@
-"""Drawings of PushT runs (matplotlib, Agg canvas), GIFs (PIL) and MuJoCo offscreen frames.
-
-Figures are built as `matplotlib.figure.Figure` objects on an Agg canvas, without pyplot, so
-nothing here touches global plotting state or opens a window.
-"""
+"""Drawings of PushT runs (matplotlib figures on an Agg canvas, no pyplot), GIFs (PIL) and
+MuJoCo offscreen frames."""
 
 from __future__ import annotations
 

@@ -1,41 +1,5 @@
-"""Panda-Shelf: a collision-free reach into the compartments of a bookshelf (after panda-gym).
-
-The arm (base at the origin, Panda hand) stands in front of a bookshelf whose open front faces
-it. A task instance is a target point inside a compartment; the arm starts at a fixed home
-configuration. Edges are kinematic, with no dynamics: q' = q + `action_scale` * action, and the
-edge is valid when q' is within the joint limits and the arm is collision-free at `num_checks`
-evenly spaced configurations along the straight joint-space motion (q excluded, q' included).
-
-Collision geometry. The arm's collision geoms (`ShelfConfig.collision_geoms`: the capsules of
-links 2, 3, 4, 6 and the hand's three boxes) are paired with the shelf boxes by the model's
-explicit <contact><pair> elements. Pairs that can never touch are left out: a geom whose reach
-from the (fixed) shoulder point cannot get to a box has no pair with it. The other arm geoms
-are redundant: link0, link1 and the sphere of link2 do not move (they sit on joint 1's axis);
-the other joint spheres lie inside the end cap of the neighbouring link's capsule (same centre,
-radius no larger), so they are never closer to the shelf than that capsule.
-
-Distances are exact signed distances computed here from the geoms' poses. MJX's own convex
-collision functions report penetration only (a separated capsule-box pair reads 1.0), but the
-dense reward and the observation need separation distances below a margin. Capsule-box: the
-box's signed distance field is convex, so its minimum along the capsule's segment is found by
-golden-section search. Box-box: the separating axis test (15 axes) gives the sign and the
-penetration depth; when separated, the distance is the smallest of A's 12 edges against B and
-B's 8 corners against A, which is exact for boxes. The poses come from `ChainKinematics`, the
-model's own body chain composed in a few dozen array ops; `mjx.kinematics` gives the same
-poses (`ShelfConfig(kinematics='mjx')`) with thousands of ops, about 10 ms per configuration
-on a CPU.
-
-Search cost of an edge: the distance the tip (the 'tip' site between the fingers) travels,
-|tip(q') - tip(q)| in metres. Goal: the tip within `goal_tolerance` (0.05 m, panda-gym) of the
-target.
-
-Training reward (`ShelfEnv.step`, which overrides `Env.step`): the dense reward of DESIGN.md,
-  r = -|tip(q') - target| - clearance_weight * max(0, margin - d_min(q')) / margin,
-with d_min the arm's minimum distance to the shelf. It is *not* -cost of `transition` (the
-search's cost is path length). An invalid edge (collision, joint limit, non-finite input) ends
-the episode with r = -(invalid_horizon * |tip(q) - target| + invalid_penalty): at least what
-standing still for `invalid_horizon` steps would cost, so crashing never pays off.
-"""
+"""Panda-Shelf: a collision-free reach into the compartments of a bookshelf (after panda-gym),
+with kinematic edges and exact signed distances in JAX (model: docs/shelf_model.md)."""
 
 from __future__ import annotations
 
@@ -73,7 +37,8 @@ class ShelfConfig:
   `target_min_inset` behind the open front), kept if IK finds a configuration with the tip on
   it and every pair at least `ik_clearance` apart.
   Edges: q' = q + action_scale * action (rad), `num_checks` collision checks per edge.
-  Reward: `margin` (m) and `clearance_weight` shape the distance penalty; see module docstring.
+  Reward: `margin` (m) and `clearance_weight` shape the distance penalty (`dense_reward`);
+  an invalid edge ends the episode with -(invalid_horizon * |tip - target| + invalid_penalty).
   """
 
   front_x: float = 0.45
@@ -107,7 +72,7 @@ class ShelfConfig:
 # ---------------------------------------------------------------- shelf geometry (numpy)
 
 
-def shelf_boxes(config: ShelfConfig) -> Dict[str, Tuple[np.ndarray, np.ndarray]]:
+def _shelf_boxes(config: ShelfConfig) -> Dict[str, Tuple[np.ndarray, np.ndarray]]:
   """Axis-aligned boxes of the scene: name -> (centre [3], half extents [3]) in metres."""
   c, t = config, config.thickness
   if len(c.board_z) < 2 or any(b <= a for a, b in zip(c.board_z, c.board_z[1:])):
@@ -193,7 +158,7 @@ def _pairs(config: ShelfConfig, bare: mujoco.MjModel, boxes) -> list:
 
 def model_xml(config: ShelfConfig, with_pairs: bool = True) -> str:
   """MJCF of the arm (hand end effector, base at the origin) and the shelf boxes."""
-  boxes = shelf_boxes(config)
+  boxes = _shelf_boxes(config)
   geoms = ''.join(
       f'<geom name="shelf_{n}" type="box" pos="{c[0]:.6g} {c[1]:.6g} {c[2]:.6g}" '
       f'size="{h[0]:.6g} {h[1]:.6g} {h[2]:.6g}" class="shelf"/>' for n, (c, h) in boxes.items())
@@ -221,20 +186,20 @@ def model_xml(config: ShelfConfig, with_pairs: bool = True) -> str:
 # ---------------------------------------------------------------- signed distances (jax)
 
 
-def box_sdf(point: jax.Array, half: jax.Array) -> jax.Array:
+def _box_sdf(point: jax.Array, half: jax.Array) -> jax.Array:
   """[] signed distance (m) of a point [3] to an origin-centred axis-aligned box of half [3]."""
   q = jnp.abs(point) - half
   outside = jnp.sqrt(jnp.sum(jnp.square(jnp.maximum(q, 0.0))))
   return outside + jnp.minimum(jnp.max(q), 0.0)
 
 
-def segment_box_sdf(p0: jax.Array, p1: jax.Array, half: jax.Array,
-                    iterations: int = 24) -> jax.Array:
-  """[] min over the segment p0 [3] - p1 [3] of `box_sdf` (box frame); golden-section search.
+def _segment_box_sdf(p0: jax.Array, p1: jax.Array, half: jax.Array,
+                     iterations: int = 24) -> jax.Array:
+  """[] min over the segment p0 [3] - p1 [3] of `_box_sdf` (box frame); golden-section search.
 
   Exact up to 0.618**iterations of the segment's length: the SDF of a convex set is convex.
   """
-  f = lambda s: box_sdf(p0 + s * (p1 - p0), half)
+  f = lambda s: _box_sdf(p0 + s * (p1 - p0), half)
 
   def shrink(_, c):
     lo, hi, m1, m2, f1, f2 = c
@@ -251,8 +216,8 @@ def segment_box_sdf(p0: jax.Array, p1: jax.Array, half: jax.Array,
   return jnp.minimum(jnp.minimum(f1, f2), jnp.minimum(f(0.0), f(1.0)))
 
 
-def box_box_distance(centre: jax.Array, rot: jax.Array, half_a: jax.Array, half_b: jax.Array,
-                     iterations: int = 24) -> jax.Array:
+def _box_box_distance(centre: jax.Array, rot: jax.Array, half_a: jax.Array, half_b: jax.Array,
+                      iterations: int = 24) -> jax.Array:
   """[] signed distance (m) of box A (centre [3], rotation [3, 3] in B's frame, half_a [3]) to
   the origin-centred axis-aligned box B (half_b [3]); negative: penetration depth."""
   eye = jnp.eye(3, dtype=centre.dtype)
@@ -265,9 +230,9 @@ def box_box_distance(centre: jax.Array, rot: jax.Array, half_a: jax.Array, half_
   sep = (jnp.abs(u @ centre) - jnp.abs(u @ rot) @ half_a - jnp.abs(u) @ half_b)
   sat = jnp.max(jnp.where(ok, sep, -jnp.inf))
   ends = centre + (jnp.asarray(_EDGE_SIGNS) * half_a) @ rot.T  # [12, 2, 3] A's edges in B frame
-  edge = jax.vmap(lambda e: segment_box_sdf(e[0], e[1], half_b, iterations))(ends)
+  edge = jax.vmap(lambda e: _segment_box_sdf(e[0], e[1], half_b, iterations))(ends)
   corners_b = (jnp.asarray(_CORNER_SIGNS) * half_b - centre) @ rot  # B's corners in A's frame
-  corner = jax.vmap(lambda p: box_sdf(p, half_a))(corners_b)
+  corner = jax.vmap(lambda p: _box_sdf(p, half_a))(corners_b)
   return jnp.where(sat > 0.0, jnp.minimum(jnp.min(edge), jnp.min(corner)), sat)
 
 
@@ -286,9 +251,7 @@ class ChainKinematics:
   """Forward kinematics of an MjModel whose joints are all hinges, read from its arrays.
 
   The same composition as MuJoCo's: body = parent * (body_pos, body_quat), then each hinge
-  turns the body about its axis through its anchor by qpos - qpos0. About 40 small array ops
-  per configuration, against thousands in `mjx.kinematics` (which is kept as the 'mjx' option
-  of `ShelfConfig.kinematics`); tests check both against MuJoCo C.
+  turns the body about its axis through its anchor by qpos - qpos0.
   """
 
   def __init__(self, model: mujoco.MjModel):
@@ -344,7 +307,13 @@ def _axis_angle(axis: np.ndarray, angle: jax.Array) -> jax.Array:
 
 
 class ShelfEnv(base.Env):
-  """Panda-Shelf. qpos = 7 joint angles (rad); goal = target tip position [3] (m)."""
+  """Panda-Shelf. qpos = 7 joint angles (rad); goal = target tip position [3] (m).
+
+  Edge: q' = q + action_scale * action, valid within the joint limits and collision-free at
+  `num_checks` points of the straight joint-space motion; cost |tip(q') - tip(q)| (m); goal: the
+  tip within `goal_tolerance` of the target. `step` trains on the dense reward of
+  `dense_reward`, not on -cost (docs/shelf_model.md).
+  """
 
   goal_size = 3
 
@@ -358,7 +327,7 @@ class ShelfEnv(base.Env):
     self.config = config
     self.name = 'shelf'
     self.episode_length = config.episode_length
-    self.boxes = shelf_boxes(config)
+    self.boxes = _shelf_boxes(config)
     self.compartments = compartments(config)
     self.target_regions = target_regions(config)
     self.mj_model = mujoco.MjModel.from_xml_string(model_xml(config))
@@ -424,13 +393,13 @@ class ShelfEnv(base.Env):
       g, b = self.pair_geom[idx], self.pair_box[idx]
       pos = gpos[g] - centre[b]  # arm geom centre in the (axis-aligned) box frame
       if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        d = jax.vmap(box_sdf)(pos, half[b]) - size[g, 0]
+        d = jax.vmap(_box_sdf)(pos, half[b]) - size[g, 0]
       elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
         seg = gmat[g][:, :, 2] * size[g, 1:2]
-        d = jax.vmap(lambda p0, p1, h: segment_box_sdf(p0, p1, h, it))(
+        d = jax.vmap(lambda p0, p1, h: _segment_box_sdf(p0, p1, h, it))(
             pos - seg, pos + seg, half[b]) - size[g, 0]
       else:
-        d = jax.vmap(lambda c, r, ha, hb: box_box_distance(c, r, ha, hb, it))(
+        d = jax.vmap(lambda c, r, ha, hb: _box_box_distance(c, r, ha, hb, it))(
             pos, gmat[g], size[g], half[b])
       dists.append(d)
       owners.append(self.pair_geom[idx])

@@ -1,8 +1,5 @@
-"""The trained actor-critic as the search uses it: a pytree of parameters with pure functions.
-
-`ActorCritic` holds the parameters as pytree leaves and a hashable `ModelConfig` as static data,
-so it can be passed into a jitted function (no parameters baked in as constants) or closed over.
-"""
+"""The trained SAC actor-critic as the search uses it: parameters as pytree leaves, the
+hashable `ModelConfig` as static data, so it can be passed into a jitted function."""
 
 from __future__ import annotations
 
@@ -45,20 +42,8 @@ class ModelConfig:
     object.__setattr__(self, 'actor_hidden', tuple(int(h) for h in self.actor_hidden))
     object.__setattr__(self, 'critic_hidden', tuple(int(h) for h in self.critic_hidden))
 
-  def to_dict(self) -> Dict[str, Any]:
-    return {k: list(v) if isinstance(v, tuple) else v
-            for k, v in dataclasses.asdict(self).items()}
-
-  @classmethod
-  def from_dict(cls, values: Dict[str, Any]) -> 'ModelConfig':
-    known = {f.name for f in dataclasses.fields(cls)}
-    missing = sorted(f.name for f in dataclasses.fields(cls)
-                     if f.default is dataclasses.MISSING and f.name not in values)
-    if missing:
-      raise ValueError(f'model config lacks fields {missing}')
-    return cls(**{k: v for k, v in values.items() if k in known})
-
   def networks(self) -> sac_networks.SACNetworks:
+    """The pure network functions of this config."""
     return sac_networks.make_sac_networks(
         self.observation_size, self.action_size, self.actor_hidden, self.critic_hidden,
         self.activation, self.normalize_observations)
@@ -74,8 +59,8 @@ class ActorCriticParams:
 
 
 @struct.dataclass
-class ActorCritic:
-  """A trained tanh-Gaussian actor and twin critic.
+class SacActorCritic:
+  """A trained tanh-Gaussian actor and twin critic (implements `search.types.ActorCritic`).
 
   sample_actions(key, obs[B, O], num) -> [B, num, A] stochastic actions in [-1, 1].
   q_values(obs[B, O], actions[B, num, A]) -> [B, num] min of the twin critics in the

@@ -1,15 +1,5 @@
-"""Checkpoints (orbax): the exported actor-critic the search loads, and full training states.
-
-Actor-critic export, one directory:
-  actor_critic.json  {"format": FORMAT, "model": ModelConfig, "sac_config": ..., "env_steps": ...}
-  params/            orbax pytree {'normalizer': {'mean', 'std'}, 'policy': ..., 'q': ...}
-It holds what the search needs (actor, twin critic, observation statistics and the model
-config), not the target critic, optimiser states or replay buffer, so it stays small.
-
-Training checkpoints are an orbax CheckpointManager directory whose steps (numbered by epoch)
-hold the whole TrainingState plus a JSON of the run's config; orbax writes each step to a
-temporary directory and renames it when complete, so a killed run leaves only whole steps.
-"""
+"""Orbax checkpoints: the exported actor-critic the search loads, and full training states
+(layouts: docs/sac.md)."""
 
 from __future__ import annotations
 
@@ -24,7 +14,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from pachs_jax.envs import base
-from pachs_jax.sac.actor_critic import ActorCritic, ActorCriticParams, ModelConfig
+from pachs_jax.sac import config as config_lib
+from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
 
 FORMAT = 'pachs_jax.actor_critic/1'
 CONFIG_FILE = 'actor_critic.json'
@@ -39,14 +30,18 @@ def _uncommitted(tree: Any) -> Any:
 
 # ---------------------------------------------------------------- actor-critic export ----
 
-def _params_tree(actor_critic: ActorCritic) -> Dict[str, Any]:
+def _params_tree(actor_critic: SacActorCritic) -> Dict[str, Any]:
   p = actor_critic.params
   return {'normalizer': dict(p.normalizer), 'policy': p.policy, 'q': p.q}
 
 
-def save_actor_critic(path: str, actor_critic: ActorCritic,
+def save_actor_critic(path: str, actor_critic: SacActorCritic,
                       extra: Optional[Dict[str, Any]] = None) -> str:
-  """Writes the actor-critic to directory `path` (replaced atomically if it exists)."""
+  """Writes the actor-critic to directory `path` (replaced atomically if it exists).
+
+  path/actor_critic.json holds {'format', 'model': ModelConfig dict} plus `extra`; path/params
+  the orbax tree {'normalizer': {'mean', 'std'}, 'policy', 'q'}. Returns the absolute path.
+  """
   path = os.path.abspath(path)
   tmp = f'{path}.tmp-{os.getpid()}'
   shutil.rmtree(tmp, ignore_errors=True)
@@ -54,7 +49,7 @@ def save_actor_critic(path: str, actor_critic: ActorCritic,
   checkpointer = ocp.StandardCheckpointer()
   checkpointer.save(os.path.join(tmp, PARAMS_DIR), _params_tree(actor_critic))
   checkpointer.wait_until_finished()
-  meta = {'format': FORMAT, 'model': actor_critic.config.to_dict()}
+  meta = {'format': FORMAT, 'model': config_lib.config_to_dict(actor_critic.config)}
   meta.update(extra or {})
   with open(os.path.join(tmp, CONFIG_FILE), 'w') as f:
     json.dump(meta, f, indent=2)
@@ -66,7 +61,7 @@ def save_actor_critic(path: str, actor_critic: ActorCritic,
   return path
 
 
-def resolve_actor_critic_path(path: str) -> str:
+def _resolve_path(path: str) -> str:
   """The export directory at `path`, or inside a training run directory at `path`/model."""
   if not os.path.exists(path):
     raise ValueError(f'no actor-critic checkpoint: path {path!r} does not exist')
@@ -77,9 +72,9 @@ def resolve_actor_critic_path(path: str) -> str:
                    f'its {MODEL_SUBDIR}/ subdirectory)')
 
 
-def read_model_config(path: str) -> Tuple[ModelConfig, Dict[str, Any]]:
+def _read_model_config(path: str) -> Tuple[ModelConfig, Dict[str, Any]]:
   """(ModelConfig, whole metadata dict) of an actor-critic checkpoint."""
-  path = resolve_actor_critic_path(path)
+  path = _resolve_path(path)
   with open(os.path.join(path, CONFIG_FILE)) as f:
     try:
       meta = json.load(f)
@@ -88,7 +83,7 @@ def read_model_config(path: str) -> Tuple[ModelConfig, Dict[str, Any]]:
   if meta.get('format') != FORMAT:
     raise ValueError(f'{path!r}: unknown checkpoint format {meta.get("format")!r}, expected '
                      f'{FORMAT!r}')
-  return ModelConfig.from_dict(meta['model']), meta
+  return config_lib.config_from_dict(ModelConfig, meta['model'], ignore_unknown=True), meta
 
 
 def _expected_params(config: ModelConfig) -> Dict[str, Any]:
@@ -114,14 +109,14 @@ def _check_params(path: str, restored: Any, expected: Any) -> None:
 
 
 def load_actor_critic(path: str, env: Optional[base.Env] = None,
-                      task: Optional[str] = None) -> ActorCritic:
+                      task: Optional[str] = None) -> SacActorCritic:
   """Loads an exported actor-critic (or a run directory's latest export).
 
   With `env` (or `task`), checks that the checkpoint was trained on that task and, for `env`,
   that its observation and action sizes match; any mismatch raises ValueError.
   """
-  path = resolve_actor_critic_path(path)
-  config, _ = read_model_config(path)
+  path = _resolve_path(path)
+  config, _ = _read_model_config(path)
   want_task = env.name if env is not None else task
   if want_task is not None and config.task != want_task:
     raise ValueError(f'{path!r} was trained on task {config.task!r}, not {want_task!r}')
@@ -150,7 +145,7 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
   restored = jax.tree.map(lambda x, s: jnp.asarray(np.asarray(x), s.dtype), restored, expected)
   params = ActorCriticParams(normalizer=restored['normalizer'], policy=restored['policy'],
                              q=restored['q'])
-  return ActorCritic(params=params, config=config)
+  return SacActorCritic(params=params, config=config)
 
 
 # ------------------------------------------------------------------ training states ----
@@ -168,25 +163,23 @@ class TrainingCheckpoints:
                                              enable_async_checkpointing=False))
 
   def latest_epoch(self) -> Optional[int]:
+    """The newest complete epoch saved, or None."""
     return self._manager.latest_step()
 
   def save(self, epoch: int, state: Any, meta: Dict[str, Any]) -> None:
+    """Saves the state pytree and the JSON-ready meta dict as step `epoch` (blocking)."""
     self._manager.save(int(epoch), args=ocp.args.Composite(
         state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
     self._manager.wait_until_finished()
 
   def read_meta(self, epoch: int) -> Dict[str, Any]:
+    """The meta dict saved with `epoch`."""
     return self._manager.restore(
         int(epoch), args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
 
   def restore(self, epoch: int, like: Any) -> Any:
-    """The state saved at `epoch`, with the structure, dtypes and shapes of `like`.
-
-    The arrays come back uncommitted on the default device, like the outputs of the jitted
-    init/epoch functions: committed (explicitly placed) arguments would make jit lower a
-    different program (with sharding annotations), which on a GPU can round differently and
-    break bit-exact resumption.
-    """
+    """The state saved at `epoch`, with the structure, dtypes and shapes of `like`, as
+    uncommitted arrays on the default device (as the jitted functions return them)."""
     device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device),
                             like)

@@ -1,9 +1,37 @@
-"""SAC hyperparameters as one frozen dataclass, with JSON round trip and validation."""
+"""SAC hyperparameters as one validated frozen dataclass, and the JSON round trip of configs."""
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Dict, Tuple
+from typing import Any, Dict, Mapping, Tuple, Type, TypeVar
+
+_Config = TypeVar('_Config')
+
+
+def config_to_dict(config: Any) -> Dict[str, Any]:
+  """A JSON-ready dict of a frozen config dataclass's fields (tuples become lists)."""
+  return {k: list(v) if isinstance(v, tuple) else v
+          for k, v in dataclasses.asdict(config).items()}
+
+
+def config_from_dict(cls: Type[_Config], values: Mapping[str, Any],
+                     ignore_unknown: bool = False) -> _Config:
+  """The `cls` instance of a dict written by `config_to_dict`.
+
+  Raises ValueError for a missing field without default and, unless `ignore_unknown`, for a
+  key that is no field of `cls`.
+  """
+  fields = dataclasses.fields(cls)
+  known = {f.name for f in fields}
+  unknown = sorted(set(values) - known)
+  if unknown and not ignore_unknown:
+    raise ValueError(f'unknown {cls.__name__} fields {unknown}')
+  missing = sorted(f.name for f in fields if f.name not in values
+                   and f.default is dataclasses.MISSING
+                   and f.default_factory is dataclasses.MISSING)
+  if missing:
+    raise ValueError(f'{cls.__name__} lacks fields {missing}')
+  return cls(**{k: v for k, v in values.items() if k in known})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,20 +107,6 @@ class SACConfig:
       widths = getattr(self, name)
       if not widths or min(widths) < 1:
         raise ValueError(f'SACConfig.{name} must be non-empty positive widths, got {widths}')
-
-  def to_dict(self) -> Dict[str, Any]:
-    """A JSON-ready dict (tuples become lists)."""
-    return {k: list(v) if isinstance(v, tuple) else v
-            for k, v in dataclasses.asdict(self).items()}
-
-  @classmethod
-  def from_dict(cls, values: Dict[str, Any]) -> 'SACConfig':
-    """The config of a dict written by `to_dict`; unknown keys are an error."""
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-      raise ValueError(f'unknown SACConfig fields {unknown}')
-    return cls(**values)
 
   def differences(self, other: 'SACConfig') -> Dict[str, Tuple[Any, Any]]:
     """{field: (self value, other value)} of the fields that differ."""

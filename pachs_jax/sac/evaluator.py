@@ -1,9 +1,4 @@
-"""Single-rollout evaluation of a trained policy from a batch of start nodes.
-
-Each start node is rolled out once with `env.evaluate` / `env.observe` for up to
-`env.episode_length` control steps inside `lax.scan`; an instance stops (and its state stops
-changing) at its first success or invalid edge.
-"""
+"""Single-rollout evaluation of a trained policy from a batch of start nodes."""
 
 from __future__ import annotations
 
@@ -14,7 +9,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
-from pachs_jax.sac.actor_critic import ActorCritic
+from pachs_jax.sac.actor_critic import SacActorCritic
 
 
 @struct.dataclass
@@ -37,13 +32,13 @@ class RolloutResult:
 
 
 def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Optional[int] = None
-                    ) -> Callable[[ActorCritic, base.NodeState, jax.Array], RolloutResult]:
+                    ) -> Callable[[SacActorCritic, base.NodeState, jax.Array], RolloutResult]:
   """A jitted fn(actor_critic, nodes [B], key) -> RolloutResult of the (stochastic) policy."""
   horizon = env.episode_length if num_steps is None else int(num_steps)
   if horizon < 1:
     raise ValueError(f'num_steps must be >= 1, got {horizon}')
 
-  def rollout(actor_critic: ActorCritic, nodes: base.NodeState, key: jax.Array
+  def rollout(actor_critic: SacActorCritic, nodes: base.NodeState, key: jax.Array
               ) -> RolloutResult:
     if actor_critic.config.action_size != env.action_size:
       raise ValueError(f'actor-critic action size {actor_critic.config.action_size} != env '
@@ -82,7 +77,7 @@ def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Option
   return jax.jit(rollout)
 
 
-def success_rates(env: base.Env, actor_critic: ActorCritic, nodes: base.NodeState,
+def success_rates(env: base.Env, actor_critic: SacActorCritic, nodes: base.NodeState,
                   key: jax.Array) -> Dict[str, float]:
   """{'deterministic': rate, 'stochastic': rate} single-rollout success over nodes [B]."""
   det = make_rollout_fn(env, deterministic=True)(actor_critic, nodes, key)

@@ -1,7 +1,5 @@
-"""Soft actor-critic losses with automatic entropy tuning (Haarnoja et al. 2018, arXiv:1812.05905).
-
-Each factory returns pure loss functions of explicit parameters; the trainer differentiates them.
-"""
+"""Soft actor-critic losses with automatic entropy tuning (Haarnoja et al. 2018,
+arXiv:1812.05905), as pure functions of explicit parameters."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""SAC networks: a tanh-Gaussian actor and a twin Q critic over normalised observations.
-
-Built from Brax's MLP factories (`brax.training.networks`), its tanh-Gaussian distribution and
-its running observation statistics. Everything here is a pure function of explicit parameters.
-"""
+"""SAC networks from Brax's factories: a tanh-Gaussian actor and a twin Q critic over
+normalised observations, as pure functions of explicit parameters."""
 
 from __future__ import annotations
 
@@ -71,11 +68,8 @@ def make_sac_networks(observation_size: int, action_size: int,
 
 
 def init_normalizer(observation_size: int) -> running_statistics.RunningStatisticsState:
-  """Running mean/std of observations [O], starting at mean 0 and std 1.
-
-  A variance floor of NORMALIZER_VARIANCE_EPS keeps the std of a (nearly) constant feature,
-  such as the fixed goal of PushT-Fixed, at >= 1e-3 instead of Brax's 1e-6 clip.
-  """
+  """Running mean/std of observations [O], starting at mean 0 and std 1, with a variance floor
+  of NORMALIZER_VARIANCE_EPS (a std of at least 1e-3)."""
   zeros = jnp.zeros((observation_size,), jnp.float32)
   return running_statistics.RunningStatisticsState(
       count=brax_types.UInt64(hi=0, lo=0), mean=zeros, summed_variance=zeros,
@@ -95,9 +89,3 @@ def sample_actions(networks: SACNetworks, normalizer: Any, policy_params: Any, k
   params = networks.policy_apply(normalizer, policy_params, obs)
   return networks.distribution.sample(params, key)
 
-
-def deterministic_actions(networks: SACNetworks, normalizer: Any, policy_params: Any,
-                          obs: jax.Array) -> jax.Array:
-  """[..., A] the tanh of the Gaussian mean for observations [..., O]."""
-  params = networks.policy_apply(normalizer, policy_params, obs)
-  return networks.distribution.mode(params)

@@ -1,17 +1,4 @@
-"""Per-task SAC hyperparameters (one SACConfig per task name), for a single H100/H200.
-
-Network sizes: the original used 2x64 layers on the shelf and 3x256 on PushT-Fixed; its 3x1024
-for PushT-Rand would alone make a ~26 MB export (actor + twin critic, float32), beyond the 25 MB
-that all shipped checkpoints share, so PushT-Rand uses 3x512 (~6 MB). The shelf uses 3x256 with
-discount 0.97: a 2x64 / 0.9 run reached under 1% success (runs in experiments/results/training).
-Throughput: thousands of environments per vmapped step and
-several large-batch updates per step keep the GPU busy on both the physics and the networks.
-
-PushT: discount 0.8 and initial temperature 0.2 (ManiSkill's SAC baseline uses gamma 0.8). On
-one H200 with these settings PushT-Fixed reached ~100% training-episode success after ~7M env
-steps (about one minute at ~132k env steps/s with deterministic XLA ops); with discount 0.97 and
-temperature 1.0 it was still below 3% at 7.7M steps.
-"""
+"""Per-task SAC hyperparameters for a single H100/H200 (reasons: docs/sac.md)."""
 
 from __future__ import annotations
 

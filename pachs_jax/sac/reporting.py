@@ -1,8 +1,4 @@
-"""Progress reporting of training runs: a progress bar, metrics.csv and TensorBoard.
-
-`RunReporter` implements train.Reporter. On a resumed run it first drops the CSV rows written
-after the checkpoint being resumed, so metrics.csv reads as one uninterrupted run.
-"""
+"""Progress reporting of training runs: a progress bar, metrics.csv and TensorBoard."""
 
 from __future__ import annotations
 
@@ -96,7 +92,7 @@ class RunReporter:
     elif self._progress == 'lines':
       now = time.time()
       if now - self._last_line >= self._line_seconds or 'eval_success_deterministic' in metrics:
-        print(f'[{self._description}] ' + summary_line(dict(metrics, env_steps=env_steps)),
+        print(f'[{self._description}] ' + _summary_line(dict(metrics, env_steps=env_steps)),
               flush=True)
         self._last_line = now
     self._last = env_steps
@@ -111,7 +107,7 @@ class RunReporter:
     self._bar = self._writer = self._csv_file = self._csv = None
 
 
-def summary_line(metrics: Dict[str, float]) -> str:
+def _summary_line(metrics: Dict[str, float]) -> str:
   """One line of the main metrics (for logs of non-interactive runs)."""
   keys = ('env_steps', 'walltime', 'sps', 'episode_return', 'success_rate', 'critic_loss',
           'alpha', 'eval_success_deterministic', 'eval_success_stochastic')

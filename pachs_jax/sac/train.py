@@ -1,16 +1,5 @@
-"""SAC training runs: the epoch loop with checkpoints, resumption, time budgets and evaluation.
-
-`train(trainer, run_dir, total_env_steps, ...)` runs jitted epochs of `trainer` (see
-trainer.py), checkpoints the whole training state into run_dir/state (orbax, last few kept) and
-exports the actor-critic into run_dir/model. With `resume=True` it continues from the latest
-complete checkpoint; because every epoch is the same jitted function of the restored state, a
-resumed run ends with the same parameters, bit for bit on the same device, as an uninterrupted
-one. `max_minutes` bounds one invocation's wall time (it checkpoints and returns before the
-bound), so a long run can be split into several commands.
-
-Layout of run_dir: state/<epoch>/ (training checkpoints), model/ (actor-critic export),
-metrics.csv and tensorboard/ (written by a reporter, see reporting.py).
-"""
+"""SAC training runs: the epoch loop with checkpoints, bit-exact resumption, time budgets and
+evaluation (run directory layout: docs/sac.md)."""
 
 from __future__ import annotations
 
@@ -25,8 +14,8 @@ import numpy as np
 
 from pachs_jax.sac import checkpoint
 from pachs_jax.sac import evaluator
-from pachs_jax.sac.actor_critic import ActorCritic, ActorCriticParams, ModelConfig
-from pachs_jax.sac.config import SACConfig
+from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
+from pachs_jax.sac.config import SACConfig, config_from_dict, config_to_dict
 from pachs_jax.sac.trainer import Trainer, TrainingState, make_trainer
 
 __all__ = ['SACConfig', 'Trainer', 'TrainingState', 'make_trainer', 'train', 'TrainResult',
@@ -55,13 +44,13 @@ class TrainResult:
   reached total_env_steps (False when the time budget stopped it first)."""
 
   state: TrainingState
-  actor_critic: ActorCritic
+  actor_critic: SacActorCritic
   epoch: int
   env_steps: int
   finished: bool
 
 
-def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> ActorCritic:
+def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> SacActorCritic:
   """The actor-critic (actor, twin critic, observation statistics) of a training state."""
   env, config = trainer.env, trainer.config
   model = ModelConfig(task=env.name, observation_size=env.observation_size,
@@ -73,7 +62,7 @@ def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> ActorCrit
   normalizer = {'mean': state.normalizer.mean, 'std': state.normalizer.std}
   params = ActorCriticParams(normalizer=normalizer, policy=state.policy_params,
                              q=state.q_params)
-  return ActorCritic(params=params, config=model)
+  return SacActorCritic(params=params, config=model)
 
 
 def read_run_config(run_dir: str) -> Optional[Dict[str, Any]]:
@@ -100,7 +89,7 @@ def _check_meta(trainer: Trainer, meta: Dict[str, Any], where: str) -> None:
     raise ValueError(f'{where}: observation/action sizes {meta["observation_size"]}/'
                      f'{meta["action_size"]} != env {env.name!r} sizes '
                      f'{env.observation_size}/{env.action_size}')
-  stored = SACConfig.from_dict(meta['sac_config'])
+  stored = config_from_dict(SACConfig, meta['sac_config'])
   diff = stored.differences(trainer.config)
   if diff:
     lines = ', '.join(f'{k}: checkpoint {a!r} vs requested {b!r}' for k, (a, b) in diff.items())
@@ -183,11 +172,11 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
     env_steps = trainer.env_steps(epoch)
     meta = {'format': TRAINING_FORMAT, 'task': env.name,
             'observation_size': env.observation_size, 'action_size': env.action_size,
-            'sac_config': config.to_dict(), 'epoch': epoch, 'env_steps': env_steps}
+            'sac_config': config_to_dict(config), 'epoch': epoch, 'env_steps': env_steps}
     ckpts.save(epoch, state, meta)
     checkpoint.save_actor_critic(os.path.join(run_dir, checkpoint.MODEL_SUBDIR),
                                  actor_critic_from_state(trainer, state),
-                                 extra={'sac_config': config.to_dict(), 'epoch': epoch,
+                                 extra={'sac_config': config_to_dict(config), 'epoch': epoch,
                                         'env_steps': env_steps})
     return evaluate(state) if evaluate is not None else {}
 

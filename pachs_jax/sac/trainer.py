@@ -1,15 +1,5 @@
-"""The jitted SAC learner: vmapped environments with auto-reset, a device replay buffer, and
-gradient updates, all inside `lax.scan`.
-
-`make_trainer(env, config)` returns a `Trainer` of two jitted functions:
-  init() -> TrainingState: fresh parameters and environments, replay buffer prefilled with
-    uniform random actions (deterministic given config.seed);
-  epoch(state) -> (state, metrics): config.steps_per_epoch training steps, each one vmapped env
-    step of config.num_envs environments followed by config.grad_updates_per_step updates.
-The whole training state (parameters, optimiser states, temperature, normaliser, replay buffer,
-environment states, PRNG key, counters) is one pytree, so a checkpoint of it resumes a run
-exactly.
-"""
+"""The jitted SAC learner: vmapped environments with auto-reset, a device replay buffer and
+gradient updates, all inside `lax.scan`."""
 
 from __future__ import annotations
 
@@ -62,7 +52,13 @@ class TrainingState:
 
 @dataclasses.dataclass(frozen=True)
 class Trainer:
-  """Jitted init and epoch functions of one (env, config) pair, and step bookkeeping."""
+  """Jitted init and epoch functions of one (env, config) pair, and step bookkeeping.
+
+  init() -> TrainingState: fresh parameters and environments, the replay buffer prefilled with
+    uniform random actions (deterministic given config.seed).
+  epoch(state) -> (state, metrics): config.steps_per_epoch training steps, each one vmapped env
+    step of config.num_envs environments followed by config.grad_updates_per_step updates.
+  """
 
   env: base.Env
   config: SACConfig
@@ -114,7 +110,8 @@ def _check_env(env: base.Env) -> None:
                      f'({env.observation_size},)')
 
 
-def make_optimizer(learning_rate: float, max_grad_norm: float) -> optax.GradientTransformation:
+def _make_optimizer(learning_rate: float, max_grad_norm: float) -> optax.GradientTransformation:
+  """Adam, after a global-norm clip of the gradients when max_grad_norm > 0."""
   if max_grad_norm > 0:
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
   return optax.adam(learning_rate)
@@ -131,8 +128,8 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
   alpha_loss_fn, critic_loss_fn, actor_loss_fn = sac_losses.make_losses(
       nets, config.reward_scaling, config.discount,
       config.target_entropy_per_action * action_size)
-  policy_opt = make_optimizer(config.actor_learning_rate, config.max_grad_norm)
-  q_opt = make_optimizer(config.critic_learning_rate, config.max_grad_norm)
+  policy_opt = _make_optimizer(config.actor_learning_rate, config.max_grad_norm)
+  q_opt = _make_optimizer(config.critic_learning_rate, config.max_grad_norm)
   alpha_opt = optax.adam(config.alpha_learning_rate)
 
   zeros_obs = jnp.zeros((obs_size,), jnp.float32)

@@ -1,13 +1,5 @@
-"""The lattice hash table: integer lattice coordinates -> node index, per problem instance.
-
-Open addressing with linear probing in a fixed number T (a power of two) of slots per
-instance, batched over I instances and B keys [I, B, L] int32. Every probe round is a handful
-of gathers and a pairwise [I, B, B] comparison (which of several keys reaching the same empty
-slot claims it: the lowest batch position), so duplicates within one batch resolve
-deterministically: the first occurrence inserts, later ones find it. A key that meets no empty
-slot within `max_probes` probes of its home slot is not stored and counted in `overflow`;
-lookups use the same limit, so they stay exact. Memory per slot: 4 L + 5 bytes.
-"""
+"""The lattice hash table: integer lattice coordinates -> node index per problem instance, with
+open addressing and linear probing, batched over instances and keys."""
 
 from __future__ import annotations
 
@@ -22,7 +14,9 @@ NO_VALUE = -1  # value of a slot that holds no node
 
 @struct.dataclass
 class LatticeTable:
-  """Slots of I instances.
+  """T slots (a power of two) of I instances. Keys of one batch that reach the same empty slot
+  resolve in batch order (the first inserts, later ones find it); a key that meets no empty
+  slot within max_probes probes of its home slot is not stored (lookups use the same limit).
 
   keys: [I, T, L] int32 lattice coordinates stored in each slot.
   occupied: [I, T] bool, the slot holds a key.

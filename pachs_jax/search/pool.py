@@ -1,13 +1,5 @@
-"""The node pool: every search node of I instances in fixed-capacity arrays [I, P, ...].
-
-A node holds its compact simulation state (any `NodeState` pytree, stored leaf by leaf, so the
-pool never knows the fields), its search bookkeeping, and the N edges sampled when it was
-expanded (an OPEN entry of a real edge names only (node, slot)). Node 0 is the start.
-
-Bytes per node: the state's bytes (for the grid world 2 + 1 + 1 + 1 + 2 floats and t: 32 B;
-for an MJX task 4 (nq + 2 nv + nu + G) + 4), plus 4 (g) + 4 (parent) + 4 A (action) + 4 (depth)
-+ 2 (closed, is_goal) + 4 (open_key) + 4 N (A + 1) (sampled edges) bytes.
-"""
+"""The node pool: every search node of I instances in fixed-capacity arrays [I, P, ...]
+(bytes per node: docs/search_loop.md)."""
 
 from __future__ import annotations
 

@@ -1,24 +1,4 @@
-"""Planners with the problem-instance axis sharded across devices (and hosts).
-
-Instances are independent, so each device runs the whole planner on its own block of
-instances: a per-shard planning function `fn(start_nodes [P], keys [P, 2]) -> SearchResult [P]`
-runs inside one `shard_map` over a mesh axis named 'instances', with no communication in its
-loop; a device stops as soon as its own instances have finished. Per-instance keys are made on
-the host before sharding, so every instance's result equals that of the unsharded call with the
-same keys.
-
-- `plan_sharded_fn(fn, start_nodes, key, mesh)`: any planner. PACHS: `pachs_shard_fn(search)`;
-  the baselines are such functions already: `make_parallel_rollout(...).plan`,
-  `make_beam_search(...)`, and, with `keyless`, `make_epase(...).plan` and
-  `make_single_rollout(...)`.
-- `plan_sharded(env, actor_critic, start_nodes, config, key, mesh)`: PACHS, as `pachs.plan`.
-
-Multi-host: call `initialize_multihost()` on every host before anything else touches JAX
-(it calls `jax.distributed.initialize()` when the environment describes a multi-process job);
-then `jax.devices()` lists the devices of every host, so the default mesh spans hosts. Every
-host calls the planner with the same global start nodes and key and gets the whole result
-(gathered with `process_allgather`).
-"""
+"""Planners with the problem-instance axis sharded across devices and hosts (docs/sharding.md)."""
 
 from __future__ import annotations
 
@@ -211,11 +191,6 @@ def pachs_shard_fn(search: pachs.Search) -> ShardFn:
   return run
 
 
-def make_sharded_search(search: pachs.Search, mesh: Mesh):
-  """The jitted sharded PACHS: `shard_planner(pachs_shard_fn(search), mesh)`."""
-  return shard_planner(pachs_shard_fn(search), mesh)
-
-
 def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                  config: SearchConfig, key: jax.Array, mesh: Optional[Mesh] = None,
                  search: Optional[pachs.Search] = None) -> SearchResult:
@@ -232,6 +207,5 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     search = pachs.make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  types.check_start_nodes(start_nodes, jax.eval_shape(env.sample_instance,
-                                                      jax.random.PRNGKey(0)))
+  types.check_start_nodes(start_nodes, env)
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

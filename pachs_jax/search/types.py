@@ -1,9 +1,5 @@
-"""What the PACHS search is configured with, calls, and returns.
-
-`SearchConfig` (static, hashable) sets the search; the actor-critic enters through the
-`ActorCritic` protocol; `SearchResult` is what one planning call returns per problem instance;
-`StopReason` names why an instance stopped.
-"""
+"""The search's configuration, result, stop reasons and actor-critic protocol, and the checks
+of its inputs."""
 
 from __future__ import annotations
 
@@ -18,8 +14,6 @@ from flax import struct
 
 from pachs_jax.envs import base
 
-HEAP_KINDS = ('flat', 'segmented', 'blocked')
-LOOP_MODES = ('split', 'mixed')
 REALTIME_ANSWERS = ('best_f', 'min_h')
 
 
@@ -57,6 +51,14 @@ class ActorCritic(Protocol):
     ...
 
 
+def positive_int(owner: str, name: str, value, allow_none: bool = False) -> None:
+  """ValueError unless value is an int >= 1 (or None when allow_none)."""
+  if value is None and allow_none:
+    return
+  if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    raise ValueError(f'{owner}.{name} must be a positive int, got {value!r}')
+
+
 def check_weight(owner: str, weight) -> None:
   """ValueError unless weight is a finite number >= 0."""
   if (isinstance(weight, bool) or not isinstance(weight, (int, float))
@@ -64,12 +66,17 @@ def check_weight(owner: str, weight) -> None:
     raise ValueError(f'{owner}.weight must be a finite number >= 0, got {weight!r}')
 
 
-def check_heap_and_table(owner: str, heap_kind: str, table_capacity) -> None:
-  """ValueError for an unknown heap kind or a table capacity that is not a power of two."""
-  if heap_kind not in HEAP_KINDS:
-    raise ValueError(f'{owner}.heap_kind must be one of {HEAP_KINDS}, got {heap_kind!r}')
+def check_table_capacity(owner: str, table_capacity) -> None:
+  """ValueError for a lattice-table capacity that is not a power of two."""
   if table_capacity is not None and table_capacity & (table_capacity - 1):
     raise ValueError(f'{owner}.table_capacity must be a power of two, got {table_capacity}')
+
+
+def check_actor_critic(actor_critic, names) -> None:
+  """ValueError unless actor_critic has each of the named methods."""
+  for name in names:
+    if not callable(getattr(actor_critic, name, None)):
+      raise ValueError(f'actor_critic has no method {name}(...) (see search.types.ActorCritic)')
 
 
 def lattice_resolution_tuple(owner: str, resolution):
@@ -96,14 +103,20 @@ def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
   return resolution
 
 
-def check_start_nodes(start_nodes: base.NodeState, node_spec: base.NodeState) -> int:
-  """The number of instances I of start_nodes [I, ...] (node_spec: one node's shapes);
-  ValueError when the shapes do not fit."""
-  leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(node_spec)
-  if (jax.tree.structure(start_nodes) != jax.tree.structure(node_spec)
+def node_spec(env: base.Env) -> base.NodeState:
+  """The shapes of one node of env (no batch axis)."""
+  return jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0))
+
+
+def check_start_nodes(start_nodes: base.NodeState, env: base.Env) -> int:
+  """The number of instances I of start_nodes [I, ...]; ValueError when the shapes do not fit
+  env's NodeState."""
+  spec = node_spec(env)
+  leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(spec)
+  if (jax.tree.structure(start_nodes) != jax.tree.structure(spec)
       or any(jnp.ndim(x) != len(s.shape) + 1 or jnp.shape(x)[1:] != s.shape
              for x, s in zip(leaves, spec_leaves))):
-    want = jax.tree.map(lambda s: ('I',) + s.shape, node_spec)
+    want = jax.tree.map(lambda s: ('I',) + s.shape, spec)
     got = jax.tree.map(jnp.shape, start_nodes)
     raise ValueError(f'start_nodes must be the environment\'s NodeState with a leading '
                      f'instance axis: want shapes {want}, got {got}')
@@ -133,77 +146,95 @@ def cost_to_go(q_value: jax.Array) -> jax.Array:
   return jnp.where(jnp.isnan(q), jnp.inf, q)
 
 
-def _next_pow2(n: int) -> int:
+def next_pow2(n: int) -> int:
+  """The smallest power of two >= n (1 for n <= 1)."""
   return 1 << max(0, int(n - 1).bit_length())
 
 
 @dataclasses.dataclass(frozen=True)
-class SearchConfig:
-  """PACHS parameters; capacities left as None are derived from the evaluation budget.
+class EdgeSearchConfig:
+  """The settings that PACHS and ePA*SE share; capacities left as None are derived from the
+  evaluation budget and never overflow.
 
-  weight: heuristic weight w >= 0 (f = g + w * q).
-  num_actions: N actions sampled per expansion.
-  pop_size: K edges popped per instance and loop iteration ('split': up to K dummy edges
-    expanded and K real edges evaluated).
+  weight: heuristic weight w >= 0 (keys g + w h).
+  pop_size: K: per instance and iteration, the edges popped (PACHS: up to K states expanded
+    and K edges evaluated).
   max_evaluations: edge-evaluation budget per instance.
   max_iterations: loop-iteration limit per instance (None: no limit beyond the budget).
   lattice_resolution: [L] lattice cell sizes (None: the environment's default).
-  heap_kind: 'flat' (one top_k over the buffer), 'segmented' (flat buffer with per-segment
-    minima, two small top_k) or 'blocked' (binary heap of sorted blocks of K entries).
-  heap_capacity: entries per instance of the OPEN heap ('mixed') or of the real-edge heap R
-    ('split'); None: (N + 1) * (budget + 1) ('mixed') or N * pool ('split'), which never
-    overflow. The dummy-edge heap D ('split') holds budget + 1 entries (at most heap_capacity).
-  segment_size: entries per segment of the 'segmented' heaps (None: about sqrt(capacity)).
-  pool_capacity: nodes per instance; None: budget + 1, which never overflows.
-  table_capacity: lattice-table slots per instance, a power of two; None: >= 2 * pool.
+  heap_capacity: OPEN entries per instance (None: every edge the budget can generate).
+  pool_capacity: nodes per instance (None: budget + 1).
+  table_capacity: lattice-table slots per instance, a power of two (None: >= 2 * pool).
   max_path_length: actions kept in a returned path (longer paths keep their first ones).
-  loop: 'split' (two OPEN heaps, dummy edges D and real edges R: every iteration expands the
-    dummy edges that come before R's K-th best key, then evaluates the K best real edges, so
-    the physics batch stays full) or 'mixed' (one heap; the K popped entries are split between
-    expansion and evaluation, which leaves evaluation lanes empty). See `pachs`.
-  realtime_answer: the path returned when no goal was found: 'best_f' (the original's
-    real-time variant: to the state of the best OPEN entry, often the start itself early in a
-    search) or 'min_h' (to the generated state, the start excluded, with the smallest
-    estimated cost-to-go h = (key of its latest dummy edge - g) / w; needs w > 0).
-  compact_fractions: smaller physics batches, as fractions in (0, 1) of the I * K lanes: when
-    the popped real edges of the instances still searching fit one, only they are simulated
-    (`compact.evaluate_live`), which speeds up the tail of a batched search where most
-    instances have stopped; () always simulates all I * K lanes. Each size adds a copy of the
-    physics to the compiled program.
   """
 
   weight: float = 1.0
-  num_actions: int = 16
   pop_size: int = 16
   max_evaluations: int = 100_000
   max_iterations: Optional[int] = None
   lattice_resolution: Optional[Tuple[float, ...]] = None
-  heap_kind: str = 'segmented'
   heap_capacity: Optional[int] = None
-  segment_size: Optional[int] = None
   pool_capacity: Optional[int] = None
   table_capacity: Optional[int] = None
   max_path_length: int = 1024
-  loop: str = 'split'
+
+  def __post_init__(self):
+    owner = type(self).__name__
+    check_weight(owner, self.weight)
+    for name in ('pop_size', 'max_evaluations', 'max_path_length'):
+      positive_int(owner, name, getattr(self, name))
+    for name in ('max_iterations', 'heap_capacity', 'pool_capacity', 'table_capacity'):
+      positive_int(owner, name, getattr(self, name), allow_none=True)
+    check_table_capacity(owner, self.table_capacity)
+    object.__setattr__(self, 'lattice_resolution',
+                       lattice_resolution_tuple(owner, self.lattice_resolution))
+
+  @property
+  def pool_size(self) -> int:
+    """Nodes per instance."""
+    return self.pool_capacity or self.max_evaluations + 1
+
+  @property
+  def table_size(self) -> int:
+    """Lattice-table slots per instance (a power of two)."""
+    return self.table_capacity or next_pow2(2 * self.pool_size)
+
+  def check_slots(self, slots: int) -> None:
+    """ValueError when heap entries node * slots + slot would overflow int32."""
+    if self.pool_size * slots >= 2**31:
+      raise ValueError(f'{type(self).__name__}: pool_capacity * (edges per node + 1) must stay '
+                       f'below 2**31 (heap entries store node * (edges + 1) + slot as int32); '
+                       f'got {self.pool_size} nodes and {slots - 1} edges per node')
+
+  def iteration_limit_for(self, slots: int) -> int:
+    """Loop iterations per instance with `slots` heap entries per node (the default is never
+    reached before the budget)."""
+    if self.max_iterations is not None:
+      return self.max_iterations
+    return min(2**31 - 1, slots * (self.max_evaluations + 1) + 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchConfig(EdgeSearchConfig):
+  """PACHS parameters: those of `EdgeSearchConfig` and
+
+  num_actions: N actions sampled per expansion.
+  realtime_answer: the path returned when no goal was found: 'best_f' (to the state of the
+    best OPEN entry, the original's) or 'min_h' (to the generated state, the start excluded,
+    of least estimated cost-to-go; needs w > 0).
+  compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
+    (`compact.evaluate_live`); () always simulates all lanes.
+  heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
+  (None: budget + 1).
+  """
+
+  num_actions: int = 16
   realtime_answer: str = 'best_f'
   compact_fractions: Tuple[float, ...] = ()
 
   def __post_init__(self):
-    def positive_int(name, allow_none=False):
-      v = getattr(self, name)
-      if v is None and allow_none:
-        return
-      if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-        raise ValueError(f'SearchConfig.{name} must be a positive int, got {v!r}')
-
-    check_weight('SearchConfig', self.weight)
-    for name in ('num_actions', 'pop_size', 'max_evaluations', 'max_path_length'):
-      positive_int(name)
-    for name in ('max_iterations', 'heap_capacity', 'segment_size', 'pool_capacity',
-                 'table_capacity'):
-      positive_int(name, allow_none=True)
-    if self.loop not in LOOP_MODES:
-      raise ValueError(f'SearchConfig.loop must be one of {LOOP_MODES}, got {self.loop!r}')
+    super().__post_init__()
+    positive_int('SearchConfig', 'num_actions', self.num_actions)
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
@@ -217,55 +248,25 @@ class SearchConfig:
     if self.realtime_answer == 'min_h' and not self.weight > 0:
       raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
                        f'and needs weight > 0, got {self.weight!r}')
-    check_heap_and_table('SearchConfig', self.heap_kind, self.table_capacity)
-    object.__setattr__(self, 'lattice_resolution',
-                       lattice_resolution_tuple('SearchConfig', self.lattice_resolution))
-    if self.pool * (self.num_actions + 1) >= 2**31:
-      raise ValueError('pool_capacity * (num_actions + 1) must stay below 2**31 (heap entries '
-                       f'store node * (N + 1) + slot as int32); got {self.pool} nodes and '
-                       f'N = {self.num_actions}')
-    if self.heap >= 2**31 or self.table >= 2**31:
+    self.check_slots(self.num_actions + 1)
+    if self.edge_heap_size >= 2**31 or self.table_size >= 2**31:
       raise ValueError('heap and table capacities must stay below 2**31 '
-                       f'(got heap {self.heap}, table {self.table})')
-
-  # ---- derived sizes ----
+                       f'(got heap {self.edge_heap_size}, table {self.table_size})')
 
   @property
-  def heap(self) -> int:
-    """Capacity of the OPEN heap ('mixed') or the real-edge heap ('split'), entries per
-    instance."""
-    if self.heap_capacity is not None:
-      return self.heap_capacity
-    if self.loop == 'split':  # N edges per expansion, each node expanded at most once
-      return self.num_actions * self.pool
-    return (self.num_actions + 1) * (self.max_evaluations + 1)
+  def edge_heap_size(self) -> int:
+    """Entries per instance of the real-edge heap: N per expanded node."""
+    return self.heap_capacity or self.num_actions * self.pool_size
 
   @property
-  def dummy_heap(self) -> int:
-    """Capacity of the dummy-edge heap of 'split' (entries per instance): the start's dummy
-    edge plus at most one per evaluation."""
-    if self.heap_capacity is None:
-      return self.max_evaluations + 1
-    return min(self.heap_capacity, self.max_evaluations + 1)
+  def dummy_heap_size(self) -> int:
+    """Entries per instance of the dummy-edge heap: the start's plus one per evaluation."""
+    return min(self.heap_capacity or self.max_evaluations + 1, self.max_evaluations + 1)
 
   @property
-  def pool(self) -> int:
-    """Node-pool capacity (nodes per instance)."""
-    return self.pool_capacity if self.pool_capacity is not None else self.max_evaluations + 1
-
-  @property
-  def table(self) -> int:
-    """Lattice-table capacity (slots per instance, a power of two)."""
-    if self.table_capacity is not None:
-      return self.table_capacity
-    return _next_pow2(2 * self.pool)
-
-  @property
-  def iterations(self) -> int:
-    """Loop-iteration limit per instance (the default can never be reached before the budget)."""
-    if self.max_iterations is not None:
-      return self.max_iterations
-    return min(2**31 - 1, (self.num_actions + 1) * (self.max_evaluations + 1) + 1)
+  def iteration_limit(self) -> int:
+    """Loop iterations per instance (the default is never reached before the budget)."""
+    return self.iteration_limit_for(self.num_actions + 1)
 
 
 @struct.dataclass
@@ -288,8 +289,7 @@ class SearchResult:
   iterations: [I] int32 loop iterations.
   lane_utilization: [I] float32 evaluated / (K * iterations): the share of the instance's K
     evaluation lanes that held an edge while it searched (0 before the first iteration).
-  heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space
-    (heap_overflow: both heaps of 'split').
+  heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space.
   wall_time_s: [] float32 host wall-clock seconds of the planning call without compilation
     (set by `plan`; NaN from `Search.result`).
   """

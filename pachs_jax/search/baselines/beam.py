@@ -1,27 +1,5 @@
-"""Parallel beam search: the actor samples, the critic keeps the beam; I instances at once.
-
-A beam of up to B states per instance (initially the start alone). Each step the actor samples
-N actions at every beam state, the critic scores them, all B * N candidate edges are evaluated
-in one `env.evaluate` over I * B * N edges, and the B best valid candidates form the next beam.
-Candidates are ranked by `score`:
-- 'edge' (default, as the original keeps the beam by critic value): f = g(s) + w q(s, a), the
-  sampled edge's own cost-to-go q = max(-Q(s, a), 0) from the critic call made before the
-  evaluation, plus the cost paid to reach s.
-- 'next': f = g(s) + c(s, a) + w max(-Q(s', pi(s')), 0), the critic at the successor with one
-  policy action (deterministic_action when the actor-critic has it, else one sample): one more
-  actor and critic batch of I * B * N per step, with the edge's true cost.
-With `dedup`, candidates in the same lattice cell keep only the best-ranked one (a sort by the
-cell's hash, so O(BN log BN); two cells with the same hash may miss a merge, never merge
-wrongly). Visited states of earlier depths are not remembered.
-
-The search stops on a goal (the first step with a valid goal candidate; the cheapest such
-candidate's path is returned), the budget (a step evaluates only the first `left` candidates in
-(beam slot, action) order, so an instance evaluates exactly `max_evaluations` edges unless it
-stops otherwise), `max_depth` steps (ITERATIONS) or a step without a valid candidate
-(OPEN_EMPTY: the beam is kept). Without a goal the path to the best-ranked state of the last
-beam is returned. Parent pointers [I, D, B] and actions [I, D, B, A] reconstruct the path;
-path_nodes are re-evaluated from the start along it (`common.replay`).
-"""
+"""Parallel beam search: the actor samples, the critic keeps the beam; I instances at once
+(docs/baselines.md)."""
 
 from __future__ import annotations
 
@@ -58,8 +36,8 @@ class BeamConfig:
 
   def __post_init__(self):
     for name in ('beam_width', 'num_actions', 'max_evaluations'):
-      common.positive_int('BeamConfig', name, getattr(self, name))
-    common.positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
+      types.positive_int('BeamConfig', name, getattr(self, name))
+    types.positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
     types.check_weight('BeamConfig', self.weight)
     if self.score not in SCORES:
       raise ValueError(f'BeamConfig.score must be one of {SCORES}, got {self.score!r}')
@@ -102,7 +80,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
   """A jitted fn(start_nodes [I], key) -> SearchResult (key: one PRNG key or [I, 2])."""
   if not isinstance(config, BeamConfig):
     raise ValueError(f'config must be a BeamConfig, got {type(config).__name__}')
-  common.check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
+  types.check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
   b, n, budget = config.beam_width, config.num_actions, config.max_evaluations
   depth_limit = config.max_depth or env.episode_length
   w = float(config.weight)
@@ -120,11 +98,11 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
     return types.cost_to_go(actor_critic.q_values(obs, act))[:, 0]
 
   def search(start_nodes: base.NodeState, key: jax.Array) -> SearchResult:
-    num = common.check_start(start_nodes, env)
-    keys = common.instance_keys(key, num)
+    num = types.check_start_nodes(start_nodes, env)
+    keys = types.instance_keys(key, num)
     rows = jnp.arange(num)
     start_goal = env.is_goal(start_nodes)
-    zeros = common.zeros_i(num)
+    zeros = jnp.zeros((num,), jnp.int32)
     carry = dict(
         beam=jax.tree.map(lambda x: jnp.repeat(x[:, None], b, axis=1), start_nodes),
         g=jnp.zeros((num, b), jnp.float32),

@@ -1,4 +1,4 @@
-"""Pieces the baselines share: input checks, per-instance keys, path replay, timing."""
+"""Pieces the baselines share: path replay and timing."""
 
 from __future__ import annotations
 
@@ -10,34 +10,34 @@ import jax.numpy as jnp
 
 from pachs_jax.envs import base
 from pachs_jax.search import types
-from pachs_jax.search.types import SearchResult
+from flax import struct
+
+from pachs_jax.search.types import SearchResult, StopReason
 
 
-def node_spec(env: base.Env) -> base.NodeState:
-  """The shapes of one node of env (no batch axis)."""
-  return jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0))
+@struct.dataclass
+class SamplingState:
+  """What the sampling planners (parallel rollout, MPPI) carry per instance, leading axis I:
+  start: NodeState [I]; rng: [I, 2] uint32; active, found: [I] bool; stop_reason: [I] int32
+  `StopReason`; evaluated, invalid, iterations: [I] int32 counters."""
+
+  start: base.NodeState
+  rng: jax.Array
+  active: jax.Array
+  found: jax.Array
+  stop_reason: jax.Array
+  evaluated: jax.Array
+  invalid: jax.Array
+  iterations: jax.Array
 
 
-def check_start(start_nodes: base.NodeState, env: base.Env) -> int:
-  """The number of instances I of start_nodes [I, ...]; ValueError when shapes do not fit."""
-  return types.check_start_nodes(start_nodes, node_spec(env))
-
-
-# [I, 2] uint32 per-instance keys from one key or per-instance keys (see `types`).
-instance_keys = types.instance_keys
-
-
-def check_actor_critic(actor_critic, names) -> None:
-  for name in names:
-    if not callable(getattr(actor_critic, name, None)):
-      raise ValueError(f'actor_critic has no method {name}(...) (see search.types.ActorCritic)')
-
-
-def positive_int(owner: str, name: str, value, allow_none: bool = False) -> None:
-  if value is None and allow_none:
-    return
-  if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-    raise ValueError(f'{owner}.{name} must be a positive int, got {value!r}')
+def sampling_start(start_nodes: base.NodeState, keys: jax.Array, start_is_goal: jax.Array) -> dict:
+  """The SamplingState fields before the first iteration, as keyword arguments."""
+  zeros = jnp.zeros(start_is_goal.shape, jnp.int32)
+  return dict(start=start_nodes, rng=keys, active=~start_is_goal, found=start_is_goal,
+              stop_reason=jnp.where(start_is_goal, StopReason.GOAL,
+                                    StopReason.RUNNING).astype(jnp.int32),
+              evaluated=zeros, invalid=zeros, iterations=zeros)
 
 
 def replay(env: base.Env, start: base.NodeState, actions: jax.Array, length: jax.Array,
@@ -79,7 +79,3 @@ def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
   start = time.perf_counter()
   out = jax.block_until_ready(compiled(*args))
   return out.replace(wall_time_s=jnp.float32(time.perf_counter() - start))
-
-
-def zeros_i(num_instances: int) -> jax.Array:
-  return jnp.zeros((num_instances,), jnp.int32)

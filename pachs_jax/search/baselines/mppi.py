@@ -1,36 +1,5 @@
-"""MPPI (model-predictive path integral control): a sampling-based MPC baseline, batched over I
-problem instances.
-
-Each instance keeps a nominal action sequence [H, A] (actions in the env's units [-1, 1]).
-`init` warm-starts it by rolling the deterministic policy H steps from the start (or takes the
-caller's, e.g. a closed loop's previous plan shifted by `shift_plan`). One iteration:
-
-1. samples S action sequences: the first P = `num_policy_samples` follow the stochastic policy
-   (`sample_actions(key, obs, 1)` at each state they reach, closed loop), the other S - P are
-   clip(nominal + N(0, noise_std^2), -1, 1), the first of them the nominal itself (no noise);
-2. rolls all I * S sequences from the start, one `env.evaluate` over I * S edges per horizon
-   step (a `lax.scan` over H);
-3. scores each sequence: its summed edge cost + `invalid_penalty` per edge from its first
-   invalid edge to the horizon's end + `terminal_weight` * the critic's cost-to-go
-   max(-Q(s_T, pi(s_T)), 0) at its last state (pi the deterministic policy). A rollout ends at
-   its first invalid edge (it stays at its last valid state) or at its first goal state (later
-   edges cost nothing and the terminal cost-to-go is 0);
-4. sets the nominal to the softmax(-(score - min score) / temperature) weighted mean of the S
-   sequences, keeps the lowest-score sequence seen so far, and records the cheapest rollout
-   that reached a goal (its actions up to the goal).
-
-An instance stops when a sampled rollout reached a goal (GOAL), after `max_iterations`
-iterations (ITERATIONS), or when one more iteration (S * H evaluations) would exceed
-`max_evaluations` (BUDGET); `plan` with a wall-clock limit stops the rest with TIME_LIMIT.
-The returned path is the goal prefix when found, otherwise the final nominal (or the best
-sampled sequence, `fallback='best'`), cut after its first goal state and before its first
-invalid edge (what an MPC would execute). path_nodes are re-evaluated along it
-(`common.replay`), so path_is_goal can hold for a nominal that was never sampled itself while
-found stays False. Counters: expanded = evaluated = S * H per iteration (the warm start's H
-policy steps are not counted); invalid = rollouts ended by an invalid edge; generated = edges
-applied along rollouts + 1; lane_utilization = the share of evaluated edges that lay on
-rollouts still going (the rest follow a goal or an invalid edge and are wasted lanes).
-"""
+"""MPPI (model-predictive path integral control), batched over I problem instances
+(docs/baselines.md)."""
 
 from __future__ import annotations
 
@@ -87,7 +56,7 @@ class MppiConfig:
 
   def __post_init__(self):
     for name in ('num_samples', 'horizon', 'max_iterations', 'max_evaluations'):
-      common.positive_int('MppiConfig', name, getattr(self, name))
+      types.positive_int('MppiConfig', name, getattr(self, name))
     _finite_number('MppiConfig', 'temperature', self.temperature, positive=True)
     for name in ('noise_std', 'terminal_weight', 'invalid_penalty'):
       _finite_number('MppiConfig', name, getattr(self, name), positive=False)
@@ -117,22 +86,20 @@ class MppiConfig:
 
 
 @struct.dataclass
-class MppiState:
-  """MPPI's state between iterations, leading axis I.
+class MppiState(common.SamplingState):
+  """MPPI's state between iterations, leading axis I: the fields of `common.SamplingState` and
 
-  start: NodeState [I] start states; nominal: [I, H, A] float32 nominal actions in [-1, 1].
+  nominal: [I, H, A] float32 nominal actions in [-1, 1].
   best_actions: [I, H, A] the lowest-score sampled sequence so far; best_score: [I] its score
     (+inf before the first iteration).
   nominal_score: [I] score of the last iteration's noise-free nominal sample (+inf if none).
   goal_actions: [I, H, A] the cheapest goal-reaching sampled rollout's actions up to its goal
     (rows >= goal_length are 0); goal_length: [I] int32; goal_cost: [I] its summed edge cost.
-  rng: [I, 2] uint32; active, found: [I] bool; stop_reason: [I] int32 `StopReason`.
-  evaluated: [I] int32 edges evaluated (S * H per iteration); live: [I] int32 of them on
-    rollouts that had not ended (no goal, no invalid edge yet), of which invalid: [I] int32
-    were invalid (each ends its rollout) and applied: [I] int32 moved it; iterations: [I] int32.
+  live: [I] int32 edges evaluated (S * H per iteration) on rollouts that had not ended (no
+    goal, no invalid edge yet), of which `invalid` were invalid (each ends its rollout) and
+    applied: [I] int32 moved it.
   """
 
-  start: base.NodeState
   nominal: jax.Array
   best_actions: jax.Array
   best_score: jax.Array
@@ -140,15 +107,8 @@ class MppiState:
   goal_actions: jax.Array
   goal_length: jax.Array
   goal_cost: jax.Array
-  rng: jax.Array
-  active: jax.Array
-  found: jax.Array
-  stop_reason: jax.Array
-  evaluated: jax.Array
-  invalid: jax.Array
   live: jax.Array
   applied: jax.Array
-  iterations: jax.Array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,7 +158,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     needed.append('sample_actions')
   if config.terminal_weight:
     needed.append('q_values')
-  common.check_actor_critic(actor_critic, needed)
+  types.check_actor_critic(actor_critic, needed)
   s, h, p = config.num_samples, config.horizon, config.num_policy_samples
   per_iteration, budget = config.evaluations_per_iteration, config.max_evaluations
   a_size = env.action_size
@@ -219,8 +179,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
 
   def init(start_nodes: base.NodeState, key: jax.Array,
            nominal: Optional[jax.Array] = None) -> MppiState:
-    num = common.check_start(start_nodes, env)
-    keys = common.instance_keys(key, num)
+    num = types.check_start_nodes(start_nodes, env)
+    keys = types.instance_keys(key, num)
     if nominal is None:
       nominal = policy_rollout(start_nodes, h)
     elif jnp.shape(nominal) != (num, h, a_size):
@@ -228,15 +188,13 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
                        f'got {jnp.shape(nominal)}')
     nominal = _clean(jnp.asarray(nominal))
     start_goal = env.is_goal(start_nodes)
-    zeros = common.zeros_i(num)
+    zeros = jnp.zeros((num,), jnp.int32)
     inf = jnp.full((num,), jnp.inf, jnp.float32)
     return MppiState(
-        start=start_nodes, nominal=nominal, best_actions=nominal, best_score=inf,
+        nominal=nominal, best_actions=nominal, best_score=inf,
         nominal_score=inf, goal_actions=jnp.zeros((num, h, a_size), jnp.float32),
-        goal_length=zeros, goal_cost=jnp.zeros((num,), jnp.float32), rng=keys,
-        active=~start_goal, found=start_goal,
-        stop_reason=jnp.where(start_goal, StopReason.GOAL, StopReason.RUNNING).astype(jnp.int32),
-        evaluated=zeros, invalid=zeros, live=zeros, applied=zeros, iterations=zeros)
+        goal_length=zeros, goal_cost=jnp.zeros((num,), jnp.float32), live=zeros, applied=zeros,
+        **common.sampling_start(start_nodes, keys, start_goal))
 
   def sample(state: MppiState):
     """Rolls S sequences per instance. Returns (actions [I, S, H, A], score [I, S], cost [I, S]
@@ -349,7 +307,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
       return (_where(ok, out.next_node, node), length + ok, ok & ~out.is_goal), None
 
     num = actions.shape[0]
-    carry = (start, common.zeros_i(num), ~env.is_goal(start))
+    carry = (start, jnp.zeros((num,), jnp.int32), ~env.is_goal(start))
     (_, length, _), _ = jax.lax.scan(body, carry, jnp.swapaxes(actions, 0, 1))
     return length
 
@@ -386,8 +344,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     TIME_LIMIT. Compilation happens before the clock starts."""
     if time_limit_s is not None and not time_limit_s > 0:
       raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-    num = common.check_start(start_nodes, env)
-    keys = common.instance_keys(key, num)
+    num = types.check_start_nodes(start_nodes, env)
+    keys = types.instance_keys(key, num)
     init_c = init_jit.lower(start_nodes, keys, nominal).compile()
     shape = jax.eval_shape(init, start_nodes, keys, nominal)
     loop_c = (run_jit if time_limit_s is None else step_jit).lower(shape).compile()

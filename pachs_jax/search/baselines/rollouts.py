@@ -1,26 +1,5 @@
-"""Rollout baselines: the policy alone (single rollout) and many stochastic copies of it from
-the start state (parallel rollout), batched over I problem instances.
-
-Single rollout: the deterministic policy `actor_critic.deterministic_action` from the start,
-one edge per step, until a goal, an invalid edge, or `env.episode_length` steps.
-
-Parallel rollout: M stochastic copies per instance (`actor_critic.sample_actions(key, obs, 1)`),
-all I * M copies stepped by one `env.evaluate` per loop step. A copy that reaches the episode
-length or meets an invalid edge (its edge is counted, not applied) restarts from the start
-state. The instance stops when a copy reaches a goal (its path is returned; on a tie, the
-cheapest) or when the per-instance evaluation budget is spent; the last step evaluates only the
-first `left` copies, so an instance evaluates exactly `max_evaluations` edges unless it found a
-goal. Without a goal the returned path is the best-reward rollout among all finished and the
-unfinished copies: by default (`fallback='last_cost'`) the one whose last applied edge had the
-lowest cost (for the dense-reward tasks the state closest to the goal, what the closed loop
-executes), or with `fallback='total_cost'` the lowest cumulative cost.
-
-Stop reasons: GOAL; BUDGET (evaluations spent; for the single rollout: the episode length);
-OPEN_EMPTY (single rollout only: the policy's edge was invalid, nothing else to try);
-TIME_LIMIT (parallel rollout, when a caller ends it with `stop`).
-Returned path_nodes are re-evaluated from the start along the returned actions (`common.replay`),
-so no per-copy state history is stored; path_is_goal is the replay's goal test.
-"""
+"""Rollout baselines: the policy alone and many stochastic copies of it, batched over I
+problem instances (docs/baselines.md)."""
 
 from __future__ import annotations
 
@@ -32,6 +11,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
+from pachs_jax.search import types
 from pachs_jax.search.baselines import common
 from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
 
@@ -76,7 +56,7 @@ class SingleRolloutConfig:
   max_steps: Optional[int] = None
 
   def __post_init__(self):
-    common.positive_int('SingleRolloutConfig', 'max_steps', self.max_steps, allow_none=True)
+    types.positive_int('SingleRolloutConfig', 'max_steps', self.max_steps, allow_none=True)
 
 
 def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig = SingleRolloutConfig()
@@ -89,12 +69,12 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
   """
   if not isinstance(config, SingleRolloutConfig):
     raise ValueError(f'config must be a SingleRolloutConfig, got {type(config).__name__}')
-  common.check_actor_critic(actor_critic, ('deterministic_action',))
+  types.check_actor_critic(actor_critic, ('deterministic_action',))
   steps = config.max_steps or env.episode_length
   action_size = env.action_size
 
   def rollout(start_nodes: base.NodeState) -> SearchResult:
-    num = common.check_start(start_nodes, env)
+    num = types.check_start_nodes(start_nodes, env)
     start_goal = env.is_goal(start_nodes)
     nodes = jax.tree.map(lambda x: jnp.repeat(x[:, None], steps + 1, axis=1), start_nodes)
     rows = jnp.arange(num)
@@ -102,8 +82,8 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
         node=start_nodes, t=jnp.zeros((), jnp.int32), active=~start_goal, found=start_goal,
         stop=jnp.where(start_goal, StopReason.GOAL, StopReason.RUNNING).astype(jnp.int32),
         actions=jnp.zeros((num, steps, action_size), jnp.float32), nodes=nodes,
-        length=common.zeros_i(num), cost=jnp.zeros((num,), jnp.float32),
-        evaluated=common.zeros_i(num), invalid=common.zeros_i(num))
+        length=jnp.zeros((num,), jnp.int32), cost=jnp.zeros((num,), jnp.float32),
+        evaluated=jnp.zeros((num,), jnp.int32), invalid=jnp.zeros((num,), jnp.int32))
 
     def cond(c):
       return jnp.any(c['active']) & (c['t'] < steps)
@@ -160,8 +140,8 @@ class ParallelRolloutConfig:
 
   def __post_init__(self):
     for name in ('num_copies', 'max_evaluations'):
-      common.positive_int('ParallelRolloutConfig', name, getattr(self, name))
-    common.positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,
+      types.positive_int('ParallelRolloutConfig', name, getattr(self, name))
+    types.positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,
                         allow_none=True)
     if self.fallback not in FALLBACKS:
       raise ValueError(f'ParallelRolloutConfig.fallback must be one of {FALLBACKS}, '
@@ -169,19 +149,18 @@ class ParallelRolloutConfig:
 
 
 @struct.dataclass
-class RolloutState:
-  """The parallel rollout's loop state, leading axis I (copies M).
+class RolloutState(common.SamplingState):
+  """The parallel rollout's loop state, leading axis I (copies M): the fields of
+  `common.SamplingState` and
 
-  start: NodeState [I] start states; node: NodeState [I, M] the copies' states.
+  node: NodeState [I, M] the copies' states.
   episode_step: [I, M] int32 edges applied since the copy's (re)start.
   episode_cost: [I, M] float32 their summed cost; last_cost: [I, M] cost of the last applied
     edge (+inf before the first); episode_actions: [I, M, T, A] the applied actions.
   best_actions: [I, T, A], best_length [I], best_score [I], best_cost [I]: the returned rollout.
-  rng: [I, 2] uint32; active, found: [I] bool; stop_reason: [I] int32.
-  evaluated, invalid, iterations, restarts: [I] int32 counters.
+  restarts: [I] int32 copies restarted.
   """
 
-  start: base.NodeState
   node: base.NodeState
   episode_step: jax.Array
   episode_cost: jax.Array
@@ -191,13 +170,6 @@ class RolloutState:
   best_length: jax.Array
   best_score: jax.Array
   best_cost: jax.Array
-  rng: jax.Array
-  active: jax.Array
-  found: jax.Array
-  stop_reason: jax.Array
-  evaluated: jax.Array
-  invalid: jax.Array
-  iterations: jax.Array
   restarts: jax.Array
 
 
@@ -223,28 +195,26 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
   """Builds the jitted parallel rollout for env, actor_critic and config."""
   if not isinstance(config, ParallelRolloutConfig):
     raise ValueError(f'config must be a ParallelRolloutConfig, got {type(config).__name__}')
-  common.check_actor_critic(actor_critic, ('sample_actions',))
+  types.check_actor_critic(actor_critic, ('sample_actions',))
   m, budget = config.num_copies, config.max_evaluations
   steps = config.episode_length or env.episode_length
   action_size = env.action_size
 
   def init(start_nodes: base.NodeState, key: jax.Array) -> RolloutState:
-    num = common.check_start(start_nodes, env)
-    keys = common.instance_keys(key, num)
+    num = types.check_start_nodes(start_nodes, env)
+    keys = types.instance_keys(key, num)
     start_goal = env.is_goal(start_nodes)
     node = jax.tree.map(lambda x: jnp.repeat(x[:, None], m, axis=1), start_nodes)
-    zeros = common.zeros_i(num)
+    zeros = jnp.zeros((num,), jnp.int32)
     return RolloutState(
-        start=start_nodes, node=node, episode_step=jnp.zeros((num, m), jnp.int32),
+        node=node, episode_step=jnp.zeros((num, m), jnp.int32),
         episode_cost=jnp.zeros((num, m), jnp.float32),
         last_cost=jnp.full((num, m), jnp.inf, jnp.float32),
         episode_actions=jnp.zeros((num, m, steps, action_size), jnp.float32),
         best_actions=jnp.zeros((num, steps, action_size), jnp.float32), best_length=zeros,
         best_score=jnp.full((num,), jnp.inf, jnp.float32),
-        best_cost=jnp.zeros((num,), jnp.float32), rng=keys, active=~start_goal,
-        found=start_goal,
-        stop_reason=jnp.where(start_goal, StopReason.GOAL, StopReason.RUNNING).astype(jnp.int32),
-        evaluated=zeros, invalid=zeros, iterations=zeros, restarts=zeros)
+        best_cost=jnp.zeros((num,), jnp.float32), restarts=zeros,
+        **common.sampling_start(start_nodes, keys, start_goal))
 
   def pick(state, best, candidates, score, length, cost):
     """Takes each instance's candidate copy with the lowest score if it beats best."""

@@ -1,15 +1,5 @@
-"""The BFS-3D heuristic of the ePA*SE baseline: breadth-first distances over a voxel grid of the
-workspace from the goal cell, computed in JAX, and the Panda-Shelf setup (primitives, edges,
-heuristic) built on it.
-
-The grid covers an axis-aligned box of the workspace in cells of `cell` metres; a cell is
-blocked when its centre lies within `inflation` of an obstacle box. The BFS is an iterated
-dilation: each round every free cell takes min(d, min over its neighbours d + 1) (6 face
-neighbours, or all 26 with the 3 x 3 x 3 minimum computed axis by axis), in a
-`lax.while_loop` until nothing changes. h(s) = BFS steps of the end effector's cell times
-`cell` (m); with 26 neighbours that is the Chebyshev length of a grid path, never more than
-the Euclidean length, so h does not overestimate the end effector's travel in free space.
-"""
+"""The BFS-3D heuristic of the ePA*SE baseline (distances over a voxel grid of the workspace
+from the goal cell) and the Panda-Shelf setup built on it (docs/baselines.md)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,69 @@
+"""Statistics of the experiments: success-rate intervals, success curves, cost ratios, means."""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, List
+
+import numpy as np
+
+from pachs_jax.search.types import StopReason
+
+
+def wilson_interval(successes: int, total: int, z: float = 1.96):
+  """95% Wilson score interval (lower, upper) of a success rate."""
+  if total == 0:
+    return (math.nan, math.nan)
+  p = successes / total
+  centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+  half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+  low = 0.0 if successes == 0 else max(0.0, centre - half)
+  high = 1.0 if successes == total else min(1.0, centre + half)
+  return (low, high)
+
+
+def instance_bootstrap_interval(found, instance, repeats: int = 10_000, seed: int = 0):
+  """95% interval of the success rate with the instances resampled (a cluster bootstrap): the
+  rounds of one instance are not independent runs (a deterministic planner repeats itself), so
+  the instance is the unit of resampling. found, instance: [runs]."""
+  found, instance = np.asarray(found, float), np.asarray(instance)
+  ids = np.unique(instance)
+  per_instance = np.array([found[instance == i].mean() for i in ids])
+  rng = np.random.default_rng(seed)
+  means = per_instance[rng.integers(0, len(ids), (repeats, len(ids)))].mean(axis=1)
+  return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def success_curve(rows: List[Dict], budgets) -> List[float]:
+  """Share of runs that found the goal within each budget of evaluations (a run that found its
+  goal after e evaluations finds it with any budget >= e: the search up to a budget is a prefix
+  of the full search)."""
+  return [float(np.mean([r['found'] and r['evaluated'] <= b for r in rows])) for b in budgets]
+
+
+def cost_ratios(per_planner: Dict[str, List[Dict]]) -> Dict[str, Dict[str, Dict]]:
+  """ratio[a][b]: mean over runs both solved of cost_a / cost_b, and how many runs."""
+  out = {}
+  for a, rows_a in per_planner.items():
+    out[a] = {}
+    for b, rows_b in per_planner.items():
+      pairs = [(x['cost'], y['cost']) for x, y in zip(rows_a, rows_b)
+               if x['found'] and y['found'] and y['cost'] > 0]
+      out[a][b] = {'mean_ratio': mean_or_none([x / y for x, y in pairs]), 'runs': len(pairs)}
+  return out
+
+
+def mean_or_none(values):
+  """The mean as a float, None for no values."""
+  return float(np.mean(values)) if len(values) else None
+
+
+def mean_where(values, mask):
+  """The mean of values[mask] (e.g. the cost over successful runs), None where mask is empty."""
+  return mean_or_none(np.asarray(values)[np.asarray(mask)])
+
+
+def stop_counts(stop_reasons) -> Dict[str, int]:
+  """{stop reason name: runs}, in code order, reasons that occur only."""
+  counts = np.bincount(np.asarray(stop_reasons).ravel())
+  return {StopReason.name(c): int(n) for c, n in enumerate(counts) if n}

@@ -1,0 +1,72 @@
+"""The task registry: each task's constructor, planning model, instance count and search defaults.
+
+Measured reasons for the defaults: docs/task_defaults.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Dict, Mapping
+
+from pachs_jax.envs import base
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSpec:
+  """One task.
+
+  name: the task name (`Env.name`).
+  make: () -> Env, a new environment of the task.
+  model_task: the task whose shipped actor-critic plans this one.
+  num_instances: size of the canonical instance set (`Env.canonical_instances`).
+  search_defaults: SearchConfig field values tuned at the paper's budget (on a GPU).
+  cpu_overrides: SearchConfig field values that replace them at the CPU budget of `pachs plan`.
+  """
+
+  name: str
+  make: Callable[[], base.Env]
+  model_task: str
+  num_instances: int
+  search_defaults: Mapping[str, Any]
+  cpu_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+def _pusht(variant: str) -> Callable[[], base.Env]:
+  def build() -> base.Env:
+    from pachs_jax.envs import pusht
+    return pusht.PushTEnv(pusht.PushTConfig(variant=variant))
+  return build
+
+
+def _shelf() -> base.Env:
+  from pachs_jax.envs import shelf
+  return shelf.ShelfEnv()
+
+
+# Weight w, actions per expansion N, edges popped per iteration K, edge evaluations per instance.
+_SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'max_evaluations': 100_000}
+
+SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
+    TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _SEARCH),
+    TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _SEARCH),
+    TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30,
+             dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
+             cpu_overrides={'pop_size': 64,
+                            'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)}),
+    TaskSpec('shelf', _shelf, 'shelf', 100,
+             dict(_SEARCH, pop_size=16, max_evaluations=20_000)),
+)}
+
+TASKS = tuple(SPECS)
+
+
+def spec(name: str) -> TaskSpec:
+  """The TaskSpec of a task name; raises ValueError listing the valid names."""
+  if name not in SPECS:
+    raise ValueError(f'unknown task {name!r}; valid tasks: {", ".join(TASKS)}')
+  return SPECS[name]
+
+
+def make(name: str) -> base.Env:
+  """A new environment of the named task; raises ValueError listing the valid names."""
+  return spec(name).make()

@@ -1,0 +1,60 @@
+"""Helpers shared by the test files: `from conftest import take, assert_results_equal, ...`.
+
+pytest puts this directory on sys.path (the tests are not a package), so the plain import works.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def take(tree, i):
+  """Row i of a batched pytree as a batch of one; scalar leaves (a wall time) unchanged."""
+  return jax.tree.map(lambda x: x[i:i + 1] if jnp.ndim(x) else x, tree)
+
+
+def pad_rows(tree, rows):
+  """A batched pytree padded to `rows` rows by repeating its last row (a fixed compiled batch)."""
+  def pad(x):
+    x = jnp.asarray(x)
+    return jnp.concatenate([x, jnp.repeat(x[-1:], rows - x.shape[0], axis=0)])
+  return jax.tree.map(pad, tree)
+
+
+def trees_equal(a, b) -> bool:
+  """Bit-for-bit equality of two pytrees: leaf count, shapes, dtypes and bytes (NaNs included)."""
+  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+  return len(la) == len(lb) and all(
+      x.shape == y.shape and x.dtype == y.dtype
+      and np.asarray(x).tobytes() == np.asarray(y).tobytes() for x, y in zip(la, lb))
+
+
+def result_leaves(result):
+  """A SearchResult's arrays as numpy arrays, without the wall time (it differs run to run)."""
+  return [np.asarray(x) for x in jax.tree.leaves(result.replace(wall_time_s=None))]
+
+
+def assert_results_equal(got, want):
+  """Two SearchResults hold equal arrays, leaf for leaf (NaN equals NaN), the wall time aside."""
+  got, want = result_leaves(got), result_leaves(want)
+  assert len(got) == len(want), (len(got), len(want))
+  for g, w in zip(got, want):
+    np.testing.assert_array_equal(g, w)
+
+
+class UniformActorCritic:
+  """A stand-in actor-critic that knows nothing: uniform random proposals in [-1, 1], a
+  deterministic policy that stays put (zero action), Q = 0."""
+
+  def __init__(self, action_size: int):
+    self.action_size = action_size
+
+  def deterministic_action(self, obs):
+    return jnp.zeros((obs.shape[0], self.action_size), jnp.float32)
+
+  def sample_actions(self, key, obs, num):
+    return jax.random.uniform(key, (obs.shape[0], num, self.action_size), jnp.float32,
+                              -1.0, 1.0)
+
+  def q_values(self, obs, actions):
+    return jnp.zeros(actions.shape[:2], jnp.float32)
