@@ -79,6 +79,50 @@ def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx',
   return env, model
 
 
+class Planner:
+  """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
+  kept warm between calls (one compilation per padded instance count, see `pachs.plan`).
+
+  task: a task name (`envs.TASKS`); checkpoint: a model directory (None: the shipped one);
+  backend: 'auto' (MuJoCo C physics on a CPU-only machine), 'mjx' or 'mujoco-c';
+  budget and the SearchConfig fields in `overrides` as in `command_config`;
+  cache: turn on the persistent compilation cache (`compile_cache.enable`).
+  """
+
+  def __init__(self, task: str, checkpoint: Optional[str] = None, backend: str = 'auto',
+               budget: Optional[int] = None, cache: bool = True, **overrides):
+    from pachs_jax import compile_cache
+    from pachs_jax.search import pachs
+    if cache:
+      compile_cache.enable()
+    self.task = task
+    self.env, self.model = load_model(task, checkpoint, backend)
+    on_cpu = jax.default_backend() == 'cpu'
+    self.config = command_config(task, on_cpu, type(self.env).__name__ == 'MujocoCEnv', budget,
+                                 **overrides)
+    self.search = pachs.make_search(self.env, self.model, self.config)
+    self._canonical = None
+
+  def canonical(self, instances: Sequence[int]):
+    """NodeState [len(instances)] of the task's canonical instances (generated once)."""
+    if self._canonical is None:
+      self._canonical = self.env.canonical_instances(envs.spec(self.task).num_instances)
+    index = np.asarray(instances)
+    return jax.tree.map(lambda x: x[index], self._canonical)
+
+  def plan(self, instances: Optional[Sequence[int]] = None, start_nodes=None, seed: int = 0,
+           time_limit_s: Optional[float] = None) -> search_types.SearchResult:
+    """Plans the canonical `instances` (indices) or the given start_nodes [I]; returns the
+    SearchResult [I] (wall_time_s without compilation)."""
+    from pachs_jax.search import pachs
+    if (instances is None) == (start_nodes is None):
+      raise ValueError('give either instances (canonical indices) or start_nodes')
+    if start_nodes is None:
+      start_nodes = self.canonical(instances)
+    return pachs.plan(self.env, self.model, start_nodes, self.config, jax.random.PRNGKey(seed),
+                      time_limit_s=time_limit_s, search=self.search)
+
+
 def parse_instances(text: str, available: int) -> List[int]:
   """'0-29' or '0,3,5' or '7' -> sorted instance indices, checked against `available`."""
   out = set()

@@ -75,8 +75,9 @@ def test_pachs_with_compaction_equals_without():
   env.batches.clear()
   got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
   jax.effects_barrier()
-  # 6 instances x K 4 = 24 lanes: the smaller batches (6, 12) ran once most instances stopped
-  assert {6, 12} <= set(env.batches) and 24 in env.batches, env.batches
+  # 6 instances padded to 8 (pachs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
+  # ran once most instances stopped
+  assert {8, 16} <= set(env.batches) and 32 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
   assert_results_equal(got, want)

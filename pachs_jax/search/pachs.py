@@ -39,12 +39,15 @@ class SearchState(phases.EdgeSearchState):
 class Search:
   """PACHS bound to one environment, actor-critic and config (jitted functions).
 
-  init(start_nodes [I], keys [I, 2]) -> SearchState with the start states' dummy edges in OPEN.
+  init(start_nodes [I], keys [I, 2], live [I] bool) -> SearchState with the start states'
+    dummy edges in OPEN; instances that are not live (padding) start stopped.
   run_chunk(state, num_iterations) -> state after at most num_iterations more iterations
     (the input state's buffers are donated).
   run(state) -> state when every instance has stopped.
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
+  compiled: (instances, platform) -> the compiled (init, run_chunk, result) of `plan`, kept
+    so that later calls with as many (padded) instances compile nothing.
   """
 
   init: Callable[..., SearchState]
@@ -52,6 +55,7 @@ class Search:
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
   config: SearchConfig
+  compiled: dict = dataclasses.field(default_factory=dict, compare=False, hash=False)
 
 
 def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
@@ -132,7 +136,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                          config.iteration_limit, expanding, within, usable,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table)
 
-  def init(start_nodes: base.NodeState, keys: jax.Array) -> SearchState:
+  def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = types.check_start_nodes(start_nodes, env)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes),
                                env.lattice_key(start_nodes, resolution), config.pool_size,
@@ -141,7 +145,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=types.instance_keys(keys, num_instances),
-                       **phases.start_state(pool, table))
+                       **phases.start_state(pool, table, live))
 
   def run_chunk(state: SearchState, num_iterations) -> SearchState:
     def cond(carry):
@@ -175,17 +179,26 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                 config=config)
 
 
+def bucket_size(num_instances: int, minimum: int = 1) -> int:
+  """The padded instance count that `plan` compiles for: the next power of two, at least
+  minimum (so that nearby counts share one compiled program)."""
+  return max(minimum, types.next_pow2(num_instances))
+
+
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
-         chunk_iterations: int = 32, search: Optional[Search] = None) -> SearchResult:
-  """Plans from start_nodes [I]; returns the SearchResult with wall_time_s set.
+         chunk_iterations: int = 32, search: Optional[Search] = None,
+         min_bucket: Optional[int] = None) -> SearchResult:
+  """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
   time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
     least one) while the next chunk, timed as the last, would end within the limit (s), and
     instances still searching then report TIME_LIMIT with the path to their real-time answer.
     Compilation happens before the clock starts.
-  search: a `make_search` result to reuse (its compiled functions); built here when None.
+  search: a `make_search` result to reuse: its compiled programs stay warm between calls.
+  min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
+    cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
   """
   if time_limit_s is not None and not time_limit_s > 0:
     raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
@@ -195,11 +208,23 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     search = make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  keys = types.instance_keys(key, types.check_start_nodes(start_nodes, env))
-  init = search.init.lower(start_nodes, keys).compile()
-  shape = jax.eval_shape(search.init, start_nodes, keys)
+  num_instances = types.check_start_nodes(start_nodes, env)
+  keys = types.instance_keys(key, num_instances)
+  if min_bucket is None:
+    min_bucket = 1 if jax.default_backend() == 'cpu' else 32
+  padded = bucket_size(num_instances, min_bucket)
+  pad = lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - num_instances, axis=0)])
+  start_nodes, keys = jax.tree.map(pad, (start_nodes, keys))
+  live = jnp.arange(padded) < num_instances
+  programs = search.compiled.get((padded, jax.default_backend()))
+  if programs is None:
+    shape = jax.eval_shape(search.init, start_nodes, keys, live)
+    programs = (search.init.lower(start_nodes, keys, live).compile(),
+                search.run_chunk.lower(shape, jnp.int32(0)).compile(),
+                search.result.lower(shape).compile())
+    search.compiled[(padded, jax.default_backend())] = programs
+  init, chunk, result = programs
   steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
-  chunk = search.run_chunk.lower(shape, steps).compile()
-  result = search.result.lower(shape).compile()
-  return anytime.timed_result(lambda s: chunk(s, steps), init(start_nodes, keys), result,
-                              time_limit_s)
+  out = anytime.timed_result(lambda s: chunk(s, steps), init(start_nodes, keys, live), result,
+                             time_limit_s)
+  return jax.tree.map(lambda x: x[:num_instances] if jnp.ndim(x) else x, out)

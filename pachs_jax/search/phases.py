@@ -3,7 +3,7 @@ budgeted evaluation, successor insertion and stop."""
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Tuple
+from typing import Callable, NamedTuple, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -40,11 +40,14 @@ class EdgeSearchState:
   invalid: jax.Array
 
 
-def start_state(pool: pool_lib.NodePool, table: lattice_lib.LatticeTable) -> dict:
-  """The EdgeSearchState fields of a search that has not begun, as keyword arguments."""
+def start_state(pool: pool_lib.NodePool, table: lattice_lib.LatticeTable,
+                live: Optional[jax.Array] = None) -> dict:
+  """The EdgeSearchState fields of a search that has not begun, as keyword arguments; live: [I]
+  bool instances that search (None: all)."""
   num_instances = pool.size.shape[0]
   zeros = jnp.zeros((num_instances,), jnp.int32)
-  return dict(pool=pool, table=table, active=jnp.ones((num_instances,), bool),
+  active = jnp.ones((num_instances,), bool) if live is None else jnp.asarray(live, bool)
+  return dict(pool=pool, table=table, active=active,
               stop_reason=zeros, goal_node=jnp.full((num_instances,), NO_NODE, jnp.int32),
               iterations=zeros, expanded=zeros, evaluated=zeros, invalid=zeros)
 

@@ -1,0 +1,136 @@
+"""Where a `pachs plan` process spends its time: imports, model load, instance generation,
+tracing, lowering, XLA compilation per program, search and output, cold and with a warm
+persistent compilation cache, for one instance and for the 30-instance main job."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+T_START = time.perf_counter()
+
+
+def child(task: str, instances: int, budget, backend: str) -> dict:
+  """One process's phases (s), as `pachs plan` runs them, and the XLA programs it compiled."""
+  times = {}
+  mark = time.perf_counter()
+
+  def phase(name):
+    nonlocal mark
+    now = time.perf_counter()
+    times[name] = now - mark
+    mark = now
+
+  import logging
+  import jax
+  import jax.numpy as jnp
+  from pachs_jax import compile_cache, planner
+  from pachs_jax.search import pachs, types
+  phase('imports')
+  compiled = []
+
+  cache_hits = []
+
+  class Count(logging.Handler):
+    def emit(self, record):
+      message = record.getMessage()
+      if message.startswith('Compiling '):
+        compiled.append(message.split(' ')[1])
+      elif 'cache hit' in message.lower():
+        cache_hits.append(message)
+
+  logging.getLogger('jax').addHandler(Count())
+  logging.getLogger('jax').setLevel(logging.DEBUG)
+  jax.config.update('jax_log_compiles', True)
+  cache = compile_cache.enable()
+  on_cpu = jax.default_backend() == 'cpu'
+  env, model = planner.load_model(task, None, backend)
+  config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
+  phase('model_load')
+  starts = env.canonical_instances(instances)
+  jax.block_until_ready(starts)
+  phase('instance_generation')
+  search = pachs.make_search(env, model, config)
+  keys = types.instance_keys(jax.random.PRNGKey(0), instances)
+  padded = pachs.bucket_size(instances, 1 if on_cpu else 32)
+  pad = lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - instances, axis=0)])
+  starts, keys = jax.tree.map(pad, (starts, keys))
+  live = jnp.arange(padded) < instances
+  phase('make_search')
+  shape = jax.eval_shape(search.init, starts, keys, live)
+  traced = [search.init.trace(starts, keys, live), search.run_chunk.trace(shape, jnp.int32(0)),
+            search.result.trace(shape)]
+  phase('trace')
+  lowered = [t.lower() for t in traced]
+  phase('lower')
+  executables = []
+  for name, low in zip(('init', 'loop', 'result'), lowered):
+    executables.append(low.compile())
+    phase(f'compile_{name}')
+  init, chunk, result = executables
+  state = init(starts, keys, live)
+  state = chunk(state, jnp.int32(jnp.iinfo(jnp.int32).max))
+  out = jax.block_until_ready(result(state))
+  phase('search')
+  rows = planner.result_rows(jax.tree.map(lambda x: x[:instances] if jnp.ndim(x) else x, out),
+                             list(range(instances)))
+  print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
+        file=sys.stderr)
+  phase('output')
+  return {'phases_s': times, 'programs_compiled': len(compiled),
+          'persistent_cache_hits': len(cache_hits),
+          'program_names': sorted(set(compiled)), 'found': sum(r['found'] for r in rows),
+          'device': str(jax.devices()[0]), 'cache_dir': cache,
+          'in_process_s': time.perf_counter() - T_START}
+
+
+def main():
+  parser = argparse.ArgumentParser(description=__doc__)
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--instances', default='1,30', help='instance counts, comma separated')
+  parser.add_argument('--budget', type=int, default=None, help='None: the command default')
+  parser.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'])
+  parser.add_argument('--out', default='experiments/results/bench_startup.json')
+  parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
+  args = parser.parse_args()
+  if args.child:
+    print(json.dumps(child(args.task, int(args.instances), args.budget, args.backend)))
+    return
+  import common
+  rows = []
+  for count in map(int, args.instances.split(',')):
+    with tempfile.TemporaryDirectory() as cache:
+      for run in ('cold', 'warm'):
+        command = [sys.executable, __file__, '--child', '--task', args.task, '--instances',
+                   str(count), '--backend', args.backend]
+        if args.budget:
+          command += ['--budget', str(args.budget)]
+        began = time.perf_counter()
+        done = subprocess.run(command, capture_output=True, text=True,
+                              env=dict(os.environ, PACHS_COMPILATION_CACHE=cache))
+        wall = time.perf_counter() - began
+        if done.returncode:
+          raise SystemExit(done.stderr[-3000:])
+        row = json.loads(done.stdout.strip().splitlines()[-1])
+        row.update(instances=count, run=run, process_wall_s=wall)
+        rows.append(row)
+        print(json.dumps({k: v for k, v in row.items() if k != 'program_names'}), flush=True)
+  result = {'provenance': common.provenance(), 'task': args.task, 'rows': rows}
+  common.write_json(args.out, result)
+  phases = list(rows[0]['phases_s'])
+  table = [dict(instances=r['instances'], run=r['run'], process_wall_s=r['process_wall_s'],
+                programs=r['programs_compiled'],
+                cache_hits=r['persistent_cache_hits'], found=r['found'],
+                **{p: r['phases_s'][p] for p in phases}) for r in rows]
+  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+    f.write(f"# Start-up of `pachs plan --task {args.task}`\n\n{result['provenance']}\n\n"
+            + common.markdown_table(table, list(table[0])) + '\n')
+
+
+if __name__ == '__main__':
+  main()
