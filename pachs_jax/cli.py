@@ -60,7 +60,9 @@ def _plan(args: argparse.Namespace) -> int:
   import jax
   import numpy as np
 
-  from pachs_jax import envs, planner
+  from pachs_jax import compile_cache, envs, planner
+  if not args.no_cache:
+    compile_cache.enable()
   from pachs_jax.search import pachs, sharding
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
@@ -168,6 +170,9 @@ def main(argv=None) -> int:
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator')
   plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')
   plan.add_argument('--json', default=None, help='write the result rows as JSON')
+  plan.add_argument('--no-cache', action='store_true',
+                    help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
+                         'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')
   plan.set_defaults(func=_plan)
   args = parser.parse_args(argv)
   num_instances = envs.spec(args.task).num_instances

@@ -402,3 +402,20 @@ def test_min_h_realtime_answer(problem, config):
     dataclasses.replace(config, realtime_answer='closest')
   with pytest.raises(ValueError, match='weight > 0'):
     dataclasses.replace(config, weight=0.0, realtime_answer='min_h')
+
+
+def test_plans_of_one_bucket_share_compiled_programs(problem):
+  # 3 and 4 instances pad to one bucket of 4 (and 3 to 8 with min_bucket 8): one compilation
+  # each, and padding changes no instance's result.
+  env, ac = problem.env, problem.actor_critic
+  search = make_search(env, ac, BASE)
+  rows = lambda tree, n: jax.tree.map(lambda x: x[:n] if jnp.ndim(x) else x, tree)
+  three = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search)
+  four = plan(env, ac, rows(problem.nodes, 4), BASE, problem.keys[:4], search=search)
+  assert list(search.compiled) == [(4, jax.default_backend())]
+  assert_results_equal(three, rows(four, 3))
+  eight = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search,
+               min_bucket=8)
+  assert sorted(search.compiled) == [(4, jax.default_backend()), (8, jax.default_backend())]
+  assert_results_equal(eight, three)
+  assert three.found.shape == (3,)
