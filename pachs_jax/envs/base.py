@@ -4,6 +4,7 @@ the search (batched `evaluate`, `observe`, `lattice_key`, `is_goal` on compact `
 from __future__ import annotations
 
 import abc
+import functools
 from typing import Any, Dict
 
 import jax
@@ -131,9 +132,9 @@ class Env(abc.ABC):
 
   # ---- training interface (Brax style), on a single environment ----
 
-  @property
+  @functools.cached_property
   def observation_size(self) -> int:
-    """Length O of `observation` (traced, not computed)."""
+    """Length O of `observation` (traced once, not computed)."""
     node = jax.eval_shape(self.sample_instance, jax.random.PRNGKey(0))
     return int(jax.eval_shape(self.observation, node).shape[-1])
 
