@@ -228,16 +228,18 @@ def main():
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
-  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True)
+  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True)
   args = parser.parse_args()
-  out = args.out or f'experiments/results/closed_loop_{args.task}.json'
+  common.check_layout(parser, args.task, args.layout)
+  label = common.task_label(args.task, args.layout)
+  out = args.out or f'experiments/results/closed_loop_{label}.json'
   perturbation = parse_perturbation(args.perturb)
 
-  env, model = planner.load_model(args.task, backend=args.backend)
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)
-  payload = {'provenance': common.provenance(), 'task': args.task,
+  payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
   for name in args.planners.split(','):

@@ -15,11 +15,12 @@ import jax
 import numpy as np
 
 from pachs_jax import envs
+from pachs_jax.envs import layouts
 
 
 def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                     instances: Union[bool, None, int] = False, backend: bool = False,
-                    seed: bool = False) -> None:
+                    seed: bool = False, layout: bool = False) -> None:
   """Adds the flags the experiments share.
 
   --out: the results JSON (markdown and pictures go next to it); default `out`, or where None,
@@ -29,6 +30,8 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
     canonical set (30 PushT, 100 shelf; `task_instances`).
   --backend (if `backend`): the planners' edge physics, `planner.load_model`'s backend.
   --seed (if `seed`): the runs' PRNG seed, default 0.
+  --layout NAME (if `layout`): pusht-obs's obstacle layout (`layouts.LAYOUTS`; default
+    `layouts.DEFAULT`); check it against the task with `check_layout`.
   """
   if instances is not False:
     parser.add_argument('--instances', type=int, default=instances, metavar='N',
@@ -40,8 +43,24 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                         "mujoco-c for PushT without an accelerator)")
   if seed:
     parser.add_argument('--seed', type=int, default=0)
+  if layout:
+    parser.add_argument('--layout', default=None, choices=layouts.NAMES,
+                        help=f"pusht-obs only: the obstacle layout (default: {layouts.DEFAULT}; "
+                        "'legacy': PushT-Obs of the results recorded before the layouts)")
   parser.add_argument('--out', default=out, help='results JSON, other outputs next to it '
                       f'(default: {out or "in experiments/results/, named after the flags"})')
+
+
+def check_layout(parser: argparse.ArgumentParser, task: str, layout: Optional[str]) -> None:
+  """parser.error unless --layout is unset or the task is pusht-obs."""
+  if layout is not None and task != 'pusht-obs':
+    parser.error(f'--layout applies to --task pusht-obs only, not {task!r}')
+
+
+def task_label(task: str, layout: Optional[str] = None) -> str:
+  """The name a task's result files carry: the task, or 'pusht-obs-NAME' for a layout other than
+  the default."""
+  return task if layout in (None, layouts.DEFAULT) else f'{task}-{layout}'
 
 
 def task_instances(task: str, instances: Optional[int] = None) -> int:

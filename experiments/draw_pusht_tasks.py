@@ -1,4 +1,5 @@
-"""Pictures of the PushT tasks: the canonical start poses, goals and PushT-Obs's obstacles.
+"""Pictures of the PushT tasks: the canonical start poses, goals and PushT-Obs's obstacles
+(pusht_tasks.png), and every PushT-Obs layout with its start region (pusht_layouts.png).
 
   python experiments/draw_pusht_tasks.py --out experiments/results
 """
@@ -11,13 +12,13 @@ import os
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.patches import Polygon
+from matplotlib.patches import Polygon, Rectangle
 
 from pachs_jax import envs
-from pachs_jax.envs import pusht, render
+from pachs_jax.envs import layouts, pusht, render
 
 
-def draw_instances(ax, env, title: str) -> None:
+def draw_instances(ax, env, title: str, legend: bool = True) -> None:
   nodes = env.canonical_instances(30)
   poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
   for i, pose in enumerate(poses):
@@ -29,30 +30,53 @@ def draw_instances(ax, env, title: str) -> None:
   for i, box in enumerate(env.obstacles):
     ax.add_patch(Polygon(render.box_polygon(box), closed=True, fc='0.45', ec='k',
                          label='obstacles' if i == 0 else None))
-  ax.plot([-0.40], [-0.32], 'ko', label='stick tip at start')
+  if env.layout is not None:
+    lay = env.layout
+    ax.add_patch(Rectangle((lay.start_x[0], lay.start_y[0]), lay.start_x[1] - lay.start_x[0],
+                           lay.start_y[1] - lay.start_y[0], fill=False, ec='tab:blue', ls=':',
+                           lw=1.5, label="start region (T's origin)"))
+  ax.plot([pusht.TIP_START_XY[0]], [pusht.TIP_START_XY[1]], 'ko', label='stick tip at start')
   ax.plot([pusht.BASE_POS[0]], [pusht.BASE_POS[1]], 'ks', label='robot base')
-  ax.set_xlim(-0.65, 0.1)
-  ax.set_ylim(-0.4, 0.3)
+  ax.set_xlim(-0.65, 0.3)
+  ax.set_ylim(-0.55, 0.45)
   ax.set_aspect('equal')
   ax.set_xlabel('x (m)')
   ax.set_ylabel('y (m)')
   ax.set_title(title)
-  ax.legend(loc='lower left', fontsize=7)
+  if legend:
+    ax.legend(loc='lower right', fontsize=7)
 
 
 def main():
   parser = argparse.ArgumentParser()
   parser.add_argument('--out', default='experiments/results')
   args = parser.parse_args()
-  fig = Figure(figsize=(15, 5.2))
+  os.makedirs(args.out, exist_ok=True)
+  fig = Figure(figsize=(15, 5.6))
   FigureCanvasAgg(fig)
   for k, name in enumerate(['pusht-fixed', 'pusht-rand', 'pusht-obs']):
+    suffix = f' ({layouts.DEFAULT})' if name == 'pusht-obs' else ''
     draw_instances(fig.add_subplot(1, 3, k + 1), envs.make(name),
-                   f'{name}: 30 canonical instances (seed 0)')
+                   f'{name}{suffix}: 30 canonical instances (seed 0)')
   fig.tight_layout()
-  os.makedirs(args.out, exist_ok=True)
   path = os.path.join(args.out, 'pusht_tasks.png')
   fig.savefig(path, dpi=110)
+  print(path)
+  columns = 3
+  rows = -(-len(layouts.NAMES) // columns)
+  fig = Figure(figsize=(5 * columns, 5.4 * rows))
+  FigureCanvasAgg(fig)
+  for k, name in enumerate(layouts.NAMES):
+    lay = layouts.layout(name)
+    default = ' (default)' if name == layouts.DEFAULT else ''
+    ax = fig.add_subplot(rows, columns, k + 1)
+    draw_instances(ax, envs.make('pusht-obs', layout=name), f"layout '{name}'{default}: {lay.kind}",
+                   legend=False)
+  fig.suptitle('PushT-Obs layouts: blocks, start region and the 30 canonical instances (seed 0)')
+  fig.legend(*ax.get_legend_handles_labels(), loc='lower center', ncol=6, fontsize=9)
+  fig.tight_layout(rect=(0, 0.03, 1, 1))
+  path = os.path.join(args.out, 'pusht_layouts.png')
+  fig.savefig(path, dpi=90)
   print(path)
 
 

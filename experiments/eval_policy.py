@@ -17,8 +17,8 @@ from pachs_jax import envs, planner
 from pachs_jax.sac import evaluator
 
 
-def evaluate_task(task: str, seeds: int) -> dict:
-  env, model = planner.load_model(task)
+def evaluate_task(task: str, seeds: int, layout=None) -> dict:
+  env, model = planner.load_model(task, layout=layout if task == 'pusht-obs' else None)
   num = common.task_instances(task)
   nodes = env.canonical_instances(num)
   det = evaluator.make_rollout_fn(env, deterministic=True)(model, nodes, jax.random.PRNGKey(0))
@@ -27,7 +27,7 @@ def evaluate_task(task: str, seeds: int) -> dict:
   sto_success = np.stack([np.asarray(r.success) for r in sto])
   det_success = np.asarray(det.success)
   row = {
-      'task': task, 'model': envs.spec(task).model_task, 'instances': num, 'seeds': seeds,
+      'task': env.name, 'model': envs.spec(task).model_task, 'instances': num, 'seeds': seeds,
       'deterministic_success': float(det_success.mean()),
       'deterministic_invalid': float(np.asarray(det.invalid).mean()),
       'deterministic_mean_steps_success': stats.mean_where(det.steps, det_success),
@@ -44,9 +44,9 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--tasks', default='pusht-fixed,pusht-rand,pusht-obs')
   parser.add_argument('--seeds', type=int, default=5)
-  common.add_common_args(parser, out='experiments/results/eval_policy.json')
+  common.add_common_args(parser, out='experiments/results/eval_policy.json', layout=True)
   args = parser.parse_args()
-  rows = [evaluate_task(t, args.seeds) for t in args.tasks.split(',')]
+  rows = [evaluate_task(t, args.seeds, args.layout) for t in args.tasks.split(',')]
   common.write_json(args.out, {'provenance': common.provenance(), 'rows': rows})
   with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
     f.write(f"# Single-rollout policy success on the canonical instances\n\n"

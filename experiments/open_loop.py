@@ -223,8 +223,9 @@ def main():
                       help='cells the BFS-3D distances extend into blocked cells')
   parser.add_argument('--devices', type=int, default=1,
                       help='shard the runs over this many local devices (no PACHS time limit)')
-  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True)
+  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
   args = parser.parse_args()
+  common.check_layout(parser, args.task, args.layout)
   shelf = args.task == 'shelf'
   args.instances = common.task_instances(args.task, args.instances)
   args.rounds = args.rounds or (1 if shelf else 5)
@@ -240,16 +241,17 @@ def main():
   mesh = sharding.instance_mesh(jax.devices()[:args.devices]) if args.devices > 1 else None
   names = (args.planners.split(',') if args.planners
            else list(SHELF_PLANNERS if shelf else PUSHT_PLANNERS))
-  out = args.out or f'experiments/results/open_loop_{args.task}.json'
+  label = common.task_label(args.task, args.layout)
+  out = args.out or f'experiments/results/open_loop_{label}.json'
 
-  env, model = planner.load_model(args.task, backend=args.backend)
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: x[index], starts)
   keys = run_keys(args.seed, args.instances, args.rounds)
   budgets = np.unique(np.geomspace(100, max(args.budget, args.epase_budget if shelf else 0),
                                    40).astype(int)).tolist()
-  payload = {'provenance': common.provenance(), 'task': args.task,
+  payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'model': envs.spec(args.task).model_task,
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'budget': args.budget, 'time_limit_s': args.time_limit,

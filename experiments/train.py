@@ -1,28 +1,83 @@
 """Train the SAC actor-critic of a task; resumable and time-bounded for 10-minute GPU commands.
 
---out gets checkpoints, model/ (for the search), metrics.csv and status.json; a call stopped by
---minutes continues with --resume, bit for bit (XLA deterministic ops unless --nondeterministic)."""
+--out gets checkpoints, model/ (for the search), metrics.csv (appended to) and status.json; a call
+stopped by --minutes, SIGINT (Ctrl-C) or SIGTERM saves a checkpoint after the current epoch and
+continues with --resume, bit for bit (XLA deterministic ops unless --nondeterministic); a second
+signal stops at once without saving. Exit status: 0 finished or stopped by --minutes, 130 / 143
+stopped by SIGINT / SIGTERM, 1 or 2 bad input (one line on stderr)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+import math
 import os
+import signal
 import sys
+import threading
+
+SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
+
+
+def _int_at_least(low: int):
+  def parse(text: str) -> int:
+    try:
+      value = int(text)
+    except ValueError:
+      raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
+    if value < low:
+      raise argparse.ArgumentTypeError(f'must be >= {low}, got {value}')
+    return value
+  return parse
+
+
+def _seed(text: str) -> int:
+  try:
+    value = int(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
+  if not 0 <= value < SEED_LIMIT:
+    raise argparse.ArgumentTypeError(f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}], got '
+                                     f'{value}')
+  return value
+
+
+def _positive_float(text: str) -> float:
+  try:
+    value = float(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+  if not (value > 0 and math.isfinite(value)):
+    raise argparse.ArgumentTypeError(f'must be a finite number > 0, got {text}')
+  return value
+
+
+class _Parser(argparse.ArgumentParser):
+  """Errors in one line (the usage block only with --help)."""
+
+  def error(self, message):
+    self.exit(2, f'{self.prog}: error: {message} (see --help)\n')
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-  p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  p = _Parser(description=__doc__.split('\n')[0])
   p.add_argument('--task', required=True, help="'point-mass' or a name of pachs_jax.envs.make")
-  p.add_argument('--steps', type=int, required=True, help='total environment steps of the run')
+  p.add_argument('--steps', type=_int_at_least(1), required=True,
+                 help='total environment steps of the run')
   p.add_argument('--out', required=True, help='run directory')
-  p.add_argument('--seed', type=int, default=None, help='PRNG seed (preset: 0)')
-  p.add_argument('--resume', action='store_true', help="continue the run in --out")
-  p.add_argument('--minutes', type=float, default=None, help='wall-time budget of this call')
-  p.add_argument('--checkpoint-minutes', type=float, default=5.0)
-  p.add_argument('--checkpoint-every', type=int, default=0, help='also save every N epochs')
-  p.add_argument('--keep', type=int, default=3, help='training checkpoints kept')
+  p.add_argument('--seed', type=_seed, default=None, help='PRNG seed in [0, 2**32) (preset: 0)')
+  p.add_argument('--resume', action='store_true',
+                 help='continue the run in --out (an error if it holds none)')
+  p.add_argument('--start-if-missing', action='store_true',
+                 help='with --resume: start a new run when --out holds none (for job scripts '
+                      'that repeat one command)')
+  p.add_argument('--minutes', type=_positive_float, default=None,
+                 help='wall-time budget of this call')
+  p.add_argument('--checkpoint-minutes', type=_positive_float, default=5.0)
+  p.add_argument('--checkpoint-every', type=_int_at_least(0), default=0,
+                 help='also save every N epochs')
+  p.add_argument('--keep', type=_int_at_least(1), default=3, help='training checkpoints kept')
   p.add_argument('--progress', choices=('bar', 'lines', 'none'), default=None,
                  help='default: bar on a terminal, else lines')
   p.add_argument('--no-tensorboard', action='store_true')
@@ -44,7 +99,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   g.add_argument('--min-replay', type=int)
   g.add_argument('--init-alpha', type=float)
   g.add_argument('--eval-instances', type=int)
-  return p.parse_args(argv)
+  args = p.parse_args(argv)
+  if args.start_if_missing and not args.resume:
+    p.error('--start-if-missing only goes with --resume')
+  return args
 
 
 def _widths(text: str, flag: str) -> tuple:
@@ -92,35 +150,87 @@ def make_env(task: str):
     raise SystemExit(f"{e} (or 'point-mass')") from None
 
 
+def _holds_run(out: str) -> bool:
+  """Whether --out has a training checkpoint directory (a numbered step in state/); cheap, no
+  JAX. The exact check (a complete, readable checkpoint) is train.read_run_config."""
+  state = os.path.join(out, 'state')
+  return os.path.isdir(state) and any(name.isdigit() for name in os.listdir(state))
+
+
+def _stop_outside_training(out: str):
+  """Handler of SIGINT/SIGTERM outside train() (which saves on them): nothing to save, so end
+  at once with one line (os._exit: an exception raised inside JAX's compiler can crash the
+  interpreter's exit)."""
+
+  def handler(signum, frame):
+    del frame
+    sys.stdout.flush()
+    print(f'stopped by {signal.Signals(signum).name}; {out} keeps its latest checkpoint (if any)',
+          file=sys.stderr, flush=True)
+    os._exit(128 + signum)  # pylint: disable=protected-access
+
+  return handler
+
+
 def main(argv=None) -> int:
   args = parse_args(argv)
+  # Cheap checks of --out first: no JAX import, nothing written yet.
+  if os.path.exists(args.out) and not os.path.isdir(args.out):
+    raise SystemExit(f'error: --out {args.out} is a file, not a directory')
+  if args.resume and not args.start_if_missing and not _holds_run(args.out):
+    raise SystemExit(f'error: --resume: {args.out} holds no training run (no checkpoint in '
+                     f'{os.path.join(args.out, "state")}); drop --resume to start one, or add '
+                     '--start-if-missing')
+  # Outside train() (which saves on them) SIGINT/SIGTERM end the command with one line.
+  previous = {}
+  main_thread = threading.current_thread() is threading.main_thread()
+  for signum in (signal.SIGINT, signal.SIGTERM) if main_thread else ():
+    if signal.getsignal(signum) is not signal.SIG_IGN:
+      previous[signum] = signal.signal(signum, _stop_outside_training(args.out))
+  try:
+    return _main(args)
+  finally:
+    for signum, handler in previous.items():
+      signal.signal(signum, handler)
+
+
+def _main(args: argparse.Namespace) -> int:
   if not args.nondeterministic:
     flags = os.environ.get('XLA_FLAGS', '')
     if 'xla_gpu_deterministic_ops' not in flags:
       os.environ['XLA_FLAGS'] = (flags + ' --xla_gpu_deterministic_ops=true').strip()
 
   import jax  # pylint: disable=import-outside-toplevel
-  from pachs_jax.sac import presets, train  # pylint: disable=import-outside-toplevel
+  from pachs_jax.sac import checkpoint, presets, train  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.config import (  # pylint: disable=import-outside-toplevel
       SACConfig, config_from_dict, config_to_dict)
   from pachs_jax.sac.reporting import RunReporter  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
 
+  try:
+    train.check_run_dir(args.out)  # every output path writable, before any work
+    meta = train.read_run_config(args.out)
+  except (train.RunDirError, checkpoint.CheckpointError) as e:
+    raise SystemExit(f'error: {e}') from None
   env = make_env(args.task)
   changes = overrides(args)
-  meta = train.read_run_config(args.out)
+  if meta is None and args.resume and not args.start_if_missing:
+    raise SystemExit(f'error: --resume: {args.out} holds no complete training checkpoint; drop '
+                     '--resume to start a new run, or add --start-if-missing')
   if meta is not None and args.resume:
     config = config_from_dict(SACConfig, meta['sac_config'])
     clash = {k: (getattr(config, k), v) for k, v in changes.items() if getattr(config, k) != v}
     if clash:
       listed = ', '.join(f'{k} stored {a!r} vs flag {b!r}' for k, (a, b) in clash.items())
       raise SystemExit(f'--resume: flags disagree with the stored config of {args.out}: {listed}')
-    print(f'resuming {args.out} at epoch {meta["epoch"]} ({meta["env_steps"]} env steps)',
-          flush=True)
+    print(f'resuming {args.out} at epoch {meta["epoch"]} ({meta["env_steps"]} env steps) of '
+          f'{args.steps} env steps', flush=True)
   else:
     if meta is not None:
       raise SystemExit(f'{args.out} already holds a run (epoch {meta["epoch"]}); pass --resume '
                        'to continue it or choose another --out')
+    if args.resume:
+      print(f'--start-if-missing: {args.out} holds no run; starting a new one', flush=True)
     base = presets.PRESETS.get(args.task)
     if base is None:
       print(f'no preset for {args.task!r}: using SACConfig defaults', flush=True)
@@ -137,15 +247,31 @@ def main(argv=None) -> int:
   progress = args.progress or ('bar' if sys.stderr.isatty() else 'lines')
   reporter = RunReporter(args.out, progress=progress, tensorboard=not args.no_tensorboard,
                          description=args.task)
-  result = train.train(trainer, args.out, args.steps, resume=args.resume,
-                       max_minutes=args.minutes, checkpoint_minutes=args.checkpoint_minutes,
-                       checkpoint_every_epochs=args.checkpoint_every,
-                       keep_checkpoints=args.keep, reporter=reporter)
+  try:
+    result = train.train(trainer, args.out, args.steps, resume=args.resume,
+                         start_if_missing=args.start_if_missing, max_minutes=args.minutes,
+                         checkpoint_minutes=args.checkpoint_minutes,
+                         checkpoint_every_epochs=args.checkpoint_every,
+                         keep_checkpoints=args.keep, reporter=reporter, handle_signals=True)
+  except (train.RunDirError, checkpoint.CheckpointError) as e:
+    raise SystemExit(f'error: {e}') from None
+  interrupted = None if result.finished else result.interrupted
   status = {'task': env.name, 'finished': result.finished, 'epoch': result.epoch,
             'env_steps': result.env_steps, 'total_env_steps': args.steps,
+            'interrupted': interrupted,
             'model': os.path.join(os.path.abspath(args.out), 'model')}
   with open(os.path.join(args.out, 'status.json'), 'w') as f:
     json.dump(status, f, indent=2)
+  if interrupted is not None:
+    if result.epoch > result.start_epoch:
+      line = (f'stopped by {interrupted}: saved epoch {result.epoch} ({result.env_steps} env '
+              f'steps) in {args.out}; continue with --resume')
+    else:
+      line = f'stopped by {interrupted} before the first epoch of this call: nothing new to save'
+      if result.start_epoch > 0:
+        line += f'; {args.out} holds epoch {result.epoch}, continue with --resume'
+    print(line, file=sys.stderr, flush=True)
+    return 128 + int(getattr(signal, interrupted))
   print(('FINISHED ' if result.finished else 'PARTIAL (run again with --resume) ')
         + json.dumps(status), flush=True)
   return 0

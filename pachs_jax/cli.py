@@ -4,11 +4,108 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 
 
+class _Parser(argparse.ArgumentParser):
+  """An ArgumentParser whose errors are one line: 'pachs plan: error: ...' (exit code 2)."""
+
+  def error(self, message):
+    self.exit(2, f'{self.prog}: error: {message}\n')
+
+
+def _positive_int(text: str) -> int:
+  try:
+    value = int(text)
+  except ValueError:
+    value = 0
+  if value < 1:
+    raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}')
+  return value
+
+
+def _positive_float(text: str) -> float:
+  try:
+    value = float(text)
+  except ValueError:
+    value = math.nan
+  if not (math.isfinite(value) and value > 0):
+    raise argparse.ArgumentTypeError(f'must be a positive number of seconds, got {text!r}')
+  return value
+
+
+def _seed(text: str) -> int:
+  """--seed: an integer that fits a PRNG key's signed 64 bits."""
+  try:
+    value = int(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+  if not -2**63 <= value < 2**63:
+    raise argparse.ArgumentTypeError(f'must fit in 64 bits (-2**63 .. 2**63 - 1), got {text}')
+  return value
+
+
+def _numbers(text: str, what: str):
+  """A comma-separated list of numbers ('' gives ())."""
+  try:
+    return tuple(float(x) for x in text.split(',') if x.strip())
+  except ValueError:
+    raise argparse.ArgumentTypeError(f'must be {what}, comma separated, got {text!r}') from None
+
+
+def check_output_path(flag: str, path: str) -> None:
+  """ValueError naming flag and path unless a file can be written at path: not a directory, its
+  directory exists, and creating (or opening) the file works; a file created for the test is
+  removed again."""
+  where = f'{flag} {path}'
+  if os.path.isdir(path):
+    raise ValueError(f'{where}: is a directory, not a file')
+  parent = os.path.dirname(os.path.abspath(path))
+  if not os.path.isdir(parent):
+    if os.path.exists(parent):
+      raise ValueError(f'{where}: {parent} is not a directory')
+    raise ValueError(f'{where}: the directory {parent} does not exist')
+  existed = os.path.exists(path)
+  try:
+    os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666))
+  except OSError as err:
+    raise ValueError(f'{where}: cannot write there ({err.strerror})') from None
+  if not existed:
+    os.remove(path)
+
+
+def _check_image_path(flag: str, path: str) -> None:
+  """ValueError unless matplotlib can save an image with path's extension (none: PNG)."""
+  check_output_path(flag, path)
+  ext = os.path.splitext(path)[1].lower().lstrip('.')
+  if ext:
+    from matplotlib.backend_bases import FigureCanvasBase
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if ext not in formats:
+      raise ValueError(f'{flag} {path}: cannot draw .{ext} images (use one of '
+                       f'{", ".join(sorted(formats))})')
+
+
+def _write_outputs(prog: str, outputs) -> int:
+  """Runs each (flag, path, write) in turn, also after one fails; a failure prints one line
+  '{prog}: error: ...'. Returns 0, or 2 when any failed."""
+  code = 0
+  for flag, path, write in outputs:
+    try:
+      write()
+    except (OSError, ValueError, RuntimeError) as err:
+      detail = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+      print(f'{prog}: error: {flag} {path}: {detail}', file=sys.stderr)
+      code = 2
+  return code
+
+
 def _demo(args: argparse.Namespace) -> int:
+  _check_image_path('--out', args.out)
+  if args.gif:
+    check_output_path('--gif', args.gif)
   from pachs_jax import demo
   summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif)
   print(json.dumps(summary, indent=1))
@@ -55,6 +152,13 @@ def _plan_devices(args: argparse.Namespace):
 def _plan(args: argparse.Namespace) -> int:
   import time
 
+  # every output path first: nothing is planned for results that could not be written
+  if args.json:
+    check_output_path('--json', args.json)
+  if args.render:
+    if not args.task.startswith('pusht'):
+      raise ValueError(f'--render draws PushT paths; task {args.task!r} has no drawing')
+    _check_image_path('--render', args.render)
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
   import jax
@@ -63,11 +167,11 @@ def _plan(args: argparse.Namespace) -> int:
   from pachs_jax import compile_cache, envs, planner
   if not args.no_cache:
     compile_cache.enable()
-  from pachs_jax.search import pachs, sharding
+  from pachs_jax.search import pachs, sharding, types
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
-  env, model = planner.load_model(args.task, args.checkpoint, args.backend)
+  env, model = planner.load_model(args.task, args.checkpoint, args.backend, layout=args.layout)
   num_available = envs.spec(args.task).num_instances
   mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
   cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
@@ -82,6 +186,7 @@ def _plan(args: argparse.Namespace) -> int:
       lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
       compact_fractions=args.compact_fractions)
   budget = config.max_evaluations
+  types.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
                else 'MJX on the CPU (slow: milliseconds per world and step)')
@@ -93,7 +198,7 @@ def _plan(args: argparse.Namespace) -> int:
   where = jax.devices()[0].platform
   if devices is not None:
     where = f'{len(devices)} {where} device(s), instances sharded'
-  say(f'planning {args.task} instances {args.instances} with {model_path}: '
+  say(f'planning {env.name} instances {args.instances} with {model_path}: '
       f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
       f'on {where}', flush=True)
   start = time.perf_counter()
@@ -112,49 +217,62 @@ def _plan(args: argparse.Namespace) -> int:
   found = sum(r['found'] for r in rows)
   print(f'found {found}/{len(rows)}; search time {float(result.wall_time_s):.2f} s '
         f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
-  if args.render:
-    path = planner.draw_result(env, result, instances, args.render)
-    print(f'drew instance {instances[0]} to {path}')
+  # the JSON first (a failed drawing loses no result), each output on its own
+  outputs = []
   if args.json:
-    with open(args.json, 'w') as f:
-      json.dump({'task': args.task, 'config': repr(config), 'rows': rows,
-                 'devices': 1 if devices is None else len(devices),
-                 'search_time_s': float(result.wall_time_s)}, f, indent=1)
-  return 0
+    saved = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
+             'config': repr(config), 'rows': rows,
+             'devices': 1 if devices is None else len(devices),
+             'search_time_s': float(result.wall_time_s)}
+
+    def write_json():
+      with open(args.json, 'w') as f:
+        json.dump(saved, f, indent=1)
+      print(f'wrote the rows to {args.json}')
+    outputs.append(('--json', args.json, write_json))
+  if args.render:
+    def draw():
+      path = planner.draw_result(env, result, instances, args.render)
+      print(f'drew instance {instances[0]} to {path}')
+    outputs.append(('--render', args.render, draw))
+  return _write_outputs('pachs plan', outputs)
 
 
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
   os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs
+  from pachs_jax.envs import layouts
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
-  parser = argparse.ArgumentParser(prog='pachs', description='PACHS in JAX')
+  parser = _Parser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
-  demo.add_argument('--steps', type=int, default=60, help='control steps (20 Hz)')
+  demo.add_argument('--steps', type=_positive_int, default=60, help='control steps (20 Hz)')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
   plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
   plan.add_argument('--task', default='pusht-obs', choices=envs.TASKS)
+  plan.add_argument('--layout', default=None, choices=layouts.NAMES,
+                    help=f'pusht-obs only: the obstacle layout (default: {layouts.DEFAULT})')
   plan.add_argument('--instances', default=None,
                     help="canonical instances, e.g. '0-29', '0,4' or 'all' (default: all; "
                          "on a CPU with MJX physics, '0')")
   plan.add_argument('--budget', type=int, default=None,
                     help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
                          '20000 with MuJoCo C physics, 2000 with MJX)')
-  plan.add_argument('--seed', type=int, default=0)
+  plan.add_argument('--seed', type=_seed, default=0, help='PRNG seed (64-bit integer)')
   plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
   plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
-  plan.add_argument('--lattice-resolution', type=lambda s: tuple(float(x) for x in s.split(',')),
+  plan.add_argument('--lattice-resolution', type=lambda s: _numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')
-  plan.add_argument('--time-limit', type=float, default=None,
+  plan.add_argument('--time-limit', type=_positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
   plan.add_argument('--compact-fractions', default=None,
-                    type=lambda s: tuple(float(x) for x in s.split(',') if x),
+                    type=lambda s: _numbers(s, 'fractions'),
                     help='smaller physics batches as fractions of the I x K lanes, comma '
                     "separated ('' simulates every lane; default on a GPU: "
                     'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625; on a CPU none)')
@@ -177,11 +295,15 @@ def main(argv=None) -> int:
   args = parser.parse_args(argv)
   num_instances = envs.spec(args.task).num_instances
   if args.command == 'demo' and not 0 <= args.instance < num_instances:
-    parser.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')
+    demo.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')
+  if args.command == 'plan' and args.layout is not None and args.task != 'pusht-obs':
+    plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
   try:
     return args.func(args)
-  except (ValueError, FileNotFoundError) as err:
-    parser.exit(2, f'pachs {args.command}: error: {err}\n')
+  except (ValueError, OSError) as err:  # one line, no traceback
+    message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
+        else f'{err.strerror}: {err.filename}' if err.filename else err.strerror
+    parser.exit(2, f'pachs {args.command}: error: {message}\n')
 
 
 if __name__ == '__main__':

@@ -51,6 +51,8 @@ def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None
   """Runs `scripted_push` on a canonical instance of a PushT task, draws it to the PNG `out`
   (and, with `gif`, renders a MuJoCo GIF); returns a JSON-ready summary."""
   from pachs_jax import envs
+  if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
+    raise ValueError(f'num_steps must be a positive int, got {num_steps!r}')
   env = envs.make(task)
   if not isinstance(env, pusht.PushTEnv):
     raise ValueError(f'the scripted demo drives PushT tasks; got {task!r}')

@@ -51,16 +51,17 @@ def checkpoint_path(task: str) -> str:
 
 
 def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx',
-               nthread: Optional[int] = None):
+               nthread: Optional[int] = None, layout: Optional[str] = None):
   """(env, SacActorCritic) of a task: the shipped model unless `path`, checked against the env.
 
   backend: 'mjx', 'mujoco-c' (PushT edges simulated by MuJoCo C on CPU threads) or 'auto'
   (MuJoCo C when JAX has no accelerator). nthread: MuJoCo C threads (None: all CPUs).
+  layout: pusht-obs's obstacle layout (`envs.layouts.LAYOUTS`; None: the default).
   Raises FileNotFoundError for a missing checkpoint, ValueError for one of another task or size.
   """
   from pachs_jax.envs import mujoco_c
   from pachs_jax.sac import checkpoint
-  env = mujoco_c.make_backend(envs.make(task), backend, nthread)
+  env = mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
   model_task = envs.spec(task).model_task
   path = path or checkpoint_path(task)
   if not os.path.exists(path):
@@ -86,17 +87,19 @@ class Planner:
   task: a task name (`envs.TASKS`); checkpoint: a model directory (None: the shipped one);
   backend: 'auto' (MuJoCo C physics on a CPU-only machine), 'mjx' or 'mujoco-c';
   budget and the SearchConfig fields in `overrides` as in `command_config`;
-  cache: turn on the persistent compilation cache (`compile_cache.enable`).
+  cache: turn on the persistent compilation cache (`compile_cache.enable`);
+  layout: pusht-obs's obstacle layout (None: the default).
   """
 
   def __init__(self, task: str, checkpoint: Optional[str] = None, backend: str = 'auto',
-               budget: Optional[int] = None, cache: bool = True, **overrides):
+               budget: Optional[int] = None, cache: bool = True, layout: Optional[str] = None,
+               **overrides):
     from pachs_jax import compile_cache
     from pachs_jax.search import pachs
     if cache:
       compile_cache.enable()
     self.task = task
-    self.env, self.model = load_model(task, checkpoint, backend)
+    self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
     on_cpu = jax.default_backend() == 'cpu'
     self.config = command_config(task, on_cpu, type(self.env).__name__ == 'MujocoCEnv', budget,
                                  **overrides)

@@ -106,6 +106,14 @@ class Env(abc.ABC):
   def default_lattice_resolution(self) -> jax.Array:
     """[L] float32 default cell sizes of `lattice_coords` (units of the lattice coordinates)."""
 
+  @property
+  def lattice_extent(self):
+    """[L] the largest |value| (units of `default_lattice_resolution`) of each coordinate that
+    `lattice_coords` divides by the cell size, over the task's valid states; None: unknown.
+    The search refuses cell sizes below lattice_extent / 2**30, which would overflow the int32
+    lattice coordinates (`search.types.env_lattice_resolution`)."""
+    return None
+
   # ---- batched search interface: leading batch axis B ----
 
   def evaluate(self, nodes: NodeState, actions: jax.Array) -> EdgeOutcome:

@@ -78,6 +78,11 @@ class GridWorld(base.Env):
   def default_lattice_resolution(self) -> jax.Array:
     return jnp.ones((2,), jnp.float32)
 
+  @property
+  def lattice_extent(self) -> np.ndarray:
+    # cells (row, column) lie in [0, H - 1] x [0, W - 1]
+    return np.asarray(self.obstacles.shape, np.float64) - 1.0
+
   def node(self, cell, goal) -> base.NodeState:
     """A node at cell [..., 2] with goal [..., 2] (any leading batch shape)."""
     cell = jnp.asarray(cell, jnp.float32)

@@ -278,6 +278,10 @@ class MujocoCEnv(base.Env):
     return self.env.default_lattice_resolution
 
   @property
+  def lattice_extent(self):
+    return self.env.lattice_extent
+
+  @property
   def action_size(self) -> int:
     return self.env.action_size
 

@@ -67,6 +67,11 @@ class PointMassEnv(base.Env):
   def default_lattice_resolution(self) -> jax.Array:
     return jnp.full((self.config.dim,), self.config.lattice_resolution, jnp.float32)
 
+  @property
+  def lattice_extent(self):
+    # positions are clipped to the arena
+    return (float(self.config.arena_half_extent),) * self.config.dim
+
   def node_from_positions(self, position: jax.Array, goal: jax.Array) -> base.NodeState:
     """A start node at position [D] with goal [D]; no batch axis."""
     zeros = jnp.zeros((self.config.dim,), jnp.float32)

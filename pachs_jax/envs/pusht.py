@@ -1,5 +1,5 @@
 """PushT-Fixed / -Rand / -Obs: a Panda with a stick pushes a T-shaped block to a goal pose
-(model and its choices: docs/pusht_model.md)."""
+(model and its choices: docs/pusht_model.md; PushT-Obs's obstacle layouts: layouts.py)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,12 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from pachs_jax.envs import base, coverage, panda
+from pachs_jax.envs import base, coverage, layouts, panda
 
 BASE_POS = (-0.615, 0.0, 0.0)
 FIXED_GOAL = (-0.156, -0.1, 5.0 * np.pi / 3.0)  # x (m), y (m), yaw (rad)
-# Start distribution around the goal: x offset U[-0.1, 0.1], y offset U[-0.1, 0.2], yaw U[0, 2 pi].
+# PushT-Fixed / -Rand start distribution around the goal: x offset U[-0.1, 0.1], y offset
+# U[-0.1, 0.2], yaw U[0, 2 pi] (PushT-Obs: its layout's start region, layouts.py).
 START_OFFSET_LOW = (-0.1, -0.1)
 START_OFFSET_HIGH = (0.1, 0.2)
 T_MASS = 0.8  # kg
@@ -23,13 +24,14 @@ T_HALF_HEIGHT = 0.02  # m
 # The arm's start configuration: stick vertical, tip 2 cm above the table at (-0.40, -0.32).
 HOME_QPOS = (-1.0217, 0.3428, 0.0217, -2.7163, -0.0882, 3.0588, -0.1406)
 ARM_ACTION_SCALE = 0.1  # rad per unit action per control step
-# PushT-Obs obstacles: rows (cx, cy, half_x, half_y, yaw), world frame, 4 cm tall blocks.
-# Two blocks left and right of the region above the goal make a 0.14 m gate the T must pass
-# (turned stem-first or bar-first), and a third blocks the straight push from below.
-OBSTACLES = ((-0.245, 0.035, 0.02, 0.02, 0.0),
-             (-0.065, 0.035, 0.02, 0.02, 0.0),
-             (-0.156, -0.265, 0.05, 0.02, 0.0))
+# PushT-Obs obstacles and start regions: layouts.LAYOUTS (blocks 4 cm tall).
 TABLE_HALF_EXTENT = 0.45  # m: the T must stay within this box around the goal region
+TIP_START_XY = (-0.40, -0.32)  # m: the stick tip at HOME_QPOS
+# A layout's start region must keep the T's origin this far inside the table box (m) and within
+# this distance range of the robot base (m), where the stick can reach around the T.
+START_TABLE_MARGIN = 0.05
+START_REACH = (0.3, 0.7)
+MIN_CLEAR_FRACTION = 0.25  # of poses drawn in a start region that must be valid starts
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,6 +39,8 @@ class PushTConfig:
   """Task and physics parameters of PushT.
 
   variant: 'fixed', 'rand' or 'obs'.
+  layout: the 'obs' variant's obstacle layout, a name in `layouts.LAYOUTS` (None: 'gate',
+    `layouts.DEFAULT`); must be None for the other variants.
   physics_dt: s per physics step; substeps: physics steps per control step.
   solver_iterations / ls_iterations: MJX Newton solver and line-search iterations.
   table_friction: T-table Coulomb coefficient (becomes joint friction loss).
@@ -44,6 +48,7 @@ class PushTConfig:
   """
 
   variant: str = 'fixed'
+  layout: str | None = None
   episode_length: int = 100
   physics_dt: float = 0.0125
   substeps: int = 4
@@ -62,6 +67,17 @@ def _box_xml(name: str, cx, cy, hx, hy, yaw, hz, z, rgba) -> str:
           f'euler="0 0 {yaw}" rgba="{rgba}" contype="0" conaffinity="0"/>')
 
 
+def config_layout(config: PushTConfig) -> layouts.Layout | None:
+  """The config's obstacle layout (None for 'fixed' and 'rand'); raises ValueError for an
+  unknown name (listing the valid ones) or a layout given to another variant."""
+  if config.variant != 'obs':
+    if config.layout is not None:
+      raise ValueError(f"layout applies to the 'obs' variant only, not {config.variant!r} "
+                       f'(got layout={config.layout!r})')
+    return None
+  return layouts.layout(layouts.DEFAULT if config.layout is None else config.layout)
+
+
 def model_xml(config: PushTConfig) -> str:
   """MJCF of the PushT scene for a config (obstacles only for the 'obs' variant)."""
   g = 9.81
@@ -77,7 +93,8 @@ def model_xml(config: PushTConfig) -> str:
       f'<geom name="goal_{n}" type="box" size="{b[2]} {b[3]} 0.0005" pos="{b[0]} {b[1]} 0" '
       f'rgba="0.2 0.8 0.3 0.5" contype="0" conaffinity="0" group="2"/>'
       for n, b in (('bar', bar), ('stem', stem)))
-  obstacles = OBSTACLES if config.variant == 'obs' else ()
+  layout = config_layout(config)
+  obstacles = layout.blocks if layout is not None else ()
   obstacle_geoms = ''.join(
       _box_xml(f'obstacle{i}', *o, hz=0.02, z=0.02, rgba='0.4 0.4 0.45 1')
       for i, o in enumerate(obstacles))
@@ -89,7 +106,7 @@ def model_xml(config: PushTConfig) -> str:
               f'<pair geom1="stick" geom2="obstacle{i}"/>']
   gx, gy, gyaw = FIXED_GOAL
   return f"""
-<mujoco model="pusht-{config.variant}">
+<mujoco model="pusht-{config.variant}{'-' + layout.name if layout else ''}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{config.physics_dt}" gravity="0 0 0" integrator="implicitfast"
           iterations="{config.solver_iterations}" ls_iterations="{config.ls_iterations}"
@@ -139,6 +156,104 @@ def _t_points_in_box(poses: np.ndarray, box_points: np.ndarray) -> np.ndarray:
   return np.any((wx >= lo[0]) & (wx <= hi[0]) & (wy >= lo[1]) & (wy <= hi[1]), axis=-1)
 
 
+def _box_corners(box: np.ndarray) -> np.ndarray:
+  """[4, 2] corners of a box row (cx, cy, half_x, half_y, yaw)."""
+  cx, cy, hx, hy, yaw = np.asarray(box, np.float64)
+  c, s = np.cos(yaw), np.sin(yaw)
+  local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+  return np.stack([cx + c * local[:, 0] - s * local[:, 1],
+                   cy + s * local[:, 0] + c * local[:, 1]], -1)
+
+
+def start_clear(poses: np.ndarray, goals: np.ndarray, blocks: np.ndarray,
+                success_coverage: float = coverage.SUCCESS_THRESHOLD) -> np.ndarray:
+  """[N] bool: T poses [N, 3] that are valid starts for goals [N, 3] among blocks [M, 5].
+
+  Rejected: the T already covers its goal (>= success_coverage), touches the stick's start
+  position (a 6 cm square around `TIP_START_XY`) or overlaps a block grown by 5 mm.
+  """
+  poses = np.asarray(poses, np.float32)
+  ok = np.asarray(coverage.coverage(poses, np.asarray(goals, np.float32))) < success_coverage
+  keep_out = [_box_points(np.array([TIP_START_XY[0], TIP_START_XY[1], 0.03, 0.03, 0.0]))]
+  keep_out += [_box_points(np.asarray(o) + np.array([0, 0, 0.005, 0.005, 0]))
+               for o in np.asarray(blocks).reshape(-1, 5)]
+  for pts in keep_out:
+    hit = np.asarray(coverage.points_in_t(np.broadcast_to(pts, (len(poses),) + pts.shape),
+                                          poses))
+    ok &= ~hit.any(axis=-1)
+    ok &= ~_t_points_in_box(poses, pts)
+  return ok
+
+
+def check_layout(layout: layouts.Layout,
+                 success_coverage: float = coverage.SUCCESS_THRESHOLD) -> None:
+  """Raises ValueError, naming the layout and the fault, unless: every block has positive
+  half sizes and clears the goal T (5 mm) and the stick's start; the start region's ranges are
+  ordered, keep the T's origin `START_TABLE_MARGIN` inside the table box and within
+  `START_REACH` of the robot base; and at least `MIN_CLEAR_FRACTION` of 512 poses drawn in it
+  (seed 0) are valid starts (`start_clear`)."""
+  where = f'PushT-Obs layout {layout.name!r}'
+  blocks = layout.blocks_array()
+  goal = np.asarray(FIXED_GOAL, np.float32)
+  for i, block in enumerate(blocks):
+    if not np.all(np.isfinite(block)) or block[2] <= 0 or block[3] <= 0:
+      raise ValueError(f'{where}: block {i} {tuple(block.tolist())} needs finite values and '
+                       'positive half sizes')
+    grown = _box_points(block + np.array([0, 0, 0.005, 0.005, 0], np.float32))
+    if (np.asarray(coverage.points_in_t(grown, goal)).any()
+        or _t_points_in_box(goal[None], grown)[0]):
+      raise ValueError(f'{where}: block {i} {tuple(np.round(block, 4).tolist())} overlaps the '
+                       f'goal T at {FIXED_GOAL[:2]} (or comes within 5 mm of it)')
+    lo, hi = _box_corners(block).min(0), _box_corners(block).max(0)
+    tip = np.asarray(TIP_START_XY)
+    if np.all(lo <= tip + 0.02) and np.all(hi >= tip - 0.02):
+      raise ValueError(f'{where}: block {i} covers the stick tip\'s start {TIP_START_XY}')
+  ranges = {'start_x': layout.start_x, 'start_y': layout.start_y,
+            'start_yaw': layout.start_yaw}
+  for name, (lo, hi) in ranges.items():
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+      raise ValueError(f'{where}: {name} must be an ordered finite range, got {(lo, hi)}')
+  limit = TABLE_HALF_EXTENT - START_TABLE_MARGIN
+  for k, name in enumerate(('start_x', 'start_y')):
+    lo, hi = ranges[name]
+    if lo < goal[k] - limit or hi > goal[k] + limit:
+      raise ValueError(f'{where}: {name} {(lo, hi)} leaves the table: the T must start within '
+                       f'[{goal[k] - limit:.3f}, {goal[k] + limit:.3f}]')
+  base_xy = np.asarray(BASE_POS[:2])
+  near = np.clip(base_xy, [layout.start_x[0], layout.start_y[0]],
+                 [layout.start_x[1], layout.start_y[1]])
+  far = max(np.hypot(x - base_xy[0], y - base_xy[1])
+            for x in layout.start_x for y in layout.start_y)
+  if np.hypot(*(near - base_xy)) < START_REACH[0] or far > START_REACH[1]:
+    raise ValueError(f'{where}: the start region x {layout.start_x}, y {layout.start_y} must '
+                     f'lie {START_REACH[0]}-{START_REACH[1]} m from the robot base '
+                     f'{tuple(base_xy)}, where the stick can reach around the T')
+  rng = np.random.default_rng(0)
+  num = 512
+  poses = np.stack([rng.uniform(*layout.start_x, num), rng.uniform(*layout.start_y, num),
+                    rng.uniform(*layout.start_yaw, num)], -1)
+  clear = int(start_clear(poses, np.broadcast_to(goal, poses.shape), blocks,
+                          success_coverage).sum())
+  if clear < MIN_CLEAR_FRACTION * num:
+    raise ValueError(f'{where} leaves too few valid starts: {clear} of {num} poses drawn in its '
+                     f'start region (x {layout.start_x}, y {layout.start_y}) clear the blocks '
+                     f'and the goal; at least {MIN_CLEAR_FRACTION:.0%} must')
+
+
+def site_reach(model: mujoco.MjModel, site: int) -> float:
+  """An upper bound (m) on the distance of a site from the world origin over all joint angles:
+  the site's offset plus, up its body chain, each body's offset and twice its joints' anchor
+  offsets (the triangle inequality; hinge joints)."""
+  reach = float(np.linalg.norm(model.site_pos[site]))
+  body = int(model.site_bodyid[site])
+  while body != 0:
+    joints = np.flatnonzero(model.jnt_bodyid == body)
+    reach += float(np.linalg.norm(model.body_pos[body]))
+    reach += 2.0 * float(sum(np.linalg.norm(model.jnt_pos[j]) for j in joints))
+    body = int(model.body_parentid[body])
+  return reach
+
+
 def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.ndarray,
                     qpos: np.ndarray | None = None) -> np.ndarray:
   """[7] float64 action in [-1, 1] moving the stick tip towards tip_goal [3] (m, world frame).
@@ -179,15 +294,28 @@ class PushTEnv(base.Env):
   def __init__(self, config: PushTConfig = PushTConfig()):
     if config.variant not in ('fixed', 'rand', 'obs'):
       raise ValueError(f"PushT variant must be 'fixed', 'rand' or 'obs', got {config.variant!r}")
+    self.layout = config_layout(config)
     self.config = config
     self.name = f'pusht-{config.variant}'
+    # Start region: offsets from the goal (x, y) and an absolute yaw range.
+    low, high, self._start_yaw = START_OFFSET_LOW, START_OFFSET_HIGH, (0.0, 2 * jnp.pi)
+    if self.layout is not None:
+      check_layout(self.layout, config.success_coverage)
+      if self.layout.name != layouts.DEFAULT:
+        self.name += f':{self.layout.name}'
+      gx, gy = FIXED_GOAL[:2]
+      low = (self.layout.start_x[0] - gx, self.layout.start_y[0] - gy)
+      high = (self.layout.start_x[1] - gx, self.layout.start_y[1] - gy)
+      self._start_yaw = self.layout.start_yaw
+    self._start_low = np.asarray(low, np.float32)
+    self._start_high = np.asarray(high, np.float32)
     self.episode_length = config.episode_length
     self.mj_model = mujoco.MjModel.from_xml_string(model_xml(config))
     self.mjx_model = mjx.put_model(self.mj_model)
     self._data_template = mjx.make_data(self.mjx_model)
     self._tip_site = self.mj_model.site('tip').id
-    self.obstacles = np.array(OBSTACLES if config.variant == 'obs' else np.zeros((0, 5)),
-                              np.float32).reshape(-1, 5)
+    self.obstacles = (self.layout.blocks_array() if self.layout is not None
+                      else np.zeros((0, 5), np.float32))
     home = np.concatenate([HOME_QPOS, np.zeros(3)])
     self._home_qpos = jnp.asarray(home, jnp.float32)
     self._arm_lower = jnp.asarray(panda.JOINT_LOWER, jnp.float32)
@@ -201,6 +329,14 @@ class PushTEnv(base.Env):
   def default_lattice_resolution(self) -> jax.Array:
     # T x, T y (m), T yaw (rad), tip x, tip y (m).
     return jnp.array([0.01, 0.01, 0.1, 0.02, 0.02], jnp.float32)
+
+  @property
+  def lattice_extent(self) -> np.ndarray:
+    # a valid T stays on the table box around the goal; yaw in [0, 2 pi); the tip within the
+    # arm's reach (`site_reach`)
+    t_xy = np.abs(np.asarray(FIXED_GOAL[:2])) + TABLE_HALF_EXTENT
+    reach = site_reach(self.mj_model, self.mj_model.site('tip').id)
+    return np.array([t_xy[0], t_xy[1], 2 * np.pi, reach, reach])
 
   # ---- state construction ----
 
@@ -223,33 +359,25 @@ class PushTEnv(base.Env):
           jax.random.uniform(jax.random.fold_in(k_goal, 2), (), maxval=2 * jnp.pi)])
     else:
       goal = fixed
-    off = jax.random.uniform(k_off, (2,), minval=jnp.asarray(START_OFFSET_LOW),
-                             maxval=jnp.asarray(START_OFFSET_HIGH))
-    yaw = jax.random.uniform(k_yaw, (), maxval=2 * jnp.pi)
+    off = jax.random.uniform(k_off, (2,), minval=jnp.asarray(self._start_low),
+                             maxval=jnp.asarray(self._start_high))
+    yaw = jax.random.uniform(k_yaw, (), minval=self._start_yaw[0], maxval=self._start_yaw[1])
     start = jnp.concatenate([goal[:2] + off, yaw[None]])
     return self.node_from_pose(start, goal)
 
   def canonical_instances(self, num: int = 30, seed: int = 0) -> base.NodeState:
     """[num] start nodes fixed by seed: the instance set every experiment uses.
 
-    Candidates come from `sample_instance`; those already at the goal, touching the stick's start
-    position or overlapping an obstacle (with 5 mm clearance) are rejected.
+    Candidates come from `sample_instance` (for PushT-Obs: uniform in the layout's start
+    region); those already at the goal, touching the stick's start position or overlapping an
+    obstacle (with 5 mm clearance) are rejected (`start_clear`).
     """
     if num <= 0:
       raise ValueError(f'num must be positive, got {num}')
     keys = jax.random.split(jax.random.PRNGKey(seed), 8 * num + 64)
     nodes = jax.jit(self.initial_nodes)(keys)
     poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
-    ok = np.asarray(coverage.coverage(poses, goals)) < self.config.success_coverage
-    tip_xy = np.array([[-0.40, -0.32]], np.float32)
-    keep_out = [_box_points(np.array([tip_xy[0, 0], tip_xy[0, 1], 0.03, 0.03, 0.0]))]
-    keep_out += [_box_points(np.asarray(o) + np.array([0, 0, 0.005, 0.005, 0]))
-                 for o in self.obstacles]
-    for pts in keep_out:
-      hit = np.asarray(coverage.points_in_t(np.broadcast_to(pts, (len(poses),) + pts.shape),
-                                            poses))
-      ok &= ~hit.any(axis=-1)
-      ok &= ~_t_points_in_box(poses, pts)
+    ok = start_clear(poses, goals, self.obstacles, self.config.success_coverage)
     index = np.flatnonzero(ok)[:num]
     if len(index) < num:
       raise RuntimeError(f'only {len(index)} of {num} instances passed the rejection tests')

@@ -6,7 +6,7 @@ Measured reasons for the defaults: docs/task_defaults.md.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Dict, Mapping
+from typing import Any, Callable, Dict, Mapping, Tuple
 
 from pachs_jax.envs import base
 
@@ -15,26 +15,29 @@ from pachs_jax.envs import base
 class TaskSpec:
   """One task.
 
-  name: the task name (`Env.name`).
-  make: () -> Env, a new environment of the task.
+  name: the task name (`Env.name`; pusht-obs with a layout other than the default is
+    named 'pusht-obs:LAYOUT').
+  make: (**options) -> Env, a new environment of the task.
   model_task: the task whose shipped actor-critic plans this one.
   num_instances: size of the canonical instance set (`Env.canonical_instances`).
   search_defaults: SearchConfig field values tuned at the paper's budget (on a GPU).
   cpu_overrides: SearchConfig field values that replace them at the CPU budget of `pachs plan`.
+  options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`).
   """
 
   name: str
-  make: Callable[[], base.Env]
+  make: Callable[..., base.Env]
   model_task: str
   num_instances: int
   search_defaults: Mapping[str, Any]
   cpu_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+  options: Tuple[str, ...] = ()
 
 
-def _pusht(variant: str) -> Callable[[], base.Env]:
-  def build() -> base.Env:
+def _pusht(variant: str) -> Callable[..., base.Env]:
+  def build(**options) -> base.Env:
     from pachs_jax.envs import pusht
-    return pusht.PushTEnv(pusht.PushTConfig(variant=variant))
+    return pusht.PushTEnv(pusht.PushTConfig(variant=variant, **options))
   return build
 
 
@@ -52,7 +55,8 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30,
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
-                            'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)}),
+                            'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
+             options=('layout',)),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, max_evaluations=20_000)),
 )}
@@ -67,6 +71,16 @@ def spec(name: str) -> TaskSpec:
   return SPECS[name]
 
 
-def make(name: str) -> base.Env:
-  """A new environment of the named task; raises ValueError listing the valid names."""
-  return spec(name).make()
+def make(name: str, **options) -> base.Env:
+  """A new environment of the named task; raises ValueError listing the valid names.
+
+  options: the task's keyword options (`TaskSpec.options`; None values are dropped), e.g.
+  make('pusht-obs', layout='legacy'); one the task does not take raises ValueError.
+  """
+  task = spec(name)
+  options = {k: v for k, v in options.items() if v is not None}
+  unknown = sorted(set(options) - set(task.options))
+  if unknown:
+    takes = (f'it takes {", ".join(task.options)}' if task.options else 'it takes none')
+    raise ValueError(f'task {name!r} has no option {", ".join(unknown)}; {takes}')
+  return task.make(**options)

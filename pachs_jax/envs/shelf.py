@@ -369,6 +369,11 @@ class ShelfEnv(base.Env):
   def default_lattice_resolution(self) -> jax.Array:
     return jnp.full((panda.NUM_JOINTS,), self.config.lattice_resolution, jnp.float32)
 
+  @property
+  def lattice_extent(self) -> np.ndarray:
+    # the joint angles of valid states lie within the joint limits
+    return np.maximum(np.abs(panda.JOINT_LOWER), np.abs(panda.JOINT_UPPER))
+
   # ---- geometry of one configuration ----
 
   def _poses(self, qpos: jax.Array, ids: np.ndarray):

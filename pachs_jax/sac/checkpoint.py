@@ -1,17 +1,31 @@
 """Orbax checkpoints: the exported actor-critic the search loads, and full training states
-(layouts: docs/sac.md)."""
+(layouts: docs/sac.md).
+
+Every export records a SHA-256 of its parameters (`params_hash`) in actor_critic.json, and
+loading verifies it: a missing, truncated or overwritten file, or a JSON without a required
+entry, raises `CheckpointError` (a ValueError) with one line that names the checkpoint.
+`python -m pachs_jax.sac.verify [--add-hash] DIR` checks exports or stamps one written before
+hashes.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import gc
+import hashlib
+import inspect
 import json
+import logging
 import os
 import shutil
-from typing import Any, Dict, Optional, Tuple
+import sys
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
+import tensorstore as ts
 
 from pachs_jax.envs import base
 from pachs_jax.sac import config as config_lib
@@ -21,6 +35,72 @@ FORMAT = 'pachs_jax.actor_critic/1'
 CONFIG_FILE = 'actor_critic.json'
 PARAMS_DIR = 'params'
 MODEL_SUBDIR = 'model'  # where a training run directory keeps its exported actor-critic
+HASH_KEY = 'params_sha256'  # actor_critic.json entry: params_hash of the stored parameters
+STATE_HASH_KEY = 'state_sha256'  # training checkpoint meta entry: params_hash of the state
+
+
+class CheckpointError(ValueError):
+  """A checkpoint that cannot be used: missing, incomplete, damaged or not what was asked for.
+
+  The message is one line and names the checkpoint."""
+
+
+def params_hash(tree: Any) -> str:
+  """SHA-256 (hex) of a pytree's arrays: for each leaf in sorted key-path order its path,
+  dtype and shape, then its bytes (little-endian, C order). Equal trees hash equally however
+  they were built (dicts or FrozenDicts, device or host arrays)."""
+  leaves = [(jax.tree_util.keystr(k), v) for k, v in jax.tree_util.tree_leaves_with_path(tree)]
+  h = hashlib.sha256()
+  for name, leaf in sorted(leaves, key=lambda kv: kv[0]):
+    a = np.asarray(leaf)
+    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder('<'))
+    h.update(f'{name}|{a.dtype.str}|{a.shape}\n'.encode())
+    h.update(a.tobytes())
+  return h.hexdigest()
+
+
+def _orbax_call(fn: Callable[[], Any]) -> Tuple[Any, Optional[str]]:
+  """(fn(), None), or (None, a one-line reason) when orbax fails.
+
+  A failed restore leaves orbax's other read coroutines with exceptions nobody retrieves;
+  Python prints each (a page of TensorStore spec) when it collects them. They are collected
+  here, with those reports dropped, so that the caller's one-line error is all the user sees.
+  """
+  old_hook = sys.unraisablehook
+
+  def hook(unraisable):
+    if not inspect.iscoroutine(unraisable.object):
+      old_hook(unraisable)
+
+  sys.unraisablehook = hook
+  absl_logger = logging.getLogger('absl')  # its warnings would add lines before the error
+  absl_level = absl_logger.level
+  absl_logger.setLevel(logging.CRITICAL)
+  try:
+    try:
+      return fn(), None
+    except Exception as e:  # pylint: disable=broad-except
+      reason = _reason(e)
+    gc.collect()  # the failed read coroutines, now unreferenced
+    return None, reason
+  finally:
+    sys.unraisablehook = old_hook
+    absl_logger.setLevel(absl_level)
+
+
+def _reason(error: BaseException, limit: int = 200) -> str:
+  """The first line of the innermost cause of `error` (orbax and TensorStore wrap the useful
+  message in pages of specs), shortened to `limit` characters."""
+  seen = set()
+  while id(error) not in seen:
+    seen.add(id(error))
+    inner = error.__cause__ or error.__context__
+    if inner is None:
+      break
+    error = inner
+  lines = str(error).strip().splitlines()
+  text = (lines[0] if lines else '') or type(error).__name__
+  return text if len(text) <= limit else text[:limit - 3] + '...'
 
 
 def _uncommitted(tree: Any) -> Any:
@@ -40,19 +120,21 @@ def save_actor_critic(path: str, actor_critic: SacActorCritic,
   """Writes the actor-critic to directory `path` (replaced atomically if it exists).
 
   path/actor_critic.json holds {'format', 'model': ModelConfig dict} plus `extra`; path/params
-  the orbax tree {'normalizer': {'mean', 'std'}, 'policy', 'q'}. Returns the absolute path.
+  the orbax tree {'normalizer': {'mean', 'std'}, 'policy', 'q'}, whose `params_hash` goes into
+  the JSON as 'params_sha256'. Returns the absolute path.
   """
   path = os.path.abspath(path)
   tmp = f'{path}.tmp-{os.getpid()}'
   shutil.rmtree(tmp, ignore_errors=True)
   os.makedirs(tmp)
+  tree = _params_tree(actor_critic)
   checkpointer = ocp.StandardCheckpointer()
-  checkpointer.save(os.path.join(tmp, PARAMS_DIR), _params_tree(actor_critic))
+  checkpointer.save(os.path.join(tmp, PARAMS_DIR), tree)
   checkpointer.wait_until_finished()
-  meta = {'format': FORMAT, 'model': config_lib.config_to_dict(actor_critic.config)}
-  meta.update(extra or {})
-  with open(os.path.join(tmp, CONFIG_FILE), 'w') as f:
-    json.dump(meta, f, indent=2)
+  meta = {'format': FORMAT, 'model': config_lib.config_to_dict(actor_critic.config),
+          HASH_KEY: params_hash(tree)}
+  meta.update({k: v for k, v in (extra or {}).items() if k not in meta})
+  _write_json(os.path.join(tmp, CONFIG_FILE), meta)
   old = f'{path}.old-{os.getpid()}'
   if os.path.exists(path):
     os.rename(path, old)
@@ -64,26 +146,54 @@ def save_actor_critic(path: str, actor_critic: SacActorCritic,
 def _resolve_path(path: str) -> str:
   """The export directory at `path`, or inside a training run directory at `path`/model."""
   if not os.path.exists(path):
-    raise ValueError(f'no actor-critic checkpoint: path {path!r} does not exist')
+    raise CheckpointError(f'checkpoint {path}: no actor-critic checkpoint there (path does not '
+                          'exist)')
   for candidate in (path, os.path.join(path, MODEL_SUBDIR)):
     if os.path.isfile(os.path.join(candidate, CONFIG_FILE)):
       return candidate
-  raise ValueError(f'{path!r} is not an actor-critic checkpoint (no {CONFIG_FILE} in it or in '
-                   f'its {MODEL_SUBDIR}/ subdirectory)')
+  raise CheckpointError(f'checkpoint {path}: not an actor-critic checkpoint (no {CONFIG_FILE} '
+                        f'in it or in its {MODEL_SUBDIR}/ subdirectory)')
 
 
-def _read_model_config(path: str) -> Tuple[ModelConfig, Dict[str, Any]]:
-  """(ModelConfig, whole metadata dict) of an actor-critic checkpoint."""
+_REQUIRED_MODEL_FIELDS = tuple(f.name for f in dataclasses.fields(ModelConfig)
+                               if f.default is dataclasses.MISSING)
+
+
+def _read_model_config(path: str, require_hash: bool = True
+                       ) -> Tuple[ModelConfig, Dict[str, Any]]:
+  """(ModelConfig, whole metadata dict) of an actor-critic checkpoint; CheckpointError for a
+  JSON that is unreadable or lacks a required entry (the hash only if `require_hash`)."""
   path = _resolve_path(path)
-  with open(os.path.join(path, CONFIG_FILE)) as f:
-    try:
+  where = f'checkpoint {path}: {CONFIG_FILE}'
+  try:
+    with open(os.path.join(path, CONFIG_FILE)) as f:
       meta = json.load(f)
-    except json.JSONDecodeError as e:
-      raise ValueError(f'{path!r}: {CONFIG_FILE} is not valid JSON ({e})') from None
+  except (OSError, UnicodeDecodeError) as e:
+    raise CheckpointError(f'{where} cannot be read ({_reason(e)})') from None
+  except json.JSONDecodeError as e:
+    raise CheckpointError(f'{where} is not valid JSON ({e}; file damaged?)') from None
+  if not isinstance(meta, dict):
+    raise CheckpointError(f'{where} holds a {type(meta).__name__}, not a JSON object')
   if meta.get('format') != FORMAT:
-    raise ValueError(f'{path!r}: unknown checkpoint format {meta.get("format")!r}, expected '
-                     f'{FORMAT!r}')
-  return config_lib.config_from_dict(ModelConfig, meta['model'], ignore_unknown=True), meta
+    raise CheckpointError(f'{where}: unknown checkpoint format {meta.get("format")!r}, '
+                          f'expected {FORMAT!r}')
+  model = meta.get('model')
+  if not isinstance(model, dict):
+    raise CheckpointError(f'{where} has no "model" object (the network config), so the '
+                          'parameters cannot be interpreted')
+  missing = [k for k in _REQUIRED_MODEL_FIELDS if k not in model]
+  if missing:
+    raise CheckpointError(f'{where}: "model" lacks required fields {missing}')
+  try:
+    config = config_lib.config_from_dict(ModelConfig, model, ignore_unknown=True)
+    config.networks()  # an unknown activation or bad widths fail here, not at first use
+  except (TypeError, ValueError, KeyError, AttributeError) as e:
+    raise CheckpointError(f'{where}: invalid "model" config ({_reason(e)})') from None
+  if require_hash and not isinstance(meta.get(HASH_KEY), str):
+    raise CheckpointError(f'{where} has no "{HASH_KEY}" (exported before parameter hashes); '
+                          'if you trust it, run: python -m pachs_jax.sac.verify --add-hash '
+                          f'{path}')
+  return config, meta
 
 
 def _expected_params(config: ModelConfig) -> Dict[str, Any]:
@@ -100,12 +210,82 @@ def _check_params(path: str, restored: Any, expected: Any) -> None:
   want = {jax.tree_util.keystr(k): v for k, v in jax.tree_util.tree_leaves_with_path(expected)}
   if set(got) != set(want):
     diff = sorted(set(got) ^ set(want))[:4]
-    raise ValueError(f'{path!r}: parameters do not match the network config in {CONFIG_FILE} '
-                     f'(differing entries {diff})')
+    raise CheckpointError(f'checkpoint {path}: parameters do not match the network config in '
+                          f'{CONFIG_FILE} (differing entries {diff})')
   for name, spec in want.items():
     if tuple(np.shape(got[name])) != tuple(spec.shape):
-      raise ValueError(f'{path!r}: parameter {name} has shape {tuple(np.shape(got[name]))}, the '
-                       f'network config in {CONFIG_FILE} needs {tuple(spec.shape)}')
+      raise CheckpointError(f'checkpoint {path}: parameter {name} has shape '
+                            f'{tuple(np.shape(got[name]))}, the network config in {CONFIG_FILE} '
+                            f'needs {tuple(spec.shape)}')
+
+
+# Files orbax needs in params/ before it can even list the arrays (checked first: a missing one
+# otherwise gives an orbax warning and an empty tree).
+_PARAMS_FILES = ('_METADATA', 'manifest.ocdbt')
+
+
+def _probe_ocdbt(params_path: str) -> Optional[str]:
+  """None when every array of the OCDBT database in `params_path` reads back and decodes, else
+  the first line of the error. Reads synchronously: orbax reads the same arrays from an asyncio
+  loop and, after a failure, its abandoned reads print pages of tracebacks. Damage that still
+  decodes (most of it: the arrays carry no checksums) is left to the hash."""
+  if not os.path.isfile(os.path.join(params_path, 'manifest.ocdbt')):
+    return None  # not an OCDBT checkpoint: left to orbax
+  base = {'driver': 'ocdbt', 'base': f'file://{params_path}/'}
+  try:
+    keys = ts.KvStore.open(base).result().list().result()
+    for key in keys:
+      key = key.decode()
+      if key.endswith('/.zarray'):
+        array = ts.open({'driver': 'zarr', 'kvstore': dict(base, path=key[:-len('.zarray')])},
+                        open=True).result()
+        array.read().result()
+  except Exception as e:  # pylint: disable=broad-except
+    return _reason(e)
+  return None
+
+
+def _restore_params(path: str, config: ModelConfig) -> Dict[str, Any]:
+  """The parameter tree of the export at `path` (resolved), restored onto the default device;
+  CheckpointError for missing, unreadable or mismatching files (the hash is not checked)."""
+  params_path = os.path.abspath(os.path.join(path, PARAMS_DIR))  # orbax needs it absolute
+  if not os.path.isdir(params_path):
+    raise CheckpointError(f'checkpoint {path}: missing {PARAMS_DIR}/ directory')
+  for name in _PARAMS_FILES:
+    if not os.path.isfile(os.path.join(params_path, name)):
+      raise CheckpointError(f'checkpoint {path}: {PARAMS_DIR}/{name} is missing (incomplete '
+                            'copy?)')
+  failure = _probe_ocdbt(params_path)
+  if failure is not None:
+    raise CheckpointError(f'checkpoint {path}: cannot read {PARAMS_DIR}/ (file truncated, damaged '
+                          f'or missing?): {failure}')
+  expected = _expected_params(config)
+  checkpointer = ocp.StandardCheckpointer()
+  # Check names and shapes from the metadata first (a clear error instead of orbax's), then
+  # restore onto this process's default device, whatever device the checkpoint was saved on.
+
+  def shapes():
+    stored = checkpointer.metadata(params_path)
+    stored = getattr(stored, 'item_metadata', stored)
+    stored = getattr(stored, 'tree', stored)
+    return jax.tree.map(lambda m: np.zeros(m.shape, np.uint8), stored)
+
+  stored, failure = _orbax_call(shapes)
+  if failure is None and not jax.tree.leaves(stored):
+    failure = 'no arrays listed'
+  if failure is not None:
+    raise CheckpointError(f'checkpoint {path}: cannot read {PARAMS_DIR}/ metadata (file damaged '
+                          f'or missing?): {failure}')
+  _check_params(path, stored, expected)
+  device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+  target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device),
+                        expected)
+  restored, failure = _orbax_call(lambda: jax.tree.map(
+      lambda x, s: np.asarray(x, s.dtype), checkpointer.restore(params_path, target), expected))
+  if failure is not None:
+    raise CheckpointError(f'checkpoint {path}: cannot read {PARAMS_DIR}/ (file truncated, damaged '
+                          f'or missing?): {failure}')
+  return restored
 
 
 def load_actor_critic(path: str, env: Optional[base.Env] = None,
@@ -113,39 +293,56 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
   """Loads an exported actor-critic (or a run directory's latest export).
 
   With `env` (or `task`), checks that the checkpoint was trained on that task and, for `env`,
-  that its observation and action sizes match; any mismatch raises ValueError.
+  that its observation and action sizes match. Any problem (also a parameter hash that does
+  not match the one in actor_critic.json) raises CheckpointError, a ValueError.
   """
   path = _resolve_path(path)
-  config, _ = _read_model_config(path)
+  config, meta = _read_model_config(path)
   want_task = env.name if env is not None else task
   if want_task is not None and config.task != want_task:
-    raise ValueError(f'{path!r} was trained on task {config.task!r}, not {want_task!r}')
+    raise CheckpointError(f'checkpoint {path}: trained on task {config.task!r}, not '
+                          f'{want_task!r}')
   if env is not None:
     if config.observation_size != env.observation_size:
-      raise ValueError(f'{path!r}: observation size {config.observation_size} != env '
-                       f'{env.name!r} observation size {env.observation_size}')
+      raise CheckpointError(f'checkpoint {path}: observation size {config.observation_size} != '
+                            f'env {env.name!r} observation size {env.observation_size}')
     if config.action_size != env.action_size:
-      raise ValueError(f'{path!r}: action size {config.action_size} != env {env.name!r} action '
-                       f'size {env.action_size}')
-  params_path = os.path.join(path, PARAMS_DIR)
-  if not os.path.isdir(params_path):
-    raise ValueError(f'{path!r}: missing {PARAMS_DIR}/ directory')
-  expected = _expected_params(config)
-  checkpointer = ocp.StandardCheckpointer()
-  # Check names and shapes from the metadata first (a clear error instead of orbax's), then
-  # restore onto this process's default device, whatever device the checkpoint was saved on.
-  stored = checkpointer.metadata(params_path)
-  stored = getattr(stored, 'item_metadata', stored)
-  stored = getattr(stored, 'tree', stored)
-  _check_params(path, jax.tree.map(lambda m: np.zeros(m.shape, np.uint8), stored), expected)
-  device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-  target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=device),
-                        expected)
-  restored = checkpointer.restore(params_path, target)
-  restored = jax.tree.map(lambda x, s: jnp.asarray(np.asarray(x), s.dtype), restored, expected)
+      raise CheckpointError(f'checkpoint {path}: action size {config.action_size} != env '
+                            f'{env.name!r} action size {env.action_size}')
+  restored = _restore_params(path, config)
+  digest = params_hash(restored)
+  if digest != meta[HASH_KEY]:
+    raise CheckpointError(f'checkpoint {path}: params hash mismatch (file damaged?): '
+                          f'{CONFIG_FILE} records {meta[HASH_KEY][:12]}..., the files hold '
+                          f'{digest[:12]}...')
+  restored = jax.tree.map(jnp.asarray, restored)
   params = ActorCriticParams(normalizer=restored['normalizer'], policy=restored['policy'],
                              q=restored['q'])
   return SacActorCritic(params=params, config=config)
+
+
+def add_params_hash(path: str) -> str:
+  """Records the parameter hash of an export written before hashes (trusting its files as they
+  are) and returns it; an export that already records one must match it."""
+  path = _resolve_path(path)
+  config, meta = _read_model_config(path, require_hash=False)
+  digest = params_hash(_restore_params(path, config))
+  if meta.get(HASH_KEY, digest) != digest:
+    raise CheckpointError(f'checkpoint {path}: params hash mismatch (file damaged?); the '
+                          'recorded hash is left as it is')
+  head = {k: meta[k] for k in ('format', 'model')}
+  meta = dict(head, **{HASH_KEY: digest}, **{k: v for k, v in meta.items() if k not in head})
+  _write_json(os.path.join(path, CONFIG_FILE), meta)
+  return digest
+
+
+def _write_json(file: str, data: Any) -> None:
+  """Writes `data` as indented JSON to `file` atomically (a temporary file, then a rename)."""
+  tmp = f'{file}.tmp-{os.getpid()}'
+  with open(tmp, 'w') as f:
+    json.dump(data, f, indent=2)
+    f.write('\n')
+  os.replace(tmp, file)
 
 
 # ------------------------------------------------------------------ training states ----
@@ -167,25 +364,50 @@ class TrainingCheckpoints:
     return self._manager.latest_step()
 
   def save(self, epoch: int, state: Any, meta: Dict[str, Any]) -> None:
-    """Saves the state pytree and the JSON-ready meta dict as step `epoch` (blocking)."""
+    """Saves the state pytree and the JSON-ready meta dict, plus the state's `params_hash` as
+    'state_sha256', as step `epoch` (blocking)."""
+    meta = dict(meta, **{STATE_HASH_KEY: params_hash(state)})
     self._manager.save(int(epoch), args=ocp.args.Composite(
         state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
     self._manager.wait_until_finished()
 
+  def _where(self, epoch: int) -> str:
+    return f'training checkpoint {os.path.join(self.directory, str(int(epoch)))}'
+
   def read_meta(self, epoch: int) -> Dict[str, Any]:
-    """The meta dict saved with `epoch`."""
-    return self._manager.restore(
-        int(epoch), args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+    """The meta dict saved with `epoch`; CheckpointError when it cannot be read."""
+    meta, failure = _orbax_call(lambda: self._manager.restore(
+        int(epoch), args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta)
+    if failure is not None:
+      raise CheckpointError(f'{self._where(epoch)}: cannot read its meta (file damaged or '
+                            f'missing?): {failure}')
+    if not isinstance(meta, dict):
+      raise CheckpointError(f'{self._where(epoch)}: its meta is not a JSON object')
+    return meta
 
   def restore(self, epoch: int, like: Any) -> Any:
     """The state saved at `epoch`, with the structure, dtypes and shapes of `like`, as
-    uncommitted arrays on the default device (as the jitted functions return them)."""
+    uncommitted arrays on the default device (as the jitted functions return them).
+
+    CheckpointError when the files cannot be read or their hash differs from the recorded one
+    (checkpoints from before state hashes are restored unverified)."""
     device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device),
                             like)
-    state = self._manager.restore(
-        int(epoch), args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))).state
+    recorded = self.read_meta(epoch).get(STATE_HASH_KEY)
+    failure = _probe_ocdbt(os.path.join(self.directory, str(int(epoch)), 'state'))
+    if failure is not None:
+      raise CheckpointError(f'{self._where(epoch)}: cannot read the training state (file '
+                            f'truncated, damaged or missing?): {failure}')
+    state, failure = _orbax_call(lambda: self._manager.restore(
+        int(epoch), args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))).state)
+    if failure is not None:
+      raise CheckpointError(f'{self._where(epoch)}: cannot read the training state (file '
+                            f'truncated, damaged or missing?): {failure}')
+    if recorded is not None and params_hash(state) != recorded:
+      raise CheckpointError(f'{self._where(epoch)}: state hash mismatch (file damaged?)')
     return _uncommitted(state)
 
   def close(self) -> None:
     self._manager.close()
+

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any, Dict, Mapping, Tuple, Type, TypeVar
 
 _Config = TypeVar('_Config')
+SEED_LIMIT = 2**32  # seeds are in [0, SEED_LIMIT)
 
 
 def config_to_dict(config: Any) -> Dict[str, Any]:
@@ -56,7 +57,8 @@ class SACConfig:
   max_grad_norm: global gradient-norm clip of every update (0 disables it).
   desync_episodes: start each environment's first episode at a random step count t in
     [0, episode_length) so that episode ends (and resets) are spread over time, not in lockstep.
-  seed: PRNG seed of the whole run.
+  seed: PRNG seed of the whole run, in [0, 2**32) (jax.random.PRNGKey keeps 32 bits of it
+    without x64, so larger seeds would repeat smaller ones).
   eval_instances: start nodes of the periodic single-rollout evaluation (0 disables it).
   """
 
@@ -103,6 +105,9 @@ class SACConfig:
     if self.replay_capacity < max(self.num_envs, self.min_replay_size):
       raise ValueError(f'SACConfig.replay_capacity ({self.replay_capacity}) must hold at least '
                        f'num_envs ({self.num_envs}) and min_replay_size ({self.min_replay_size})')
+    if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not (
+        0 <= self.seed < SEED_LIMIT):
+      raise ValueError(f'SACConfig.seed must be an integer in [0, 2**32), got {self.seed!r}')
     for name in ('actor_hidden', 'critic_hidden'):
       widths = getattr(self, name)
       if not widths or min(widths) < 1:

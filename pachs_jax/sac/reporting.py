@@ -14,21 +14,12 @@ CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'succe
                'eval_cost_deterministic')
 
 
-def _truncate_csv(path: str, max_env_steps: int) -> None:
-  """Keeps the header and the rows with env_steps <= max_env_steps."""
-  if not os.path.exists(path):
-    return
-  with open(path, newline='') as f:
-    rows = list(csv.DictReader(f))
-  kept = [r for r in rows if r.get('env_steps') and int(float(r['env_steps'])) <= max_env_steps]
-  with open(path, 'w', newline='') as f:
-    writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction='ignore')
-    writer.writeheader()
-    writer.writerows(kept)
-
-
 class RunReporter:
   """Writes run_dir/metrics.csv, TensorBoard events (if tensorboardX is installed) and a tqdm bar.
+
+  metrics.csv is only ever appended to (a header first when it is new or empty): a resumed run
+  adds its rows after the earlier ones. Rows that a hard kill left after the checkpoint being
+  resumed stay, so an env_steps value may appear twice; the later row is the resumed run's.
 
   progress: 'bar' (tqdm: env steps, env steps/s, episode return, success rate), 'lines' (a
     printed line at most every line_seconds and at every evaluation; for logs) or 'none'.
@@ -54,9 +45,15 @@ class RunReporter:
 
   def start(self, env_steps: int, total_env_steps: int) -> None:
     os.makedirs(self.run_dir, exist_ok=True)
-    _truncate_csv(self.csv_path, env_steps)
-    new = not os.path.exists(self.csv_path)
+    new = not os.path.exists(self.csv_path) or os.path.getsize(self.csv_path) == 0
+    partial_row = False
+    if not new:
+      with open(self.csv_path, 'rb') as f:
+        f.seek(-1, os.SEEK_END)
+        partial_row = f.read(1) != b'\n'  # a kill mid-row: start the next row on a new line
     self._csv_file = open(self.csv_path, 'a', newline='')
+    if partial_row:
+      self._csv_file.write('\r\n')
     self._csv = csv.DictWriter(self._csv_file, fieldnames=CSV_COLUMNS, extrasaction='ignore')
     if new:
       self._csv.writeheader()

@@ -6,6 +6,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import signal
+import sys
+import tempfile
+import threading
 import time
 from typing import Any, Dict, Optional, Protocol
 
@@ -19,10 +23,21 @@ from pachs_jax.sac.config import SACConfig, config_from_dict, config_to_dict
 from pachs_jax.sac.trainer import Trainer, TrainingState, make_trainer
 
 __all__ = ['SACConfig', 'Trainer', 'TrainingState', 'make_trainer', 'train', 'TrainResult',
-           'actor_critic_from_state', 'read_run_config', 'STATE_SUBDIR']
+           'actor_critic_from_state', 'read_run_config', 'check_run_dir', 'RunDirError',
+           'STATE_SUBDIR']
 
 STATE_SUBDIR = 'state'
 TRAINING_FORMAT = 'pachs_jax.sac_training/1'
+# What a run writes into run_dir: directories, then files (reporting.RunReporter and
+# experiments/train.py write the last three).
+RUN_DIRS = (STATE_SUBDIR, checkpoint.MODEL_SUBDIR, 'tensorboard')
+RUN_FILES = ('metrics.csv', 'status.json')
+STOP_SIGNALS = ('SIGINT', 'SIGTERM')
+
+
+class RunDirError(ValueError):
+  """A run directory that cannot be used as asked (one line naming it): not writable, holding
+  a run when a new one is asked for, holding none when --resume is, or another run's."""
 
 
 class Reporter(Protocol):
@@ -41,13 +56,17 @@ class Reporter(Protocol):
 @dataclasses.dataclass
 class TrainResult:
   """state: the final TrainingState; actor_critic: its exported networks; finished: the run
-  reached total_env_steps (False when the time budget stopped it first)."""
+  reached total_env_steps (False when the time budget or a signal stopped it first);
+  start_epoch: the epoch this call started from; interrupted: the name of the signal that
+  stopped it ('SIGINT', 'SIGTERM'), else None."""
 
   state: TrainingState
   actor_critic: SacActorCritic
   epoch: int
   env_steps: int
   finished: bool
+  start_epoch: int = 0
+  interrupted: Optional[str] = None
 
 
 def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> SacActorCritic:
@@ -79,22 +98,115 @@ def read_run_config(run_dir: str) -> Optional[Dict[str, Any]]:
     ckpts.close()
 
 
+def check_run_dir(run_dir: str) -> None:
+  """Raises RunDirError unless run_dir (created if missing) and every path a run writes in it
+  can be written: a file where a directory belongs, or a read-only one, fails here, before any
+  training instead of at the first checkpoint."""
+  if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+    raise RunDirError(f'run directory {run_dir}: is a file, not a directory')
+  try:
+    os.makedirs(run_dir, exist_ok=True)
+  except OSError as e:
+    raise RunDirError(f'run directory {run_dir}: cannot be created ({e.strerror})') from None
+  for name in RUN_DIRS + RUN_FILES:
+    path = os.path.join(run_dir, name)
+    if not os.path.exists(path):
+      continue
+    if (name in RUN_DIRS) != os.path.isdir(path):
+      kind = 'a directory' if name in RUN_DIRS else 'a file'
+      raise RunDirError(f'run directory {run_dir}: {name} must be {kind}')
+  probes = [run_dir] + [os.path.join(run_dir, d) for d in RUN_DIRS
+                        if os.path.isdir(os.path.join(run_dir, d))]
+  for directory in probes:
+    try:
+      fd, probe = tempfile.mkstemp(prefix='.write-test-', dir=directory)
+      os.close(fd)
+      os.remove(probe)
+    except OSError as e:
+      raise RunDirError(f'run directory {run_dir}: cannot write in {directory} '
+                        f'({e.strerror})') from None
+  for name in RUN_FILES:
+    path = os.path.join(run_dir, name)
+    if os.path.exists(path):
+      try:
+        with open(path, 'a'):
+          pass
+      except OSError as e:
+        raise RunDirError(f'run directory {run_dir}: cannot write {path} ({e.strerror})') from None
+
+
+class _StopSignals:
+  """While active (main thread only): the first SIGINT/SIGTERM asks the run to stop after the
+  current epoch (`requested` holds its name); a second one ends the process at once with one
+  line and exit status 128 + signal number, without saving (no Python exception: one raised
+  inside JAX's compiler or runtime can crash the interpreter's exit). A signal this process
+  inherited as ignored stays ignored."""
+
+  def __init__(self, enabled: bool, run_dir: str):
+    self.requested: Optional[str] = None
+    self._enabled = enabled and threading.current_thread() is threading.main_thread()
+    self._run_dir = run_dir
+    self._previous: Dict[int, Any] = {}
+    self._notice: Optional[threading.Timer] = None
+
+  def _handle(self, signum: int, frame: Any) -> None:
+    del frame
+    name = signal.Signals(signum).name
+    if self.requested is not None:
+      sys.stdout.flush()
+      print(f'stopped by {name} without saving; {self._run_dir} keeps its latest checkpoint',
+            file=sys.stderr, flush=True)
+      os._exit(128 + signum)  # pylint: disable=protected-access
+    self.requested = name
+    # A note only if the epoch in flight (or the first compilation) takes a while.
+    self._notice = threading.Timer(3.0, lambda: print(
+        f'{name}: saving a checkpoint after the current epoch (signal again to stop without '
+        'saving)', file=sys.stderr, flush=True))
+    self._notice.daemon = True
+    self._notice.start()
+
+  def __enter__(self) -> '_StopSignals':
+    if self._enabled:
+      for name in STOP_SIGNALS:
+        signum = getattr(signal, name)
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+          self._previous[signum] = signal.signal(signum, self._handle)
+    return self
+
+  def acknowledge(self) -> None:
+    if self._notice is not None:
+      self._notice.cancel()
+
+  def __exit__(self, *exc: Any) -> None:
+    self.acknowledge()
+    for signum, handler in self._previous.items():
+      signal.signal(signum, handler)
+
+
 def _check_meta(trainer: Trainer, meta: Dict[str, Any], where: str) -> None:
   env = trainer.env
   if meta.get('format') != TRAINING_FORMAT:
-    raise ValueError(f'{where}: unknown training checkpoint format {meta.get("format")!r}')
+    raise checkpoint.CheckpointError(f'{where}: unknown training checkpoint format '
+                                     f'{meta.get("format")!r}')
+  missing = [k for k in ('task', 'observation_size', 'action_size', 'sac_config', 'epoch',
+                         'env_steps') if k not in meta]
+  if missing:
+    raise checkpoint.CheckpointError(f'{where}: its meta lacks {missing} (file damaged?)')
   if meta['task'] != env.name:
-    raise ValueError(f'{where} was trained on task {meta["task"]!r}, not {env.name!r}')
+    raise RunDirError(f'{where} was trained on task {meta["task"]!r}, not {env.name!r}')
   if (meta['observation_size'], meta['action_size']) != (env.observation_size, env.action_size):
-    raise ValueError(f'{where}: observation/action sizes {meta["observation_size"]}/'
-                     f'{meta["action_size"]} != env {env.name!r} sizes '
-                     f'{env.observation_size}/{env.action_size}')
-  stored = config_from_dict(SACConfig, meta['sac_config'])
+    raise RunDirError(f'{where}: observation/action sizes {meta["observation_size"]}/'
+                      f'{meta["action_size"]} != env {env.name!r} sizes '
+                      f'{env.observation_size}/{env.action_size}')
+  try:
+    stored = config_from_dict(SACConfig, meta['sac_config'])
+  except (TypeError, ValueError) as e:
+    raise checkpoint.CheckpointError(f'{where}: invalid stored sac_config ({e})') from None
   diff = stored.differences(trainer.config)
   if diff:
     lines = ', '.join(f'{k}: checkpoint {a!r} vs requested {b!r}' for k, (a, b) in diff.items())
-    raise ValueError(f'{where}: the run was started with a different SACConfig ({lines}); '
-                     'resume with the stored config (see read_run_config)')
+    raise RunDirError(f'{where}: the run was started with a different SACConfig ({lines}); '
+                      'resume with the stored config (see read_run_config)')
 
 
 def _host_metrics(metrics: Dict[str, Any]) -> Dict[str, float]:
@@ -128,17 +240,24 @@ def _make_evaluation(trainer: Trainer):
 
 
 def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool = False,
-          max_minutes: Optional[float] = None, checkpoint_minutes: float = 5.0,
-          checkpoint_every_epochs: int = 0, keep_checkpoints: int = 3,
-          reporter: Optional[Reporter] = None) -> TrainResult:
-  """Trains until total_env_steps (rounded up to whole epochs) or the time budget.
+          start_if_missing: bool = False, max_minutes: Optional[float] = None,
+          checkpoint_minutes: float = 5.0, checkpoint_every_epochs: int = 0,
+          keep_checkpoints: int = 3, reporter: Optional[Reporter] = None,
+          handle_signals: bool = False) -> TrainResult:
+  """Trains until total_env_steps (rounded up to whole epochs), the time budget or a signal.
 
-  resume: continue from run_dir's latest checkpoint (a fresh start when it has none); without
-    it, a run_dir that already holds checkpoints is an error.
+  resume: continue from run_dir's latest checkpoint; a run_dir without one is a RunDirError
+    unless start_if_missing (then it starts a new run). Without resume, a run_dir that already
+    holds checkpoints is a RunDirError.
   max_minutes: wall-time budget of this call; it stops before an epoch that would overrun it,
     checkpoints and returns (finished=False).
   checkpoint_minutes / checkpoint_every_epochs: save when either is due (0 disables the latter);
     the end of the call always saves.
+  handle_signals: (main thread) the first SIGINT or SIGTERM stops the run after the current
+    epoch; it saves that epoch like the time budget does and returns (finished=False,
+    interrupted='SIGINT'/'SIGTERM'); a second signal ends the process at once (os._exit with
+    128 + signal number, one line on stderr), without saving.
+  Damaged checkpoints raise checkpoint.CheckpointError; both errors are ValueErrors.
   """
   if total_env_steps < 1:
     raise ValueError(f'total_env_steps must be >= 1, got {total_env_steps}')
@@ -146,22 +265,43 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
     raise ValueError(f'max_minutes must be > 0, got {max_minutes}')
   start_time = time.time()
   deadline = None if max_minutes is None else start_time + 60.0 * max_minutes
+  check_run_dir(run_dir)
+  stop = _StopSignals(handle_signals, run_dir)
+  with stop:
+    return _train(trainer, run_dir, total_env_steps, resume, start_if_missing, start_time,
+                  deadline, checkpoint_minutes, checkpoint_every_epochs, keep_checkpoints,
+                  reporter, stop)
+
+
+def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
+           start_if_missing: bool, start_time: float, deadline: Optional[float],
+           checkpoint_minutes: float, checkpoint_every_epochs: int, keep_checkpoints: int,
+           reporter: Optional[Reporter], stop: _StopSignals) -> TrainResult:
   env, config = trainer.env, trainer.config
-  os.makedirs(run_dir, exist_ok=True)
   ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, STATE_SUBDIR),
                                          keep=keep_checkpoints)
   latest = ckpts.latest_epoch()
   if latest is not None and not resume:
     ckpts.close()
-    raise ValueError(f'{run_dir!r} already holds training checkpoints (latest epoch {latest}); '
-                     'pass resume=True (--resume) to continue it or choose another directory')
-  if latest is not None:
-    _check_meta(trainer, ckpts.read_meta(latest), os.path.join(run_dir, STATE_SUBDIR))
-    state = ckpts.restore(latest, jax.eval_shape(trainer.init))
-    epoch = latest
-  else:
-    state = trainer.init()
-    epoch = 0
+    raise RunDirError(f'{run_dir!r} already holds training checkpoints (latest epoch {latest}); '
+                      'pass resume=True (--resume) to continue it or choose another directory')
+  if latest is None and resume and not start_if_missing:
+    ckpts.close()
+    raise RunDirError(f'{run_dir!r} holds no training run to resume (no checkpoint in '
+                      f'{STATE_SUBDIR}/); drop resume (--resume) to start one, or pass '
+                      'start_if_missing (--start-if-missing)')
+  try:
+    if latest is not None:
+      _check_meta(trainer, ckpts.read_meta(latest), os.path.join(run_dir, STATE_SUBDIR))
+      state = ckpts.restore(latest, jax.eval_shape(trainer.init))
+      epoch = latest
+    else:
+      state = trainer.init()
+      epoch = 0
+  except BaseException:
+    ckpts.close()
+    raise
+  start_epoch = epoch
   num_epochs = trainer.num_epochs(total_env_steps)
   evaluate = _make_evaluation(trainer)
   reporter_ = reporter
@@ -185,6 +325,9 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   try:
     while epoch < num_epochs:
       now = time.time()
+      if stop.requested is not None:
+        stop.acknowledge()
+        break
       if (deadline is not None and epoch_seconds > 0
           and now + 1.5 * epoch_seconds + save_seconds > deadline):
         break
@@ -196,7 +339,7 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
                      walltime=time.time() - start_time)
       due = ((checkpoint_every_epochs > 0 and epoch % checkpoint_every_epochs == 0)
              or time.time() - last_save_time >= 60.0 * checkpoint_minutes
-             or epoch == num_epochs)
+             or epoch == num_epochs or stop.requested is not None)
       if not due and deadline is not None:
         due = time.time() + 1.5 * epoch_seconds + save_seconds > deadline
       if due:
@@ -214,4 +357,5 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
       reporter_.close()
   return TrainResult(state=state, actor_critic=actor_critic_from_state(trainer, state),
                      epoch=epoch, env_steps=trainer.env_steps(epoch),
-                     finished=epoch >= num_epochs)
+                     finished=epoch >= num_epochs, start_epoch=start_epoch,
+                     interrupted=stop.requested)

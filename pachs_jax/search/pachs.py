@@ -14,6 +14,7 @@ from pachs_jax.envs import base
 from pachs_jax.search import anytime
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
+from pachs_jax.search import memory
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
@@ -209,6 +210,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   elif search.config != config:
     raise ValueError('search was built with another config')
   num_instances = types.check_start_nodes(start_nodes, env)
+  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions)
   keys = types.instance_keys(key, num_instances)
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
@@ -218,6 +220,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   live = jnp.arange(padded) < num_instances
   programs = search.compiled.get((padded, jax.default_backend()))
   if programs is None:
+    memory.check_fits(env, actor_critic, search, start_nodes, padded)
     shape = jax.eval_shape(search.init, start_nodes, keys, live)
     programs = (search.init.lower(start_nodes, keys, live).compile(),
                 search.run_chunk.lower(shape, jnp.int32(0)).compile(),

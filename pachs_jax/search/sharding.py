@@ -14,7 +14,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from pachs_jax.envs import base
-from pachs_jax.search import pachs, types
+from pachs_jax.search import memory, pachs, types
 from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
 
 AXIS = 'instances'
@@ -207,5 +207,8 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     search = pachs.make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  types.check_start_nodes(start_nodes, env)
+  num_instances = types.check_start_nodes(start_nodes, env)
+  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions)
+  memory.check_fits(env, actor_critic, search, start_nodes,
+                    -(-num_instances // mesh.devices.size), device=mesh.local_devices[0])
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

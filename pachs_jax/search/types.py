@@ -3,6 +3,7 @@ of its inputs."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import numbers
 import math
@@ -10,6 +11,7 @@ from typing import Optional, Protocol, Tuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from pachs_jax.envs import base
@@ -51,19 +53,53 @@ class ActorCritic(Protocol):
     ...
 
 
-def positive_int(owner: str, name: str, value, allow_none: bool = False) -> None:
-  """ValueError unless value is an int >= 1 (or None when allow_none)."""
+def plain_number(value):
+  """value as a Python int or float when it is an integer or real number of any kind (a numpy
+  or JAX scalar, a 0-d array); anything else, bools included, unchanged."""
+  if isinstance(value, (bool, np.bool_)) or isinstance(value, jax.core.Tracer):
+    return value
+  if isinstance(value, numbers.Integral):
+    return int(value)
+  if isinstance(value, numbers.Real):
+    return float(value)
+  dtype = getattr(value, 'dtype', None)
+  if getattr(value, 'shape', None) == () and dtype is not None:
+    if jnp.issubdtype(dtype, jnp.integer):
+      return int(value)
+    if jnp.issubdtype(dtype, jnp.floating):
+      return float(value)
+  return value
+
+
+def normalize_numbers(config) -> None:
+  """Replaces the numpy / JAX scalar fields of a frozen dataclass config by Python ints and
+  floats (so that equal configs hash and compare equal); call first in __post_init__."""
+  for field in dataclasses.fields(config):
+    value = getattr(config, field.name)
+    plain = plain_number(value)
+    if plain is not value:
+      object.__setattr__(config, field.name, plain)
+
+
+def positive_int(owner: str, name: str, value, allow_none: bool = False):
+  """value as a Python int >= 1 (numpy and JAX integers accepted; None when allow_none);
+  ValueError otherwise (bools included)."""
   if value is None and allow_none:
-    return
+    return None
+  value = plain_number(value)
   if isinstance(value, bool) or not isinstance(value, int) or value < 1:
     raise ValueError(f'{owner}.{name} must be a positive int, got {value!r}')
+  return value
 
 
-def check_weight(owner: str, weight) -> None:
-  """ValueError unless weight is a finite number >= 0."""
+def check_weight(owner: str, weight) -> float:
+  """weight as a Python float, finite and >= 0 (numpy and JAX numbers accepted); ValueError
+  otherwise."""
+  weight = plain_number(weight)
   if (isinstance(weight, bool) or not isinstance(weight, (int, float))
       or not math.isfinite(weight) or weight < 0):
     raise ValueError(f'{owner}.weight must be a finite number >= 0, got {weight!r}')
+  return float(weight)
 
 
 def check_table_capacity(owner: str, table_capacity) -> None:
@@ -80,26 +116,79 @@ def check_actor_critic(actor_critic, names) -> None:
 
 
 def lattice_resolution_tuple(owner: str, resolution):
-  """None, or the resolution as a tuple of positive finite floats (ValueError otherwise)."""
+  """None, or the resolution as a tuple of positive finite floats (numpy and JAX numbers
+  accepted); ValueError otherwise."""
   if resolution is None:
     return None
-  res = tuple(resolution)
-  if not res or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in res):
+  try:
+    res = tuple(plain_number(r) for r in resolution)
+  except TypeError:
+    res = ()
+  if not res or not all(isinstance(r, (int, float)) and not isinstance(r, bool)
+                        and math.isfinite(r) and r > 0 for r in res):
     raise ValueError(f'{owner}.lattice_resolution must be a non-empty tuple of positive cell '
                      f'sizes, got {resolution!r}')
   return tuple(float(r) for r in res)
 
 
+# Lattice coordinates are int32; a cell size is allowed when the coordinates of the env's
+# states stay within +-2**30 (half the int32 range, a margin for float32 rounding).
+LATTICE_COORD_LIMIT = 2.0**30
+
+
+def _ceil_2(x: float) -> float:
+  """x rounded up to 2 significant digits (so that the printed bound is itself allowed)."""
+  if x <= 0:
+    return 0.0
+  scale = 10.0**(math.floor(math.log10(x)) - 1)
+  return math.ceil(x / scale * (1 - 1e-12)) * scale
+
+
+def _format_sizes(values) -> str:
+  return '(' + ', '.join(f'{v:.2g}' for v in values) + ')'
+
+
+def min_lattice_resolution(env: base.Env):
+  """[L] float64 smallest cell sizes that keep env's int32 lattice coordinates from
+  overflowing (`Env.lattice_extent` / 2**30), or None when the env does not bound them."""
+  extent = getattr(env, 'lattice_extent', None)
+  if extent is None:
+    return None
+  return np.abs(np.asarray(extent, np.float64)) / LATTICE_COORD_LIMIT
+
+
 def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
-  """[L] float32 cell sizes: `resolution`, or the env's default when None (ValueError when its
-  length differs from the env's)."""
+  """[L] float32 cell sizes: `resolution`, or the env's default when None.
+
+  ValueError when its length differs from the env's, or when a cell is so small that the
+  int32 lattice coordinates of the env's states overflow (they saturate, and every state falls
+  into one cell); the message names the smallest allowed size per coordinate.
+  """
   default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
   if resolution is None:
     return default
+  given = _format_sizes(np.asarray(resolution, np.float64).ravel())
   resolution = jnp.asarray(resolution, jnp.float32)
   if resolution.shape != default.shape:
     raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
                      f'environment {env.name} uses {default.shape[0]}')
+  res = np.asarray(resolution, np.float64)
+  smallest = min_lattice_resolution(env)
+  if smallest is not None and np.shape(smallest) != res.shape:
+    raise ValueError(f'{type(env).__name__}.lattice_extent has shape {np.shape(smallest)}, but '
+                     f'its lattice coordinates have {res.shape}')
+  allowed = np.array([_ceil_2(float(x)) for x in smallest]) if smallest is not None else None
+  too_fine = ~(res > 0) | ~np.isfinite(res)
+  if smallest is not None:
+    too_fine |= res < smallest
+  if too_fine.any():
+    bad = [int(i) for i in np.flatnonzero(too_fine)]
+    if allowed is None:
+      raise ValueError(f'lattice_resolution {given} of {env.name}: cells {bad} become 0 or inf '
+                       'in float32')
+    raise ValueError(f'lattice_resolution {given} overflows the int32 lattice coordinates of '
+                     f'{env.name} (coordinate{"s" * (len(bad) > 1)} {", ".join(map(str, bad))}): '
+                     f'cell sizes must be at least {_format_sizes(allowed)}')
   return resolution
 
 
@@ -123,7 +212,93 @@ def check_start_nodes(start_nodes: base.NodeState, env: base.Env) -> int:
   sizes = {jnp.shape(x)[0] for x in leaves}
   if len(sizes) != 1 or 0 in sizes:
     raise ValueError(f'start_nodes leaves must share one leading axis I >= 1, got {sizes}')
+  check_finite_start_nodes(start_nodes)
   return sizes.pop()
+
+
+def check_finite_start_nodes(start_nodes: base.NodeState) -> None:
+  """ValueError naming the instances whose start state or goal holds a NaN or inf (host-side;
+  does nothing for traced or non-addressable arrays, e.g. under jit)."""
+  fields = [(f.name, getattr(start_nodes, f.name)) for f in dataclasses.fields(start_nodes)]
+  if any(isinstance(x, jax.core.Tracer) or not getattr(x, 'is_fully_addressable', True)
+         for _, x in fields):
+    return
+  bad, names = None, []
+  for name, x in fields:
+    x = np.asarray(x)
+    if not np.issubdtype(x.dtype, np.inexact):
+      continue
+    ok = np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+    if not ok.all():
+      names.append(name)
+      bad = ~ok if bad is None else bad | ~ok
+  if names:
+    index = np.flatnonzero(bad).tolist()
+    raise ValueError(f'start_nodes of instance{"s" * (len(index) > 1)} {_list(index)} are not '
+                     f'finite (NaN or inf in {", ".join(names)}): the search needs finite start '
+                     'states and goals')
+
+
+def _list(index, most: int = 10) -> str:
+  """'[0, 3, 7]', or the first `most` and a count."""
+  if len(index) <= most:
+    return str(list(index))
+  return f'[{", ".join(map(str, index[:most]))}, ...] ({len(index)} in all)'
+
+
+_MODEL_CHECKS: collections.OrderedDict = collections.OrderedDict()
+
+
+def _model_outputs_fn(env: base.Env, actor_critic, num_actions: int):
+  """jit(nodes [B], key) -> ([B] bool finite observations, [B] finite actions, [B] finite Q),
+  cached per (env, actor_critic, num_actions) object (the last 8, held so ids stay unique)."""
+  cache_key = (id(env), id(actor_critic), num_actions)
+  hit = _MODEL_CHECKS.get(cache_key)
+  if hit is not None and hit[0] is env and hit[1] is actor_critic:
+    _MODEL_CHECKS.move_to_end(cache_key)
+    return hit[2]
+
+  def outputs(nodes, key):
+    finite = lambda x: jnp.all(jnp.isfinite(x.reshape(x.shape[0], -1)), axis=1)
+    obs = env.observe(nodes)
+    actions = actor_critic.sample_actions(key, obs, num_actions)
+    # the actions as the search scores them (non-finite entries zeroed, clipped)
+    clean = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
+    q = actor_critic.q_values(obs, clean)
+    return finite(obs), finite(actions), finite(q)
+
+  fn = jax.jit(outputs)
+  _MODEL_CHECKS[cache_key] = (env, actor_critic, fn)
+  while len(_MODEL_CHECKS) > 8:
+    _MODEL_CHECKS.popitem(last=False)
+  return fn
+
+
+def check_model_outputs(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
+                        num_actions: int) -> None:
+  """ValueError when the actor-critic's sampled actions or critic Q on the start states are
+  not finite (a damaged model, or one of another task): the search would drop every edge and
+  report OPEN empty, as if the task had been searched exhaustively.
+
+  One small jitted call on the start nodes [I] (padded to a power of two, so that nearby
+  instance counts share its compilation); also ValueError for non-finite observations.
+  """
+  num = jax.tree.leaves(start_nodes)[0].shape[0]
+  padded = next_pow2(num)
+  if padded != num:
+    start_nodes = jax.tree.map(
+        lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - num, axis=0)]), start_nodes)
+  fn = _model_outputs_fn(env, actor_critic, num_actions)
+  obs_ok, actions_ok, q_ok = (np.asarray(x)[:num]
+                              for x in fn(start_nodes, jax.random.PRNGKey(0)))
+  for ok, what in ((obs_ok, f'{env.name} gives non-finite observations of the start states'),
+                   (actions_ok, 'actor-critic samples non-finite actions on the start states'),
+                   (q_ok, 'actor-critic returns non-finite Q on the start states')):
+    if not ok.all():
+      index = np.flatnonzero(~ok).tolist()
+      cause = ('the start states lie outside the task' if ok is obs_ok else
+               'the model is damaged or does not fit the task')
+      raise ValueError(f'{what} (instance{"s" * (len(index) > 1)} {_list(index)}): {cause}')
 
 
 def instance_keys(key: jax.Array, num_instances: int) -> jax.Array:
@@ -180,7 +355,8 @@ class EdgeSearchConfig:
 
   def __post_init__(self):
     owner = type(self).__name__
-    check_weight(owner, self.weight)
+    normalize_numbers(self)
+    object.__setattr__(self, 'weight', check_weight(owner, self.weight))
     for name in ('pop_size', 'max_evaluations', 'max_path_length'):
       positive_int(owner, name, getattr(self, name))
     for name in ('max_iterations', 'heap_capacity', 'pool_capacity', 'table_capacity'):
@@ -238,7 +414,7 @@ class SearchConfig(EdgeSearchConfig):
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
-    fractions = (tuple(self.compact_fractions)
+    fractions = (tuple(plain_number(f) for f in self.compact_fractions)
                  if isinstance(self.compact_fractions, (tuple, list)) else (None,))
     if not all(isinstance(f, numbers.Real) and not isinstance(f, bool) and 0 < f < 1
                for f in fractions):

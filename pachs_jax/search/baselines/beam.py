@@ -35,6 +35,7 @@ class BeamConfig:
   lattice_resolution: Optional[Tuple[float, ...]] = None
 
   def __post_init__(self):
+    types.normalize_numbers(self)
     for name in ('beam_width', 'num_actions', 'max_evaluations'):
       types.positive_int('BeamConfig', name, getattr(self, name))
     types.positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)

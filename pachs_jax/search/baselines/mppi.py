@@ -55,6 +55,7 @@ class MppiConfig:
   fallback: str = 'nominal'
 
   def __post_init__(self):
+    types.normalize_numbers(self)
     for name in ('num_samples', 'horizon', 'max_iterations', 'max_evaluations'):
       types.positive_int('MppiConfig', name, getattr(self, name))
     _finite_number('MppiConfig', 'temperature', self.temperature, positive=True)

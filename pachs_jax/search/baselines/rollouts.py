@@ -56,6 +56,7 @@ class SingleRolloutConfig:
   max_steps: Optional[int] = None
 
   def __post_init__(self):
+    types.normalize_numbers(self)
     types.positive_int('SingleRolloutConfig', 'max_steps', self.max_steps, allow_none=True)
 
 
@@ -139,6 +140,7 @@ class ParallelRolloutConfig:
   fallback: str = 'last_cost'
 
   def __post_init__(self):
+    types.normalize_numbers(self)
     for name in ('num_copies', 'max_evaluations'):
       types.positive_int('ParallelRolloutConfig', name, getattr(self, name))
     types.positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,

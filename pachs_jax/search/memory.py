@@ -1,0 +1,130 @@
+"""Will the search fit? The device memory of a PACHS search state, from its config, checked
+before compiling (a budget that cannot fit is refused, naming the largest one that can)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pachs_jax.envs import base
+
+
+def tree_bytes(tree) -> int:
+  """Bytes of every array (or ShapeDtypeStruct) leaf of tree."""
+  return sum(int(np.prod(x.shape, dtype=np.int64)) * np.dtype(x.dtype).itemsize
+             for x in jax.tree.leaves(tree))
+
+
+def device_memory(device=None) -> Tuple[int, str]:
+  """(bytes the search may use on device, how that was found).
+
+  An accelerator: `memory_stats()`'s bytes_limit less bytes_in_use; otherwise (the CPU, or no
+  statistics) the machine's physical RAM.
+  """
+  device = jax.devices()[0] if device is None else device
+  stats = None
+  try:
+    stats = device.memory_stats()
+  except Exception:  # pylint: disable=broad-except  (backends without statistics)
+    stats = None
+  if stats and stats.get('bytes_limit'):
+    limit, in_use = int(stats['bytes_limit']), int(stats.get('bytes_in_use', 0))
+    return limit - in_use, (f'{device.platform}:{device.id} has {_gb(limit - in_use)} free of '
+                            f'{_gb(limit)}')
+  ram = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+  return ram, f'the machine has {_gb(ram)} of RAM'
+
+
+def _gb(num_bytes: float) -> str:
+  """'61.2 GB' (MB below 0.1 GB, TB from 1000 GB)."""
+  for unit, scale in (('TB', 1e12), ('GB', 1e9)):
+    if num_bytes >= 0.1 * scale * (10 if unit == 'TB' else 1):
+      return f'{num_bytes / scale:.3g} {unit}'
+  return f'{num_bytes / 1e6:.3g} MB'
+
+
+def _instance_specs(start_nodes: base.NodeState, num_instances: int):
+  """ShapeDtypeStructs of start_nodes and [I, 2] keys with num_instances rows."""
+  nodes = jax.tree.map(lambda x: jax.ShapeDtypeStruct((num_instances,) + np.shape(x)[1:],
+                                                      jnp.result_type(x)), start_nodes)
+  return nodes, jax.ShapeDtypeStruct((num_instances, 2), jnp.uint32)
+
+
+def search_bytes(search, start_nodes: base.NodeState, num_instances: int) -> int:
+  """Device bytes of a PACHS search over num_instances instances shaped like start_nodes: its
+  state (`Search.init`, exact, traced without running) plus the SearchResult. The working set of
+  one iteration (one network and one physics batch of I x K) is not counted."""
+  nodes, keys = _instance_specs(start_nodes, num_instances)
+  state = jax.eval_shape(search.init, nodes, keys)
+  return tree_bytes(state) + tree_bytes(jax.eval_shape(search.result, state))
+
+
+def largest_budget(bytes_at, budget: int, available: int) -> int:
+  """The largest budget <= budget whose bytes_at(budget) <= available, within 0.5% (0 when even
+  a budget of 1 does not fit); bytes_at grows about linearly with the budget."""
+  low, low_bytes = 1, bytes_at(1)
+  if low_bytes > available:
+    return 0
+  high, high_bytes = budget, bytes_at(budget)
+  if high_bytes <= available:
+    return budget
+  # a linear guess, then bisection on a log scale
+  slope = (high_bytes - low_bytes) / max(high - low, 1)
+  guess = int(low + (available - low_bytes) / max(slope, 1e-9))
+  for probe in (guess, int(guess * 0.9), int(guess * 1.1)):
+    if low < probe < high:
+      if bytes_at(probe) <= available:
+        low = probe
+      else:
+        high = probe
+  while high - low > max(1, low // 200):
+    mid = int(math.sqrt(low * high)) if high > 2 * low else (low + high) // 2
+    mid = min(max(mid, low + 1), high - 1)
+    if bytes_at(mid) <= available:
+      low = mid
+    else:
+      high = mid
+  return low
+
+
+def _round_down(n: int) -> int:
+  """n rounded down to 3 significant digits."""
+  if n < 1000:
+    return n
+  scale = 10**(len(str(n)) - 3)
+  return n // scale * scale
+
+
+def check_fits(env: base.Env, actor_critic, search, start_nodes: base.NodeState,
+               num_instances: int, device=None) -> int:
+  """Returns the device bytes of a PACHS search of num_instances (padded) instances; ValueError
+  when they exceed the device's memory (`device_memory`), naming the largest budget
+  (max_evaluations) that fits. Traces, compiles nothing."""
+  need = search_bytes(search, start_nodes, num_instances)
+  available, where = device_memory(device)
+  if need <= available:
+    return need
+  from pachs_jax.search import pachs  # pylint: disable=g-import-not-at-top (pachs imports us)
+  config = search.config
+
+  def bytes_at(budget):
+    if budget == config.max_evaluations:
+      return need
+    smaller = pachs.make_search(env, actor_critic,
+                                dataclasses.replace(config, max_evaluations=budget))
+    return search_bytes(smaller, start_nodes, num_instances)
+
+  best = largest_budget(bytes_at, config.max_evaluations, available)
+  what = (f'the budget max_evaluations={config.max_evaluations} needs {_gb(need)} of search '
+          f'state for {num_instances} instance{"s" * (num_instances > 1)} per device, but '
+          f'{where}')
+  if best == 0:
+    raise ValueError(f'{what}; not even a budget of 1 fits: plan fewer instances at once')
+  raise ValueError(f'{what}: the largest budget that fits is about {_round_down(best):,} (or '
+                   'plan fewer instances at once)')
