@@ -1,19 +1,5 @@
-"""PushT-Obs obstacle layouts as data: the blocks on the table and the region the T starts in.
-
-Everything is in the world frame (m, rad), where the goal T sits at `pusht.FIXED_GOAL`
-(x -0.156, y -0.1, yaw 5 pi/3; it covers x in [-0.26, -0.02], y in [-0.22, -0.01]), the robot
-base at (-0.615, 0) and the stick tip starts at (-0.40, -0.32).
-
-- blocks: rows (cx, cy, half_x, half_y, yaw), 4 cm tall boxes the T and the stick collide with.
-- start region: ranges of the T's start pose (x, y of the T frame's origin, on the stem's axis
-  1.25 cm from the bar, and yaw), drawn uniformly; candidates whose T overlaps a block (5 mm
-  clearance), touches the stick's start or already covers the goal are rejected
-  (`pusht.start_clear`, used by `PushTEnv.canonical_instances`).
-
-`PushTEnv` checks its layout when it is made (`pusht.check_layout`): no block may overlap the
-goal T or the stick's start, the start region must lie on the table and within the arm's reach,
-and enough of it must be clear of the blocks to draw the canonical instances.
-"""
+"""PushT-Obs obstacle layouts as data: the blocks on the table and the region the T starts in
+(frames, units and checks: docs/pusht_model.md)."""
 
 from __future__ import annotations
 

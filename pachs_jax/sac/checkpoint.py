@@ -1,12 +1,5 @@
-"""Orbax checkpoints: the exported actor-critic the search loads, and full training states
-(layouts: docs/sac.md).
-
-Every export records a SHA-256 of its parameters (`params_hash`) in actor_critic.json, and
-loading verifies it: a missing, truncated or overwritten file, or a JSON without a required
-entry, raises `CheckpointError` (a ValueError) with one line that names the checkpoint.
-`python -m pachs_jax.sac.verify [--add-hash] DIR` checks exports or stamps one written before
-hashes.
-"""
+"""Orbax checkpoints: the exported actor-critic the search loads, verified against the SHA-256 of
+its parameters, and full training states (layouts and errors: docs/sac.md)."""
 
 from __future__ import annotations
 
