@@ -288,6 +288,19 @@ def _train_cmd(out, *extra):
           '--no-tensorboard', '--nondeterministic', '--eval-instances', '0', *extra]
 
 
+def _popen_with_default_signals(*args, **kwargs):
+  """Popen whose child gets SIGINT and SIGTERM as in a terminal: a background shell job (e.g. a
+  CI runner's) starts with them ignored, children inherit that, and training respects an
+  ignored signal. A handled signal is reset to default in the child by exec."""
+  previous = {s: signal.signal(s, signal.default_int_handler) for s in (signal.SIGINT,
+                                                                         signal.SIGTERM)}
+  try:
+    return subprocess.Popen(*args, **kwargs)
+  finally:
+    for s, handler in previous.items():
+      signal.signal(s, handler)
+
+
 @pytest.fixture(scope='module')
 def run_env(tmp_path_factory):
   """Environment of the training subprocesses: one JAX compilation cache for all of them."""
@@ -302,8 +315,9 @@ def interrupted_run(tmp_path_factory, run_env):
   """A point-mass run sent SIGINT after its first progress line: (out, returncode, stdout,
   stderr, copy of out as the signal left it)."""
   out = str(tmp_path_factory.mktemp('sigint') / 'run')
-  proc = subprocess.Popen(_train_cmd(out, '--steps', '10000000'), stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True, cwd=REPO, env=run_env)
+  proc = _popen_with_default_signals(_train_cmd(out, '--steps', '10000000'),
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     cwd=REPO, env=run_env)
   lines = []
   deadline = time.time() + 120
   for line in proc.stdout:
@@ -311,7 +325,10 @@ def interrupted_run(tmp_path_factory, run_env):
     if line.startswith('[point-mass]') or time.time() > deadline:
       proc.send_signal(signal.SIGINT)
       break
-  rest, err = proc.communicate(timeout=120)
+  try:
+    rest, err = proc.communicate(timeout=120)
+  finally:
+    proc.kill()  # a no-op once it exited; never leave a 10M-step run behind
   copy = out + '-as-interrupted'
   if os.path.isdir(out):
     shutil.copytree(out, copy)
@@ -373,13 +390,17 @@ def test_resume_continues_and_appends_metrics(interrupted_run, run_env):
 
 def test_sigterm_before_the_first_epoch_saves_nothing(tmp_path, run_env):
   out = str(tmp_path / 'run')
-  proc = subprocess.Popen(_train_cmd(out, '--steps', '10000000'), stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True, cwd=REPO, env=run_env)
+  proc = _popen_with_default_signals(_train_cmd(out, '--steps', '10000000'),
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     cwd=REPO, env=run_env)
   for line in proc.stdout:  # 'task ...': JAX is imported, training not started
     if line.startswith('task point-mass'):
       break
   proc.send_signal(signal.SIGTERM)
-  _, err = proc.communicate(timeout=120)
+  try:
+    _, err = proc.communicate(timeout=120)
+  finally:
+    proc.kill()
   assert proc.returncode == 128 + signal.SIGTERM, (proc.returncode, err[-2000:])
   assert 'Traceback' not in err, err[-2000:]
   last = err.strip().splitlines()[-1]
