@@ -11,11 +11,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import os
 import signal
 import sys
 import threading
+
+from pachs_jax import argtypes
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 
@@ -43,25 +44,8 @@ def _seed(text: str) -> int:
   return value
 
 
-def _positive_float(text: str) -> float:
-  try:
-    value = float(text)
-  except ValueError:
-    raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
-  if not (value > 0 and math.isfinite(value)):
-    raise argparse.ArgumentTypeError(f'must be a finite number > 0, got {text}')
-  return value
-
-
-class _Parser(argparse.ArgumentParser):
-  """Errors in one line (the usage block only with --help)."""
-
-  def error(self, message):
-    self.exit(2, f'{self.prog}: error: {message} (see --help)\n')
-
-
 def parse_args(argv=None) -> argparse.Namespace:
-  p = _Parser(description=__doc__.split('\n')[0])
+  p = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   p.add_argument('--task', required=True, help="'point-mass' or a name of pachs_jax.envs.make")
   p.add_argument('--steps', type=_int_at_least(1), required=True,
                  help='total environment steps of the run')
@@ -72,9 +56,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   p.add_argument('--start-if-missing', action='store_true',
                  help='with --resume: start a new run when --out holds none (for job scripts '
                       'that repeat one command)')
-  p.add_argument('--minutes', type=_positive_float, default=None,
+  p.add_argument('--minutes', type=argtypes.positive_float, default=None,
                  help='wall-time budget of this call')
-  p.add_argument('--checkpoint-minutes', type=_positive_float, default=5.0)
+  p.add_argument('--checkpoint-minutes', type=argtypes.positive_float, default=5.0)
   p.add_argument('--checkpoint-every', type=_int_at_least(0), default=0,
                  help='also save every N epochs')
   p.add_argument('--keep', type=_int_at_least(1), default=3, help='training checkpoints kept')

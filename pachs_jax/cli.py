@@ -4,16 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 
-
-class _Parser(argparse.ArgumentParser):
-  """An ArgumentParser whose errors are one line: 'pachs plan: error: ...' (exit code 2)."""
-
-  def error(self, message):
-    self.exit(2, f'{self.prog}: error: {message}\n')
+from pachs_jax import argtypes
 
 
 def _positive_int(text: str) -> int:
@@ -23,16 +17,6 @@ def _positive_int(text: str) -> int:
     value = 0
   if value < 1:
     raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}')
-  return value
-
-
-def _positive_float(text: str) -> float:
-  try:
-    value = float(text)
-  except ValueError:
-    value = math.nan
-  if not (math.isfinite(value) and value > 0):
-    raise argparse.ArgumentTypeError(f'must be a positive number of seconds, got {text!r}')
   return value
 
 
@@ -244,7 +228,7 @@ def main(argv=None) -> int:
   from pachs_jax import envs
   from pachs_jax.envs import layouts
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
-  parser = _Parser(prog='pachs', description='PACHS in JAX')
+  parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
@@ -269,7 +253,7 @@ def main(argv=None) -> int:
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
   plan.add_argument('--lattice-resolution', type=lambda s: _numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')
-  plan.add_argument('--time-limit', type=_positive_float, default=None,
+  plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
   plan.add_argument('--compact-fractions', default=None,
                     type=lambda s: _numbers(s, 'fractions'),
