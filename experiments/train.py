@@ -46,7 +46,9 @@ def _seed(text: str) -> int:
 
 def parse_args(argv=None) -> argparse.Namespace:
   p = argtypes.OneLineParser(description=__doc__.split('\n')[0])
-  p.add_argument('--task', required=True, help="'point-mass' or a name of pachs_jax.envs.make")
+  p.add_argument('--task', '--env', dest='task', required=True,
+                 help="'point-mass', a name of pachs_jax.envs.make, or playground:NAME (a MuJoCo "
+                      "Playground env; needs pip install -e '.[playground]')")
   p.add_argument('--steps', type=_int_at_least(1), required=True,
                  help='total environment steps of the run')
   p.add_argument('--out', required=True, help='run directory')
@@ -130,6 +132,8 @@ def make_env(task: str):
     raise SystemExit(f'unknown task {task!r}: pachs_jax.envs.make is not available')
   try:
     return make(task)
+  except ImportError as e:
+    raise SystemExit(f'error: {e}') from None
   except ValueError as e:
     raise SystemExit(f"{e} (or 'point-mass')") from None
 

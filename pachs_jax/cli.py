@@ -96,6 +96,16 @@ def _demo(args: argparse.Namespace) -> int:
   return 0
 
 
+def _task_arg(text: str) -> str:
+  """--task / --env: a task of `envs.TASKS` or 'playground:NAME' (NAME checked when made)."""
+  from pachs_jax import envs
+  if text in envs.TASKS or (envs.is_playground(text) and len(text) > len('playground:')):
+    return text
+  raise argparse.ArgumentTypeError(f'unknown task {text!r}; valid tasks: '
+                                   f'{", ".join(envs.TASKS)}, or playground:NAME (a MuJoCo '
+                                   "Playground env, pip install -e '.[playground]')")
+
+
 def _devices_arg(text: str):
   """--devices: 'all' or a positive device count."""
   if text == 'all':
@@ -176,7 +186,7 @@ def _plan(args: argparse.Namespace) -> int:
                else 'MJX on the CPU (slow: milliseconds per world and step)')
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
-  starts_all = env.canonical_instances(num_available)
+  starts_all = planner.canonical_instances(env, num_available)
   starts = jax.tree.map(lambda x: x[np.asarray(instances)], starts_all)
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
   where = jax.devices()[0].platform
@@ -224,7 +234,11 @@ def _plan(args: argparse.Namespace) -> int:
 
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
-  os.environ.setdefault('MUJOCO_GL', 'egl')
+  words = sys.argv[1:] if argv is None else list(argv)
+  if any(w == '--gif' or w.startswith('--gif=') for w in words):
+    # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
+    # fails to import mujoco when MUJOCO_GL=egl is set).
+    os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs
   from pachs_jax.envs import layouts
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
@@ -238,7 +252,10 @@ def main(argv=None) -> int:
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
   plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
-  plan.add_argument('--task', default='pusht-obs', choices=envs.TASKS)
+  plan.add_argument('--task', '--env', dest='task', default='pusht-obs', type=_task_arg,
+                    metavar='TASK', help=f'{", ".join(envs.TASKS)} (default pusht-obs), or '
+                    'playground:NAME: a MuJoCo Playground env (with --checkpoint; needs pip '
+                    "install -e '.[playground]')")
   plan.add_argument('--layout', default=None, choices=layouts.NAMES,
                     help=f'pusht-obs only: the obstacle layout (default: {layouts.DEFAULT})')
   plan.add_argument('--instances', default=None,
@@ -269,7 +286,8 @@ def main(argv=None) -> int:
                          "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
   plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
   plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
-                    help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator')
+                    help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
+                    '(Playground tasks: MJX only)')
   plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')
   plan.add_argument('--json', default=None, help='write the result rows as JSON')
   plan.add_argument('--no-cache', action='store_true',
@@ -284,7 +302,7 @@ def main(argv=None) -> int:
     plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
   try:
     return args.func(args)
-  except (ValueError, OSError) as err:  # one line, no traceback
+  except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
         else f'{err.strerror}: {err.filename}' if err.filename else err.strerror
     parser.exit(2, f'pachs {args.command}: error: {message}\n')

@@ -22,15 +22,17 @@ CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
 
 
-def default_config(task: str, **overrides) -> search_types.SearchConfig:
-  """The task's tuned SearchConfig with fields replaced by the non-None `overrides`."""
-  values = dict(envs.spec(task).search_defaults)
+def default_config(task: Optional[str], **overrides) -> search_types.SearchConfig:
+  """The task's tuned SearchConfig (task None: a user's task, `registry.USER_SEARCH`) with
+  fields replaced by the non-None `overrides`."""
+  from pachs_jax.envs import registry
+  values = dict(envs.spec(task).search_defaults if task is not None else registry.USER_SEARCH)
   values.update({k: v for k, v in overrides.items() if v is not None})
   return search_types.SearchConfig(**values)
 
 
-def command_config(task: str, on_cpu: bool, mujoco_c: bool, budget: Optional[int] = None,
-                   **explicit) -> search_types.SearchConfig:
+def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
+                   budget: Optional[int] = None, **explicit) -> search_types.SearchConfig:
   """The SearchConfig of `pachs plan`.
 
   The task's defaults; on a CPU without a `budget`, the backend's CPU budget (`CPU_DEFAULTS`)
@@ -39,30 +41,54 @@ def command_config(task: str, on_cpu: bool, mujoco_c: bool, budget: Optional[int
   """
   settings = {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS}
   if on_cpu and budget is None:
-    settings.update(envs.spec(task).cpu_overrides)
+    settings.update(envs.spec(task).cpu_overrides if task is not None else {})
     budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]
   settings.update({k: v for k, v in explicit.items() if v is not None})
   return default_config(task, max_evaluations=budget, **settings)
 
 
 def checkpoint_path(task: str) -> str:
-  """Directory of the shipped actor-critic that plans `task`."""
-  return os.path.join(CHECKPOINT_DIR, envs.spec(task).model_task)
+  """Directory of the shipped actor-critic that plans `task` (':' in a name becomes '-':
+  'playground:PointMass' -> checkpoints/playground-PointMass)."""
+  return os.path.join(CHECKPOINT_DIR, envs.spec(task).model_task.replace(':', '-'))
 
 
-def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx',
+def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
+  """The env of a task name with the chosen physics backend, or a user's Env (checked with
+  `envs.check_task`; MJX physics only)."""
+  from pachs_jax.envs import mujoco_c
+  if isinstance(task, envs.Env):
+    if backend == 'mujoco-c':
+      raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
+                       "runs its own transition (use backend 'mjx' or 'auto')")
+    envs.check_task(task)
+    return task
+  if envs.is_playground(task) and backend == 'mujoco-c':
+    raise ValueError(f"--backend mujoco-c simulates the PushT tasks only; {task} runs in MJX "
+                     "(use --backend mjx or auto)")
+  return mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
+
+
+def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
                nthread: Optional[int] = None, layout: Optional[str] = None):
   """(env, SacActorCritic) of a task: the shipped model unless `path`, checked against the env.
 
+  task: a task name (`envs.TASKS`, or 'playground:NAME'), or a user's `envs.Env` (checked
+  with `envs.check_task`; then `path` is required).
   backend: 'mjx', 'mujoco-c' (PushT edges simulated by MuJoCo C on CPU threads) or 'auto'
   (MuJoCo C when JAX has no accelerator). nthread: MuJoCo C threads (None: all CPUs).
   layout: pusht-obs's obstacle layout (`envs.layouts.LAYOUTS`; None: the default).
   Raises FileNotFoundError for a missing checkpoint, ValueError for one of another task or size.
   """
-  from pachs_jax.envs import mujoco_c
   from pachs_jax.sac import checkpoint
-  env = mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
-  model_task = envs.spec(task).model_task
+  env = _make_env(task, backend, nthread, layout)
+  if isinstance(task, envs.Env):
+    if path is None:
+      raise ValueError(f'task {task.name!r} has no shipped model: give the checkpoint of a '
+                       'model trained on it')
+    model_task = task = task.name
+  else:
+    model_task = envs.spec(task).model_task
   path = path or checkpoint_path(task)
   if not os.path.exists(path):
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
@@ -80,11 +106,20 @@ def load_model(task: str, path: Optional[str] = None, backend: str = 'mjx',
   return env, model
 
 
+def canonical_instances(env, num: int):
+  """NodeState [num] of a task's canonical instances: `env.canonical_instances(num)`, or for
+  an env without them the start nodes of keys split from PRNGKey(0)."""
+  if hasattr(env, 'canonical_instances'):
+    return env.canonical_instances(num)
+  return jax.jit(env.initial_nodes)(jax.random.split(jax.random.PRNGKey(0), num))
+
+
 class Planner:
   """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
   kept warm between calls (one compilation per padded instance count, see `pachs.plan`).
 
-  task: a task name (`envs.TASKS`); checkpoint: a model directory (None: the shipped one);
+  task: a task name (`envs.TASKS`, 'playground:NAME') or a user's `envs.Env` (checked with
+  `envs.check_task`); checkpoint: a model directory (None: the shipped one);
   backend: 'auto' (MuJoCo C physics on a CPU-only machine), 'mjx' or 'mujoco-c';
   budget and the SearchConfig fields in `overrides` as in `command_config`;
   cache: turn on the persistent compilation cache (`compile_cache.enable`);
@@ -98,18 +133,23 @@ class Planner:
     from pachs_jax.search import pachs
     if cache:
       compile_cache.enable()
-    self.task = task
     self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
+    self.task = self.env.name if isinstance(task, envs.Env) else task
     on_cpu = jax.default_backend() == 'cpu'
-    self.config = command_config(task, on_cpu, type(self.env).__name__ == 'MujocoCEnv', budget,
-                                 **overrides)
+    mujoco_c = type(self.env).__name__ == 'MujocoCEnv'
+    if isinstance(task, envs.Env):  # a user's task: registry.USER_SEARCH
+      self.config = command_config(None, on_cpu, mujoco_c, budget, **overrides)
+      self._num_instances = 30
+    else:
+      self.config = command_config(task, on_cpu, mujoco_c, budget, **overrides)
+      self._num_instances = envs.spec(task).num_instances
     self.search = pachs.make_search(self.env, self.model, self.config)
     self._canonical = None
 
   def canonical(self, instances: Sequence[int]):
     """NodeState [len(instances)] of the task's canonical instances (generated once)."""
     if self._canonical is None:
-      self._canonical = self.env.canonical_instances(envs.spec(self.task).num_instances)
+      self._canonical = canonical_instances(self.env, self._num_instances)
     index = np.asarray(instances)
     return jax.tree.map(lambda x: x[index], self._canonical)
 

@@ -1,6 +1,9 @@
 """The `pachs plan` command end to end on the CPU, with small budgets, and its input errors."""
 
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -122,3 +125,18 @@ def test_command_config_budget_and_cpu_overrides():
   assert (mine.pop_size, mine.weight, mine.max_evaluations) == (32, 3.0, 20_000)
   with pytest.raises(ValueError, match='unknown task'):
     planner.command_config('pusht', False, False)
+
+
+def test_plan_leaves_the_opengl_backend_alone():
+  """`pachs plan` renders nothing with OpenGL, so it must not set MUJOCO_GL: on a machine
+  without EGL, MUJOCO_GL=egl makes `import mujoco` fail. Only `pachs demo --gif` sets it."""
+  script = ('import os, sys; from pachs_jax import cli\n'
+            'try: cli.main(sys.argv[1:])\n'
+            'except SystemExit: pass\n'
+            'print("MUJOCO_GL=" + str(os.environ.get("MUJOCO_GL")))')
+  env = {k: v for k, v in os.environ.items() if k != 'MUJOCO_GL'}
+  for argv, expected in ((['plan', '--task', 'nope'], 'None'),
+                         (['demo', '--gif', 'x.gif', '--task', 'nope'], 'egl')):
+    done = subprocess.run([sys.executable, '-c', script] + argv, capture_output=True,
+                          text=True, env=env, check=True)
+    assert done.stdout.strip().splitlines()[-1] == f'MUJOCO_GL={expected}'

@@ -63,11 +63,42 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
 
 TASKS = tuple(SPECS)
 
+PLAYGROUND_PREFIX = 'playground:'  # 'playground:NAME': MuJoCo Playground's NAME (envs/playground.py)
+
+# The search defaults of a Playground task or a user's task (not tuned): the same w and N, a
+# smaller K (a few edges per iteration suit a single instance on a CPU) and a budget of 20,000.
+USER_SEARCH = dict(_SEARCH, pop_size=16, max_evaluations=20_000)
+
+
+def _playground_spec(name: str) -> TaskSpec:
+  """The TaskSpec of 'playground:NAME' (NAME is checked when the env is made)."""
+  if name == PLAYGROUND_PREFIX:
+    raise ValueError(f"give the Playground env's name: {PLAYGROUND_PREFIX}NAME, e.g. "
+                     f'{PLAYGROUND_PREFIX}PointMass')
+
+  def build(**options) -> base.Env:
+    from pachs_jax.envs import playground
+    return playground.make(name, **options)
+
+  return TaskSpec(name, build, name, 30, USER_SEARCH,
+                  options=('check', 'is_goal', 'goal_threshold', 'reward_max',
+                           'termination_cost', 'episode_length', 'lattice',
+                           'lattice_resolution'))
+
+
+def is_playground(name: str) -> bool:
+  """Whether a task name names a MuJoCo Playground env ('playground:NAME')."""
+  return isinstance(name, str) and name.startswith(PLAYGROUND_PREFIX)
+
 
 def spec(name: str) -> TaskSpec:
-  """The TaskSpec of a task name; raises ValueError listing the valid names."""
+  """The TaskSpec of a task name ('playground:NAME' for a MuJoCo Playground env); raises
+  ValueError listing the valid names."""
+  if is_playground(name):
+    return _playground_spec(name)
   if name not in SPECS:
-    raise ValueError(f'unknown task {name!r}; valid tasks: {", ".join(TASKS)}')
+    raise ValueError(f'unknown task {name!r}; valid tasks: {", ".join(TASKS)}, or '
+                     f'{PLAYGROUND_PREFIX}NAME (a MuJoCo Playground env)')
   return SPECS[name]
 
 

@@ -14,6 +14,12 @@ _PUSHT = SACConfig(
     min_replay_size=65_536, actor_hidden=(256, 256, 256), critic_hidden=(256, 256, 256),
     init_alpha=0.2, eval_instances=256)
 
+_PLAYGROUND_CPU = SACConfig(
+    num_envs=32, batch_size=256, grad_updates_per_step=4, steps_per_epoch=50,
+    actor_learning_rate=1e-3, critic_learning_rate=1e-3, alpha_learning_rate=1e-3,
+    discount=0.98, replay_capacity=200_000, min_replay_size=4096, actor_hidden=(64, 64),
+    critic_hidden=(64, 64), init_alpha=0.1, eval_instances=32)
+
 PRESETS: Dict[str, SACConfig] = {
     # Small enough to learn in seconds on a CPU (used by the tests).
     'point-mass': SACConfig(
@@ -31,6 +37,9 @@ PRESETS: Dict[str, SACConfig] = {
         discount=0.97, replay_capacity=1_000_000, min_replay_size=32_768,
         actor_hidden=(256, 256, 256), critic_hidden=(256, 256, 256), init_alpha=0.2,
         eval_instances=256),
+    # MuJoCo Playground tasks (envs/playground.py), small enough to train on a CPU in minutes.
+    'playground:PointMass': _PLAYGROUND_CPU,
+    'playground:ReacherEasy': _PLAYGROUND_CPU,
 }
 
 
