@@ -63,15 +63,20 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
   live = jnp.arange(padded) < instances
   phase('make_search')
   shape = jax.eval_shape(search.init, starts, keys, live)
-  traced = [search.init.trace(starts, keys, live), search.run_chunk.trace(shape, jnp.int32(0)),
-            search.result.trace(shape)]
+  traced = [search.init.trace(starts, keys, live), search.result.trace(shape)]
   phase('trace')
   lowered = [t.lower() for t in traced]
   phase('lower')
   executables = []
-  for name, low in zip(('init', 'loop', 'result'), lowered):
+  for name, low in zip(('init', 'result'), lowered):
     executables.append(low.compile())
     phase(f'compile_{name}')
+  # the loop as `pachs.plan` builds it: traced, lowered and compiled, or loaded from the
+  # store of traced programs (compile_cache.compiled_program) and compiled
+  executables.insert(1, compile_cache.compiled_program(
+      search.run_chunk, (shape, jnp.int32(0)), pachs.program_fingerprint(env, model, config),
+      out_tree=shape, donate_argnums=(0,)))
+  phase('loop_program')
   init, chunk, result = executables
   state = init(starts, keys, live)
   state = chunk(state, jnp.int32(jnp.iinfo(jnp.int32).max))

@@ -1,12 +1,16 @@
 """JAX's persistent compilation cache, on by default in the user's cache directory, so that a
-second run of a command skips XLA compilation."""
+second run of a command skips XLA compilation, and beside it the traced search programs
+(`jax.export`), so that it also skips Python tracing."""
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 from typing import Optional
 
 import jax
+import numpy as np
 
 ENV_VAR = 'PACHS_COMPILATION_CACHE'  # a directory, or 0 / off / false to disable
 
@@ -40,3 +44,92 @@ def enable(path: Optional[str] = None) -> Optional[str]:
   jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)
   jax.config.update('jax_persistent_cache_min_entry_size_bytes', 0)
   return path
+
+
+TRACES = 'traces'  # the subdirectory of the compilation cache that holds exported programs
+
+
+@functools.lru_cache(maxsize=None)
+def source_digest() -> str:
+  """sha256 of the package's Python sources: a stored program is valid for this code only."""
+  digest = hashlib.sha256()
+  root = os.path.dirname(os.path.abspath(__file__))
+  for folder, dirs, files in sorted(os.walk(root)):
+    dirs.sort()
+    for name in sorted(files):
+      if name.endswith('.py'):
+        with open(os.path.join(folder, name), 'rb') as f:
+          digest.update(name.encode() + f.read())
+  return digest.hexdigest()
+
+
+def tree_digest(tree) -> str:
+  """sha256 of a pytree's array contents, shapes and dtypes (e.g. network parameters)."""
+  digest = hashlib.sha256()
+  for leaf in jax.tree.leaves(tree):
+    leaf = np.asarray(leaf)
+    digest.update(f'{leaf.shape}{leaf.dtype}'.encode() + leaf.tobytes())
+  return digest.hexdigest()
+
+
+def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
+                     donate_argnums: tuple = ()):
+  """`jitted.lower(*args).compile()`, skipping Python tracing where it can.
+
+  With a fingerprint and the compilation cache on (jax_compilation_cache_dir set), the
+  traced program is stored with `jax.export` under `<cache>/traces/` on first use, keyed by
+  fingerprint, the package sources, jax, the platform and the argument shapes, and later
+  processes compile it from there (XLA then hits the persistent cache). Programs that cannot
+  be exported (host callbacks) are remembered as such and compiled the usual way.
+  fingerprint: names everything jitted closes over (env, model parameters, config); None
+    turns the store off. args: arrays or ShapeDtypeStructs. out_tree: a pytree with the
+    output's structure (its leaves are ignored). Returns a callable of args' structure.
+  """
+  directory = jax.config.jax_compilation_cache_dir
+  if fingerprint is None or not directory:
+    return jitted.lower(*args).compile()
+  leaves, treedef = jax.tree.flatten(args)
+  specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype) for x in leaves]
+  key = hashlib.sha256(repr((fingerprint, source_digest(), jax.__version__,
+                             jax.default_backend(), str(treedef),
+                             [(s.shape, str(s.dtype)) for s in specs])).encode()).hexdigest()
+  path = os.path.join(directory, TRACES, key[:32])
+  if os.path.exists(path + '.unexportable'):
+    return jitted.lower(*args).compile()
+  exported = _load(path + '.exported')
+  if exported is None:
+    flat = lambda *xs: jax.tree.leaves(jitted(*jax.tree.unflatten(treedef, xs)))
+    try:
+      exported = jax.export.export(jax.jit(flat))(*specs)
+      blob = exported.serialize()
+    except Exception:  # pylint: disable=broad-except  (e.g. host callbacks)
+      _write(path + '.unexportable', b'')
+      return jitted.lower(*args).compile()
+    _write(path + '.exported', blob)
+  starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
+  donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
+  compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
+  out_def = jax.tree.structure(out_tree)
+  return lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs)))
+
+
+def _load(path: str):
+  """The exported program at path, or None when missing or unreadable (then rewritten)."""
+  try:
+    with open(path, 'rb') as f:
+      return jax.export.deserialize(bytearray(f.read()))
+  except Exception:  # pylint: disable=broad-except
+    return None
+
+
+def _write(path: str, blob: bytes):
+  """Writes atomically (a parallel process never reads half a file); errors are ignored: the
+  store only saves time."""
+  try:
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    temporary = f'{path}.{os.getpid()}.tmp'
+    with open(temporary, 'wb') as f:
+      f.write(blob)
+    os.replace(temporary, path)
+  except OSError:
+    pass

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_results_equal, take
+from pachs_jax import compile_cache
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search, plan
 
@@ -419,3 +420,34 @@ def test_plans_of_one_bucket_share_compiled_programs(problem):
   assert sorted(search.compiled) == [(4, jax.default_backend()), (8, jax.default_backend())]
   assert_results_equal(eight, three)
   assert three.found.shape == (3,)
+
+
+def test_traced_loop_is_stored_and_reused(problem, base_result, tmp_path, monkeypatch):
+  # A process with the cache on stores the traced loop (jax.export); a new Search with the
+  # same fingerprint compiles it from there without tracing and plans identically; another
+  # config is another program; a program with a host callback is compiled the usual way.
+  env, ac = problem.env, problem.actor_critic
+  monkeypatch.setattr(type(env), 'fingerprint', property(lambda self: 'grid seed 4'))
+  monkeypatch.setattr(type(ac), 'fingerprint', 'grid critic', raising=False)
+  previous = jax.config.jax_compilation_cache_dir
+  jax.config.update('jax_compilation_cache_dir', str(tmp_path))
+  try:
+    first = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
+    stored = sorted(p.name for p in (tmp_path / 'traces').iterdir())
+    assert len(stored) == 1 and stored[0].endswith('.exported')
+    export = jax.export.export
+    monkeypatch.setattr(jax.export, 'export', lambda *a, **k: pytest.fail('traced again'))
+    again = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
+    assert_results_equal(again, first)
+    assert_results_equal(first, base_result)
+    monkeypatch.setattr(jax.export, 'export', export)
+    other = dataclasses.replace(BASE, weight=2.0)
+    plan(env, ac, problem.nodes, other, problem.keys, search=make_search(env, ac, other))
+    assert len(list((tmp_path / 'traces').iterdir())) == 2
+    callback = jax.jit(lambda x: jax.pure_callback(np.sin, x, x))
+    x = jnp.arange(3.0)
+    fn = compile_cache.compiled_program(callback, (x,), 'sin', out_tree=x)
+    np.testing.assert_allclose(fn(x), np.sin(np.arange(3.0)), rtol=1e-6)
+    assert any(p.name.endswith('.unexportable') for p in (tmp_path / 'traces').iterdir())
+  finally:
+    jax.config.update('jax_compilation_cache_dir', previous)

@@ -114,6 +114,13 @@ class Env(abc.ABC):
     lattice coordinates (`search.types.env_lattice_resolution`)."""
     return None
 
+  @property
+  def fingerprint(self) -> str | None:
+    """A string that, with the package sources, fixes everything the env's functions close
+    over, so that a traced search program of it may be stored and reused across processes
+    (`compile_cache.compiled_program`); None (the default): never stored."""
+    return None
+
   # ---- batched search interface: leading batch axis B ----
 
   def evaluate(self, nodes: NodeState, actions: jax.Array) -> EdgeOutcome:

@@ -60,6 +60,11 @@ class PointMassEnv(base.Env):
     self.goal_size = config.dim
 
   @property
+  def fingerprint(self) -> str:
+    """The class and its config fix the env (`base.Env.fingerprint`)."""
+    return f'{type(self).__qualname__}({self.config!r})'
+
+  @property
   def action_size(self) -> int:
     return self.config.dim
 

@@ -322,6 +322,11 @@ class PushTEnv(base.Env):
     self._arm_upper = jnp.asarray(panda.JOINT_UPPER, jnp.float32)
 
   @property
+  def fingerprint(self) -> str:
+    """The class and its config fix the env (`base.Env.fingerprint`)."""
+    return f'{type(self).__qualname__}({self.config!r})'
+
+  @property
   def action_size(self) -> int:
     return panda.NUM_JOINTS
 

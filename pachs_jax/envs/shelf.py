@@ -362,6 +362,11 @@ class ShelfEnv(base.Env):
     self._targets_cache: Dict[Tuple[int, int], Tuple[np.ndarray, np.ndarray]] = {}
 
   @property
+  def fingerprint(self) -> str:
+    """The class and its config fix the env (`base.Env.fingerprint`)."""
+    return f'{type(self).__qualname__}({self.config!r})'
+
+  @property
   def action_size(self) -> int:
     return panda.NUM_JOINTS
 

@@ -71,6 +71,12 @@ class SacActorCritic:
   params: ActorCriticParams
   config: ModelConfig = struct.field(pytree_node=False)
 
+  @property
+  def fingerprint(self) -> str:
+    """The config and a digest of the parameters: they fix what the networks compute."""
+    from pachs_jax import compile_cache
+    return f'{self.config!r}:{compile_cache.tree_digest(self.params)}'
+
   def _normalizer(self) -> running_statistics.NestedMeanStd:
     return running_statistics.NestedMeanStd(mean=self.params.normalizer['mean'],
                                             std=self.params.normalizer['std'])

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pachs_jax import compile_cache
 from pachs_jax.envs import base
 from pachs_jax.search import anytime
 from pachs_jax.search import compact
@@ -186,6 +187,12 @@ def bucket_size(num_instances: int, minimum: int = 1) -> int:
   return max(minimum, types.next_pow2(num_instances))
 
 
+def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
+  """What the search loop closes over, as a string; None when env or model cannot say."""
+  parts = (env.fingerprint, getattr(actor_critic, 'fingerprint', None))
+  return None if None in parts else repr(parts + (config,))
+
+
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
          chunk_iterations: int = 32, search: Optional[Search] = None,
@@ -222,8 +229,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if programs is None:
     memory.check_fits(env, actor_critic, search, start_nodes, padded)
     shape = jax.eval_shape(search.init, start_nodes, keys, live)
-    programs = (search.init.lower(start_nodes, keys, live).compile(),
-                search.run_chunk.lower(shape, jnp.int32(0)).compile(),
+    loop = compile_cache.compiled_program(  # the traced loop itself may be stored
+        search.run_chunk, (shape, jnp.int32(0)), program_fingerprint(env, actor_critic, config),
+        out_tree=shape, donate_argnums=(0,))
+    programs = (search.init.lower(start_nodes, keys, live).compile(), loop,
                 search.result.lower(shape).compile())
     search.compiled[(padded, jax.default_backend())] = programs
   init, chunk, result = programs
