@@ -96,14 +96,19 @@ def _demo(args: argparse.Namespace) -> int:
   return 0
 
 
-def _task_arg(text: str) -> str:
-  """--task / --env: a task of `envs.TASKS` or 'playground:NAME' (NAME checked when made)."""
-  from pachs_jax import envs
-  if text in envs.TASKS or (envs.is_playground(text) and len(text) > len('playground:')):
-    return text
-  raise argparse.ArgumentTypeError(f'unknown task {text!r}; valid tasks: '
-                                   f'{", ".join(envs.TASKS)}, or playground:NAME (a MuJoCo '
-                                   "Playground env, pip install -e '.[playground]')")
+class _TaskChoices:
+  """--task / --env choices: `envs.TASKS` and any 'playground:NAME' (NAME is checked when the
+  env is made); argparse's 'invalid choice' message lists them."""
+
+  def __init__(self, tasks):
+    self.tasks = tuple(tasks)
+
+  def __contains__(self, text) -> bool:
+    from pachs_jax import envs
+    return text in self.tasks or (envs.is_playground(text) and len(text) > len('playground:'))
+
+  def __iter__(self):
+    return iter(self.tasks + ('playground:NAME',))
 
 
 def _devices_arg(text: str):
@@ -252,10 +257,12 @@ def main(argv=None) -> int:
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
   plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
-  plan.add_argument('--task', '--env', dest='task', default='pusht-obs', type=_task_arg,
-                    metavar='TASK', help=f'{", ".join(envs.TASKS)} (default pusht-obs), or '
-                    'playground:NAME: a MuJoCo Playground env (with --checkpoint; needs pip '
-                    "install -e '.[playground]')")
+  plan.add_argument('--task', '--env', dest='task', default='pusht-obs',
+                    choices=_TaskChoices(envs.TASKS), metavar='TASK',
+                    help=f'{", ".join(envs.TASKS)} (default pusht-obs), or '
+                    'playground:NAME: a MuJoCo Playground env (pip install -e .[playground]; '
+                    'models shipped for playground:ReacherEasy and ReacherHard, others need '
+                    '--checkpoint)')
   plan.add_argument('--layout', default=None, choices=layouts.NAMES,
                     help=f'pusht-obs only: the obstacle layout (default: {layouts.DEFAULT})')
   plan.add_argument('--instances', default=None,

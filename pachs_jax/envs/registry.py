@@ -63,7 +63,7 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
 
 TASKS = tuple(SPECS)
 
-PLAYGROUND_PREFIX = 'playground:'  # 'playground:NAME': MuJoCo Playground's NAME (envs/playground.py)
+PLAYGROUND_PREFIX = 'playground:'  # 'playground:NAME': Playground's env NAME (envs/playground.py)
 
 # The search defaults of a Playground task or a user's task (not tuned): the same w and N, a
 # smaller K (a few edges per iteration suit a single instance on a CPU) and a budget of 20,000.

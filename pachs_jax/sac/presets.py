@@ -40,6 +40,7 @@ PRESETS: Dict[str, SACConfig] = {
     # MuJoCo Playground tasks (envs/playground.py), small enough to train on a CPU in minutes.
     'playground:PointMass': _PLAYGROUND_CPU,
     'playground:ReacherEasy': _PLAYGROUND_CPU,
+    'playground:ReacherHard': _PLAYGROUND_CPU,
 }
 
 

@@ -1,0 +1,164 @@
+"""The MuJoCo Playground adapter (envs/playground.py) on PointMass, whose assets ship in the
+playground wheel: restore-then-step against the env's own step bit for bit, the goal rule,
+costs, the protocol check, and a tiny PACHS plan (CPU, MJX)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import UniformActorCritic
+
+pytest.importorskip('mujoco_playground')
+
+from pachs_jax import envs  # pylint: disable=wrong-import-position
+from pachs_jax.envs import playground  # pylint: disable=wrong-import-position
+
+BATCH, STEPS = 4, 6
+
+
+@pytest.fixture(scope='module')
+def env():
+  return playground.make('playground:PointMass')  # check_task runs here (restore included)
+
+
+@pytest.fixture(scope='module')
+def rollout(env):
+  """The env's own reset and step (vmapped, jitted) against the adapter's nodes and evaluate
+  along one random-action rollout: (env states [STEPS], adapter edges [STEPS])."""
+  pg = env.playground_env
+
+  @jax.jit
+  def run(keys, actions):
+    states = jax.vmap(pg.reset)(keys)
+    nodes = jax.vmap(lambda s: env.node_from_state(s, 0))(states)
+
+    def body(carry, action):
+      states, nodes = carry
+      want = jax.vmap(pg.step)(states, action)
+      got = env.evaluate(nodes, action)
+      return (want, got.next_node), (want, got)
+
+    return jax.lax.scan(body, (states, nodes), actions)[1]
+
+  keys = jax.random.split(jax.random.PRNGKey(7), BATCH)
+  actions = jax.random.uniform(jax.random.PRNGKey(8), (STEPS, BATCH, env.action_size),
+                               jnp.float32, -1.0, 1.0)
+  return run(keys, actions)
+
+
+def _same(a, b) -> bool:
+  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+  return len(la) == len(lb) and all(
+      np.asarray(x).dtype == np.asarray(y).dtype
+      and np.asarray(x).tobytes() == np.asarray(y).tobytes() for x, y in zip(la, lb))
+
+
+def test_restore_then_step_is_the_envs_step_bit_for_bit(env, rollout):
+  want, got = rollout
+  node = got.next_node
+  assert _same(want.obs, node.obs) and _same(want.reward, node.reward)
+  assert _same(want.metrics, node.metrics) and _same(want.info, node.info)
+  restored = jax.vmap(jax.vmap(env.state_from_node))(node)
+  for field in playground.STATE_FIELDS:
+    assert _same(getattr(want.data, field), getattr(restored.data, field)), field
+  # the motion is real (not a fixed point that any restore would reproduce)
+  assert np.abs(np.diff(np.asarray(node.qpos), axis=0)).max() > 1e-4
+
+
+def test_costs_goal_and_steps(env, rollout):
+  want, got = rollout
+  np.testing.assert_array_equal(np.asarray(got.cost), 1.0 - np.asarray(want.reward))
+  assert (np.asarray(got.cost) >= 0).all() and np.asarray(got.is_valid).all()
+  near = np.asarray(want.metrics['reward/near_target']) >= 1.0
+  np.testing.assert_array_equal(np.asarray(got.is_goal), near)
+  np.testing.assert_array_equal(np.asarray(got.next_node.t[:, 0]), np.arange(1, STEPS + 1))
+  assert env.name == 'playground:PointMass' and env.episode_length == 200
+
+
+def test_goal_rules(env):
+  pg = env.playground_env
+  state = jax.jit(pg.reset)(jax.random.PRNGKey(0))
+  inside = state.replace(metrics=dict(state.metrics, **{'reward/near_target': jnp.ones(())}))
+  assert bool(env.goal_of_state(inside)) and not bool(env.goal_of_state(state))
+  by_callable = playground.from_playground(
+      pg, is_goal=lambda s: jnp.linalg.norm(s.data.qpos) < 10.0, check=False)
+  assert bool(by_callable.goal_of_state(state))
+  missing = playground.from_playground(pg, is_goal='no/such_metric', check=False)
+  with pytest.raises(ValueError, match="goal metric 'no/such_metric' is not in"):
+    jax.eval_shape(missing.sample_instance, jax.random.PRNGKey(0))
+
+
+def test_check_finds_a_node_that_does_not_restore(env):
+  """A node without data.time: stepped from a restored node, time restarts from zero."""
+
+  class NoTime(playground.PlaygroundEnv):
+    def __init__(self, *a, **k):
+      super().__init__(*a, **k)
+      self._fields = tuple(f for f in self._fields if f != 'time')
+
+  broken = NoTime(env.playground_env, env.config, name='playground:PointMass')
+  assert broken.restore_mismatches(num_steps=2) == ['data.time']
+  assert env.restore_mismatches(num_steps=2) == []
+
+
+def test_negative_cost_is_named(env):
+  with pytest.raises(envs.TaskError, match='edge cost is negative'):
+    playground.from_playground(env.playground_env, reward_max=-1.0)
+
+
+def test_bad_names_and_backend():
+  with pytest.raises(ValueError, match="unknown Playground env 'NoSuchEnv'; valid names "
+                     'include AcrobotSwingup'):
+    envs.make('playground:NoSuchEnv')
+  with pytest.raises(ValueError, match='give the Playground env'):
+    envs.spec('playground:')
+  from pachs_jax import planner
+  with pytest.raises(ValueError, match='--backend mujoco-c simulates the PushT tasks only'):
+    planner.load_model('playground:PointMass', backend='mujoco-c')
+  with pytest.raises(ValueError, match='needs MuJoCo Menagerie assets'):
+    envs.make('playground:PandaPickCube')
+
+
+def test_tiny_pachs_plan(env):
+  """PACHS with a stand-in actor-critic and a tiny budget: the loop runs on the adapter's
+  nodes, and its path replays through the env to the reported cost."""
+  from pachs_jax.planner import default_config
+  from pachs_jax.search import pachs
+  config = default_config('playground:PointMass', max_evaluations=96, pop_size=8)
+  starts = env.canonical_instances(2)
+  result = pachs.plan(env, UniformActorCritic(env.action_size), starts, config,
+                      jax.random.PRNGKey(0))
+  assert np.asarray(result.evaluated).max() <= 96 and np.asarray(result.expanded).min() > 0
+  node = jax.tree.map(lambda x: x[:1], starts)
+  total = 0.0
+  for step in range(int(result.path_length[0])):
+    out = env.evaluate(node, result.path_actions[:1, step])
+    total += float(out.cost[0])
+    node = out.next_node
+  np.testing.assert_allclose(total, float(result.cost[0]), rtol=1e-5)
+
+
+def test_pachs_plan_command_with_the_shipped_model(tmp_path, capsys):
+  """`pachs plan --env playground:ReacherEasy` plans with the shipped model; a checkpoint of
+  another task and the MuJoCo C backend are refused with one line each."""
+  import json
+
+  from pachs_jax import cli, planner
+  rows = str(tmp_path / 'rows.json')
+  code = cli.main(['plan', '--env', 'playground:ReacherEasy', '--instances', '0-1',
+                   '--budget', '200', '--no-cache', '--json', rows])
+  assert code == 0, capsys.readouterr().err
+  with open(rows) as f:
+    saved = json.load(f)
+  assert saved['task'] == 'playground:ReacherEasy' and len(saved['rows']) == 2
+  assert all(0 < r['evaluated'] <= 200 for r in saved['rows'])
+  assert any(r['found'] for r in saved['rows'])
+  for argv, message in (
+      (['--checkpoint', planner.checkpoint_path('shelf')],
+       "holds a model of task 'shelf'; task 'playground:ReacherEasy' plans with a model of "
+       'playground:ReacherEasy'),
+      (['--backend', 'mujoco-c'], '--backend mujoco-c simulates the PushT tasks only')):
+    with pytest.raises(SystemExit):
+      cli.main(['plan', '--env', 'playground:ReacherEasy', '--no-cache'] + argv)
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
