@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.metadata
 import os
 from typing import Optional
 
@@ -63,6 +64,19 @@ def source_digest() -> str:
   return digest.hexdigest()
 
 
+@functools.lru_cache(maxsize=None)
+def library_versions() -> tuple:
+  """Versions of the libraries whose code a traced program contains (jax and its physics and
+  network libraries); a stored program is valid for these only."""
+  versions = []
+  for name in ('jax', 'jaxlib', 'mujoco', 'mujoco-mjx', 'flax', 'brax'):
+    try:
+      versions.append((name, importlib.metadata.version(name)))
+    except importlib.metadata.PackageNotFoundError:
+      versions.append((name, None))
+  return tuple(versions)
+
+
 def tree_digest(tree) -> str:
   """sha256 of a pytree's array contents, shapes and dtypes (e.g. network parameters)."""
   digest = hashlib.sha256()
@@ -78,9 +92,9 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
 
   With a fingerprint and the compilation cache on (jax_compilation_cache_dir set), the
   traced program is stored with `jax.export` under `<cache>/traces/` on first use, keyed by
-  fingerprint, the package sources, jax, the platform and the argument shapes, and later
-  processes compile it from there (XLA then hits the persistent cache). Programs that cannot
-  be exported (host callbacks) are remembered as such and compiled the usual way.
+  fingerprint, the package sources, `library_versions`, the platform and the argument shapes,
+  and later processes compile it from there (XLA then hits the persistent cache). Programs
+  that cannot be exported (host callbacks) are remembered as such and compiled as usual.
   fingerprint: names everything jitted closes over (env, model parameters, config); None
     turns the store off. args: arrays or ShapeDtypeStructs. out_tree: a pytree with the
     output's structure (its leaves are ignored). Returns a callable of args' structure.
@@ -90,7 +104,7 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
     return jitted.lower(*args).compile()
   leaves, treedef = jax.tree.flatten(args)
   specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype) for x in leaves]
-  key = hashlib.sha256(repr((fingerprint, source_digest(), jax.__version__,
+  key = hashlib.sha256(repr((fingerprint, source_digest(), library_versions(),
                              jax.default_backend(), str(treedef),
                              [(s.shape, str(s.dtype)) for s in specs])).encode()).hexdigest()
   path = os.path.join(directory, TRACES, key[:32])

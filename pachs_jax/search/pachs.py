@@ -189,7 +189,7 @@ def bucket_size(num_instances: int, minimum: int = 1) -> int:
 
 def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   """What the search loop closes over, as a string; None when env or model cannot say."""
-  parts = (env.fingerprint, getattr(actor_critic, 'fingerprint', None))
+  parts = (getattr(env, 'fingerprint', None), getattr(actor_critic, 'fingerprint', None))
   return None if None in parts else repr(parts + (config,))
 
 
