@@ -110,8 +110,6 @@ def main():
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument('--budget', type=int, default=None, help="None: pachs plan's default")
   parser.add_argument('--weight', type=float, default=None)
-  parser.add_argument('--exploration-noise', type=float, default=None,
-                      help='SearchConfig.exploration_noise (default: the task default)')
   parser.add_argument('--num-actions', type=int, default=None)
   parser.add_argument('--lattice-scale', type=float, default=1.0,
                       help='lattice cell sizes = this x the default')
@@ -120,8 +118,7 @@ def main():
   args.layout = args.layout or layouts.DEFAULT
   env, model = planner.load_model(TASK, None, args.backend, layout=args.layout)
   on_cpu = jax.default_backend() == 'cpu'
-  overrides = {'weight': args.weight, 'exploration_noise': args.exploration_noise,
-               'num_actions': args.num_actions}
+  overrides = {'weight': args.weight, 'num_actions': args.num_actions}
 
   config = planner.command_config(TASK, on_cpu, type(env).__name__ == 'MujocoCEnv',
                                   args.budget, **overrides)

@@ -100,13 +100,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     obs = phases.unflat(env.observe(phases.flat(sources, num_instances * k)), num_instances)
     rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
     actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o, n))(rng, obs)
-    actions = jnp.nan_to_num(actions.astype(jnp.float32))
-    if config.exploration_noise > 0:  # the last N // 2 samples perturbed
-      shape = actions.shape[1:]
-      noise = jax.vmap(lambda key: jax.random.normal(jax.random.fold_in(key, 1), shape))(rng)
-      perturbed = (jnp.arange(n) >= n - n // 2)[:, None]
-      actions = actions + config.exploration_noise * perturbed * noise
-    actions = jnp.clip(actions, -1.0, 1.0)
+    actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
     q = types.cost_to_go(actor_critic.q_values(phases.flat(obs, num_instances * k),
                                                phases.flat(actions, num_instances * k)))
     q = q.reshape(num_instances, k, n)

@@ -400,9 +400,6 @@ class SearchConfig(EdgeSearchConfig):
     of least estimated cost-to-go; needs w > 0).
   compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
     (`compact.evaluate_live`); () always simulates all lanes.
-  exploration_noise: std of Gaussian noise (action units, actions in [-1, 1]) added to the
-    last N // 2 of the N sampled actions of an expansion; 0 (the original): the policy's
-    samples only.
   heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
   (None: budget + 1).
   """
@@ -410,17 +407,10 @@ class SearchConfig(EdgeSearchConfig):
   num_actions: int = 16
   realtime_answer: str = 'best_f'
   compact_fractions: Tuple[float, ...] = ()
-  exploration_noise: float = 0.0
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
-    noise = plain_number(self.exploration_noise)
-    if not (isinstance(noise, numbers.Real) and not isinstance(noise, bool)
-            and math.isfinite(noise) and noise >= 0):
-      raise ValueError('SearchConfig.exploration_noise must be a finite number >= 0, got '
-                       f'{self.exploration_noise!r}')
-    object.__setattr__(self, 'exploration_noise', float(noise))
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
