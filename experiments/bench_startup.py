@@ -1,6 +1,6 @@
 """Where a `pachs plan` process spends its time: imports, model load, instance generation,
-tracing, lowering, XLA compilation per program, search and output, cold and with a warm
-persistent compilation cache, for one instance and for the 30-instance main job."""
+checks + tracing + compilation, search and output, and the XLA programs compiled, cold and
+with a warm persistent compilation cache, for one instance and for the 30-instance main job."""
 
 from __future__ import annotations
 
@@ -28,7 +28,6 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
 
   import logging
   import jax
-  import jax.numpy as jnp
   from pachs_jax import compile_cache, planner
   from pachs_jax.search import pachs, types
   phase('imports')
@@ -57,39 +56,24 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
   phase('instance_generation')
   search = pachs.make_search(env, model, config)
   keys = types.instance_keys(jax.random.PRNGKey(0), instances)
-  padded = pachs.bucket_size(instances, 1 if on_cpu else 32)
-  pad = lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - instances, axis=0)])
-  starts, keys = jax.tree.map(pad, (starts, keys))
-  live = jnp.arange(padded) < instances
   phase('make_search')
-  shape = jax.eval_shape(search.init, starts, keys, live)
-  traced = [search.init.trace(starts, keys, live), search.result.trace(shape)]
-  phase('trace')
-  lowered = [t.lower() for t in traced]
-  phase('lower')
-  executables = []
-  for name, low in zip(('init', 'result'), lowered):
-    executables.append(low.compile())
-    phase(f'compile_{name}')
-  # the loop as `pachs.plan` builds it: traced, lowered and compiled, or loaded from the
-  # store of traced programs (compile_cache.compiled_program) and compiled
-  executables.insert(1, compile_cache.compiled_program(
-      search.run_chunk, (shape, jnp.int32(0)), pachs.program_fingerprint(env, model, config),
-      out_tree=shape, donate_argnums=(0,)))
-  phase('loop_program')
-  init, chunk, result = executables
-  state = init(starts, keys, live)
-  state = chunk(state, jnp.int32(jnp.iinfo(jnp.int32).max))
-  out = jax.block_until_ready(result(state))
-  phase('search')
-  rows = planner.result_rows(jax.tree.map(lambda x: x[:instances] if jnp.ndim(x) else x, out),
-                             list(range(instances)))
+  # as `pachs plan` runs it: checks, tracing, compilation (the loop of each physics size when
+  # the search first reaches it, traced or loaded from the store of traced programs), search
+  began = time.perf_counter()
+  out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
+  times['search'] = float(out.wall_time_s)
+  times['checks_trace_compile'] = time.perf_counter() - began - times['search']
+  mark = time.perf_counter()
+  loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
+                 if isinstance(key, tuple))
+  rows = planner.result_rows(out, list(range(instances)))
   print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
         file=sys.stderr)
   phase('output')
   return {'phases_s': times, 'programs_compiled': len(compiled),
           'persistent_cache_hits': len(cache_hits),
           'program_names': sorted(set(compiled)), 'found': sum(r['found'] for r in rows),
+          'loop_sizes_compiled': loops,
           'device': str(jax.devices()[0]), 'cache_dir': cache,
           'in_process_s': time.perf_counter() - T_START}
 

@@ -68,12 +68,12 @@ def task_instances(task: str, instances: Optional[int] = None) -> int:
   return instances or envs.spec(task).num_instances
 
 
-def git_revision() -> str:
-  """PACHS_GIT_REVISION when set (the GPU machine's copy of the tree), else the checkout's
-  commit (with '+dirty' when files differ), or 'unknown'."""
+def git_revision(root: Optional[str] = None) -> str:
+  """PACHS_GIT_REVISION when set (the GPU machine's copy of the tree), else the commit of the
+  checkout at root (None: this one), with '+dirty' when files differ, or 'unknown'."""
   if os.environ.get('PACHS_GIT_REVISION'):
     return os.environ['PACHS_GIT_REVISION']
-  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
   try:
     rev = subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=root, capture_output=True, text=True,
                          check=True).stdout.strip()

@@ -17,6 +17,7 @@ def test_batch_sizes():
   assert compact.batch_sizes(64, (0.25, 0.0625, 0.25)) == (4, 16)
   assert compact.batch_sizes(64, ()) == ()
   assert compact.batch_sizes(3, (0.1, 0.99)) == (1,)  # ceil(2.97) = 3 is no smaller batch
+  assert compact.batch_sizes(64, (0.25, 0.0625), minimum=8) == (16,)  # 4 < one instance's 8
 
 
 @pytest.fixture(scope='module')
@@ -28,14 +29,15 @@ def lanes():
   return env, nodes, actions
 
 
-@pytest.mark.parametrize('num_live,compacted', [(0, True), (3, True), (4, True), (5, True),
-                                                (8, True), (9, False), (16, False)])
-def test_evaluate_live_matches_full_evaluation(lanes, num_live, compacted):
+@pytest.mark.parametrize('num_live,size', [(0, 4), (3, 4), (4, 4), (5, 8), (8, 8), (9, None),
+                                           (16, None)])
+def test_evaluate_live_matches_full_evaluation(lanes, num_live, size):
   env, nodes, actions = lanes
+  compacted = size is not None
   live = np.zeros(16, bool)
   live[np.random.default_rng(num_live).permutation(16)[:num_live]] = True
   full = env.evaluate(nodes, actions)
-  got = jax.jit(lambda n, a, m: compact.evaluate_live(env.evaluate, n, a, m, (4, 8)))(
+  got = jax.jit(lambda n, a, m: compact.evaluate_live(env.evaluate, n, a, m, size))(
       nodes, actions, jnp.asarray(live))
   for g, f in zip(jax.tree.leaves(got), jax.tree.leaves(full)):
     g, f = np.asarray(g), np.asarray(f)
@@ -67,7 +69,7 @@ def test_pachs_with_compaction_equals_without():
   env = CountingGrid(obstacles, connectivity=8)
   ac = gridworld.GridActorCritic(env)
   starts = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
-  goals = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])
+  goals = np.array([[1, 1], [0, 0], [8, 2], [5, 3], [9, 0], [8, 3]])
   nodes = env.node(starts, goals)
   config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
   key = jax.random.PRNGKey(1)
@@ -76,7 +78,7 @@ def test_pachs_with_compaction_equals_without():
   got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
   jax.effects_barrier()
   # 6 instances padded to 8 (pachs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
-  # ran once most instances stopped
+  # ran once at most 4 and then 2 instances were still searching
   assert {8, 16} <= set(env.batches) and 32 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
@@ -89,3 +91,20 @@ def test_pachs_with_compaction_equals_without():
   for bad in ((0.5, 1.0), 0.5, (float('nan'),)):
     with pytest.raises(ValueError, match='compact_fractions'):
       dataclasses.replace(config, compact_fractions=bad)
+
+
+def test_loops_are_compiled_for_the_sizes_reached():
+  # One instance in a bucket of 8 (32 lanes, K 4) holds at most 4 lanes from the start: only
+  # the loop of the 8-lane batch is compiled and run, never the full one.
+  env = CountingGrid(np.zeros((6, 6), bool), connectivity=8)
+  ac = gridworld.GridActorCritic(env)
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=200,
+                        compact_fractions=(0.25, 0.5))
+  search = make_search(env, ac, config)
+  nodes = env.node(np.array([[0, 0]]), np.array([[5, 4]]))
+  out = plan(env, ac, nodes, config, jax.random.PRNGKey(0), search=search, min_bucket=8)
+  jax.effects_barrier()
+  assert bool(out.found[0])
+  loops = [key for key in search.compiled[(8, jax.default_backend())] if isinstance(key, tuple)]
+  assert loops == [('loop', 8)]
+  assert set(env.batches) == {8}

@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Optional
+import time
+from typing import Callable, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from pachs_jax import compile_cache
@@ -43,21 +45,36 @@ class Search:
 
   init(start_nodes [I], keys [I, 2], live [I] bool) -> SearchState with the start states'
     dummy edges in OPEN; instances that are not live (padding) start stopped.
-  run_chunk(state, num_iterations) -> state after at most num_iterations more iterations
-    (the input state's buffers are donated).
-  run(state) -> state when every instance has stopped.
+  loop(state, num_iterations, size) -> state after at most num_iterations more iterations
+    whose edges are simulated in `size` physics lanes (None: all I * K), stopping early once
+    the active instances' lanes fit the next smaller of `lane_sizes(I)` (the input state's
+    buffers are donated; `size` is static: one program per size).
+  lane_sizes(I) -> the compacted lane counts (ascending; config.compact_fractions of I * K,
+    each at least K).
+  size_for(state) -> the `size` whose loop applies to state now (host; reads state.active).
+  run_chunk(state, num_iterations) -> loop(state, num_iterations, size_for(state)).
+  run(state) -> state when every instance has stopped (one program: the loops of every size).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
-  compiled: (instances, platform) -> the compiled (init, run_chunk, result) of `plan`, kept
-    so that later calls with as many (padded) instances compile nothing.
+  compiled: (instances, platform) -> the compiled programs of `plan` (init, result and the
+    loops of the sizes reached so far), kept so that later calls compile nothing new.
   """
 
   init: Callable[..., SearchState]
-  run_chunk: Callable[..., SearchState]
+  loop: Callable[..., SearchState]
+  lane_sizes: Callable[[int], Tuple[int, ...]]
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
   config: SearchConfig
   compiled: dict = dataclasses.field(default_factory=dict, compare=False, hash=False)
+
+  def size_for(self, state: SearchState) -> Optional[int]:
+    lanes = int(np.sum(np.asarray(state.active))) * self.config.pop_size
+    return next((size for size in self.lane_sizes(state.active.shape[0]) if size >= lanes),
+                None)
+
+  def run_chunk(self, state: SearchState, num_iterations) -> SearchState:
+    return self.loop(state, num_iterations, size=self.size_for(state))
 
 
 def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
@@ -85,7 +102,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   resolution = _check(env, actor_critic, config)
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
-  batch_sizes = lambda lanes: compact.batch_sizes(lanes, config.compact_fractions)
+  lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
+                                                        config.compact_fractions, minimum=k)
 
   def lattice_cells(nodes):
     """[I, K, L] int32 lattice keys of nodes [I, K]."""
@@ -110,7 +128,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return pool, (f.reshape(num_instances, -1), values.reshape(num_instances, -1),
                   jnp.repeat(expanding, n, axis=1))
 
-  def step(state: SearchState) -> SearchState:
+  def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
     limit = heap_lib.kth_key(state.edge_heap, k)
     dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
@@ -126,7 +144,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
     outcome, within, usable, out_of_budget = phases.evaluate(
         env.evaluate, pool_lib.gather_nodes(pool, edges.node), action, edges.mask,
-        state.evaluated, config.max_evaluations, batch_sizes(edges.mask.size))
+        state.evaluated, config.max_evaluations, size)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     pool, table, dummy_key, node, write = phases.insert(
         pool, state.table, lattice_cells(outcome.next_node), edges.node, outcome, usable,
@@ -149,16 +167,25 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                        rng=types.instance_keys(keys, num_instances),
                        **phases.start_state(pool, table, live))
 
-  def run_chunk(state: SearchState, num_iterations) -> SearchState:
+  def loop(state: SearchState, num_iterations, size: Optional[int] = None) -> SearchState:
+    smaller = [s for s in lane_sizes(state.active.shape[0]) if size is None or s < size]
+    floor = max(smaller, default=0)  # lanes at which the next smaller size takes over
+
     def cond(carry):
       state, done = carry
-      return jnp.any(state.active) & (done < num_iterations)
+      lanes = jnp.sum(state.active, dtype=jnp.int32) * k
+      return (lanes > floor) & (done < num_iterations)
 
     def body(carry):
       state, done = carry
-      return step(state), done + 1
+      return step(state, size), done + 1
 
     state, _ = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
+    return state
+
+  def run(state: SearchState) -> SearchState:
+    for size in (None,) + tuple(reversed(lane_sizes(state.active.shape[0]))):
+      state = loop(state, jnp.iinfo(jnp.int32).max, size)
     return state
 
   def result(state: SearchState) -> SearchResult:
@@ -174,11 +201,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
                                   config.max_path_length)
 
-  run_chunk_jit = jax.jit(run_chunk, donate_argnums=0)
-  run_all = jnp.int32(jnp.iinfo(jnp.int32).max)
-  return Search(init=jax.jit(init), run_chunk=run_chunk_jit,
-                run=lambda state: run_chunk_jit(state, run_all), result=jax.jit(result),
-                config=config)
+  return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='size', donate_argnums=0),
+                lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config)
 
 
 def bucket_size(num_instances: int, minimum: int = 1) -> int:
@@ -229,14 +253,37 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if programs is None:
     memory.check_fits(env, actor_critic, search, start_nodes, padded)
     shape = jax.eval_shape(search.init, start_nodes, keys, live)
-    loop = compile_cache.compiled_program(  # the traced loop itself may be stored
-        search.run_chunk, (shape, jnp.int32(0)), program_fingerprint(env, actor_critic, config),
-        out_tree=shape, donate_argnums=(0,))
-    programs = (search.init.lower(start_nodes, keys, live).compile(), loop,
-                search.result.lower(shape).compile())
+    programs = {'shape': shape, 'init': search.init.lower(start_nodes, keys, live).compile(),
+                'result': search.result.lower(shape).compile()}
     search.compiled[(padded, jax.default_backend())] = programs
-  init, chunk, result = programs
   steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
-  out = anytime.timed_result(lambda s: chunk(s, steps), init(start_nodes, keys, live), result,
-                             time_limit_s)
+  fingerprint = program_fingerprint(env, actor_critic, config)
+  compile_s = 0.0
+
+  def loop_program(size):
+    """The compiled loop of one physics size, compiled (or loaded) on first use."""
+    nonlocal compile_s
+    if ('loop', size) not in programs:
+      began = time.perf_counter()
+      programs[('loop', size)] = compile_cache.compiled_program(
+          jax.jit(lambda state, n: search.loop(state, n, size=size), donate_argnums=0),
+          (programs['shape'], steps), fingerprint and f'{fingerprint} size={size}',
+          out_tree=programs['shape'], donate_argnums=(0,))
+      compile_s += time.perf_counter() - began
+    return programs[('loop', size)]
+
+  if time_limit_s is not None:  # every size before the clock starts
+    for size in (None,) + search.lane_sizes(padded):
+      loop_program(size)
+
+  def advance(state):
+    """One chunk (time limit) or the whole search: the loop of each size in turn."""
+    while True:
+      state = loop_program(search.size_for(state))(state, steps)
+      if time_limit_s is not None or not bool(jnp.any(state.active)):
+        return state
+
+  out = anytime.timed_result(advance, programs['init'](start_nodes, keys, live),
+                             programs['result'], time_limit_s)
+  out = out.replace(wall_time_s=out.wall_time_s - jnp.float32(compile_s))
   return jax.tree.map(lambda x: x[:num_instances] if jnp.ndim(x) else x, out)

@@ -134,19 +134,20 @@ def goal_check(pool: pool_lib.NodePool, popped: Popped,
 
 def evaluate(edge_fn: Callable[[base.NodeState, jax.Array], base.EdgeOutcome],
              sources: base.NodeState, actions: jax.Array, real: jax.Array,
-             evaluated: jax.Array, max_evaluations: int, batch_sizes: Tuple[int, ...] = ()):
+             evaluated: jax.Array, max_evaluations: int, batch_size: Optional[int] = None):
   """Evaluates the real edges [I, K] that fit each instance's remaining budget.
 
   sources: NodeState [I, K]; actions: [I, K, D]; evaluated: [I] int32 edges evaluated so far.
   Returns (outcome EdgeOutcome [I, K], within [I, K] evaluated, usable [I, K] valid with finite
-  cost, out_of_budget [I] an edge was left unevaluated). batch_sizes: see `compact`.
+  cost, out_of_budget [I] an edge was left unevaluated). batch_size: the physics lanes
+  (`compact.evaluate_live`; None: all I * K).
   """
   num_instances, k = real.shape
   within = real & (jnp.cumsum(real, axis=1) <= (max_evaluations - evaluated)[:, None])
   lanes = num_instances * k
   outcome = compact.evaluate_live(edge_fn, flat(sources, lanes),
                                   actions.reshape(lanes, actions.shape[-1]),
-                                  within.reshape(lanes), batch_sizes)
+                                  within.reshape(lanes), batch_size)
   outcome = unflat(outcome, num_instances)
   usable = within & outcome.is_valid & jnp.isfinite(outcome.cost)
   return outcome, within, usable, jnp.any(real & ~within, axis=1)
