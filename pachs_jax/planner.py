@@ -116,7 +116,8 @@ def canonical_instances(env, num: int):
 
 class Planner:
   """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
-  kept warm between calls (one compilation per padded instance count, see `pachs.plan`).
+  kept warm between calls (compiled once per padded instance count and physics batch size,
+  see `pachs.plan`).
 
   task: a task name (`envs.TASKS`, 'playground:NAME') or a user's `envs.Env` (checked with
   `envs.check_task`); checkpoint: a model directory (None: the shipped one);

@@ -227,7 +227,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
     least one) while the next chunk, timed as the last, would end within the limit (s), and
     instances still searching then report TIME_LIMIT with the path to their real-time answer.
-    Compilation happens before the clock starts.
+    With a limit every loop size is compiled before the clock starts; without one, the loop
+    of a compacted size is compiled when the search first reaches it, and wall_time_s leaves
+    that compilation out.
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
