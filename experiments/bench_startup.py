@@ -78,6 +78,20 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
           'in_process_s': time.perf_counter() - T_START}
 
 
+def cold_then_warm(command: list):
+  """Runs command twice with one fresh persistent cache: yields (run, process wall s, stdout)
+  for run 'cold' and then 'warm'; a failing run ends the benchmark with its stderr."""
+  with tempfile.TemporaryDirectory() as cache:
+    for run in ('cold', 'warm'):
+      began = time.perf_counter()
+      done = subprocess.run(command, capture_output=True, text=True,
+                            env=dict(os.environ, PACHS_COMPILATION_CACHE=cache))
+      wall = time.perf_counter() - began
+      if done.returncode:
+        raise SystemExit(done.stderr[-3000:])
+      yield run, wall, done.stdout
+
+
 def main():
   parser = argparse.ArgumentParser(description=__doc__)
   parser.add_argument('--task', default='pusht-obs')
@@ -95,43 +109,25 @@ def main():
     return
   import common
   rows = []
+  budget = ['--budget', str(args.budget)] if args.budget else []
   for count in map(int, filter(None, args.instances.split(','))):
-    with tempfile.TemporaryDirectory() as cache:
-      for run in ('cold', 'warm'):
-        command = [sys.executable, __file__, '--child', '--task', args.task, '--instances',
-                   str(count), '--backend', args.backend]
-        if args.budget:
-          command += ['--budget', str(args.budget)]
-        began = time.perf_counter()
-        done = subprocess.run(command, capture_output=True, text=True,
-                              env=dict(os.environ, PACHS_COMPILATION_CACHE=cache))
-        wall = time.perf_counter() - began
-        if done.returncode:
-          raise SystemExit(done.stderr[-3000:])
-        row = json.loads(done.stdout.strip().splitlines()[-1])
-        row.update(instances=count, run=run, process_wall_s=wall)
-        rows.append(row)
-        print(json.dumps({k: v for k, v in row.items() if k != 'program_names'}), flush=True)
+    command = [sys.executable, __file__, '--child', '--task', args.task, '--instances',
+               str(count), '--backend', args.backend] + budget
+    for run, wall, stdout in cold_then_warm(command):
+      row = json.loads(stdout.strip().splitlines()[-1])
+      row.update(instances=count, run=run, process_wall_s=wall)
+      rows.append(row)
+      print(json.dumps({k: v for k, v in row.items() if k != 'program_names'}), flush=True)
   commands = []
-  if args.commands:
-    for count in map(int, args.commands.split(',')):
-      spec = '0' if count == 1 else f'0-{count - 1}'
-      command = [sys.executable, '-m', 'pachs_jax.cli', 'plan', '--task', args.task,
-                 '--instances', spec, '--backend', args.backend]
-      if args.budget:
-        command += ['--budget', str(args.budget)]
-      with tempfile.TemporaryDirectory() as cache:
-        for run in ('cold', 'warm'):
-          began = time.perf_counter()
-          done = subprocess.run(command, capture_output=True, text=True,
-                                env=dict(os.environ, PACHS_COMPILATION_CACHE=cache))
-          wall = time.perf_counter() - began
-          if done.returncode:
-            raise SystemExit(done.stderr[-3000:])
-          summary = [l for l in done.stdout.splitlines() if l.startswith('found ')][-1]
-          commands.append(dict(command=' '.join(['pachs'] + command[3:]), instances=count,
-                               run=run, process_wall_s=wall, summary=summary))
-          print(json.dumps(commands[-1]), flush=True)
+  for count in map(int, filter(None, args.commands.split(','))):
+    spec = '0' if count == 1 else f'0-{count - 1}'
+    command = [sys.executable, '-m', 'pachs_jax.cli', 'plan', '--task', args.task,
+               '--instances', spec, '--backend', args.backend] + budget
+    for run, wall, stdout in cold_then_warm(command):
+      summary = [l for l in stdout.splitlines() if l.startswith('found ')][-1]
+      commands.append(dict(command=' '.join(['pachs'] + command[3:]), instances=count,
+                           run=run, process_wall_s=wall, summary=summary))
+      print(json.dumps(commands[-1]), flush=True)
   result = {'provenance': common.provenance(), 'task': args.task, 'rows': rows,
             'commands': commands}
   common.write_json(args.out, result)

@@ -116,12 +116,9 @@ def _devices_arg(text: str):
   if text == 'all':
     return text
   try:
-    count = int(text)
-  except ValueError:
-    count = 0
-  if count < 1:
-    raise argparse.ArgumentTypeError(f"must be 'all' or a positive integer, got {text!r}")
-  return count
+    return _positive_int(text)
+  except argparse.ArgumentTypeError:
+    raise argparse.ArgumentTypeError(f"must be 'all' or a positive integer, got {text!r}") from None
 
 
 def _plan_devices(args: argparse.Namespace):

@@ -77,15 +77,6 @@ def library_versions() -> tuple:
   return tuple(versions)
 
 
-def tree_digest(tree) -> str:
-  """sha256 of a pytree's array contents, shapes and dtypes (e.g. network parameters)."""
-  digest = hashlib.sha256()
-  for leaf in jax.tree.leaves(tree):
-    leaf = np.asarray(leaf)
-    digest.update(f'{leaf.shape}{leaf.dtype}'.encode() + leaf.tobytes())
-  return digest.hexdigest()
-
-
 def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
                      donate_argnums: tuple = ()):
   """`jitted.lower(*args).compile()`, skipping Python tracing where it can.

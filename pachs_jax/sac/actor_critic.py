@@ -74,8 +74,8 @@ class SacActorCritic:
   @property
   def fingerprint(self) -> str:
     """The config and a digest of the parameters: they fix what the networks compute."""
-    from pachs_jax import compile_cache
-    return f'{self.config!r}:{compile_cache.tree_digest(self.params)}'
+    from pachs_jax.sac import checkpoint  # pylint: disable=import-outside-toplevel (a cycle)
+    return f'{self.config!r}:{checkpoint.params_hash(self.params)}'
 
   def _normalizer(self) -> running_statistics.NestedMeanStd:
     return running_statistics.NestedMeanStd(mean=self.params.normalizer['mean'],
