@@ -22,7 +22,7 @@ from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import anytime, pachs
 
-PLANNERS = ('single', 'parallel', 'pachs', 'mppi')
+PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 
 
 def parse_perturbation(text: str) -> mujoco_c.Perturbation:
@@ -86,9 +86,11 @@ def make_query(name: str, task: str, env, model, args, num: int):
   parallel: steps in chunks until the next would end past the query time, then its best
   rollout; pachs: real-time mode (`--realtime-answer`); mppi: warm-started from the policy, then
   from its previous plan shifted by the executed actions."""
-  if name == 'pachs':
-    config = dataclasses.replace(planner.default_config(task, max_evaluations=args.budget),
-                                 realtime_answer=args.realtime_answer)
+  if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
+    algorithm = 'original' if name == 'pachs-original' else 'pachs'
+    config = dataclasses.replace(
+        planner.default_config(task, algorithm, max_evaluations=args.budget),
+        realtime_answer=args.realtime_answer)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):

@@ -33,8 +33,9 @@ def path_indices(parent: np.ndarray, node: int) -> list:
   return chain[::-1]
 
 
-def instance_rows(state, result, blocks_y: tuple) -> list:
-  """One dict of diagnostics per instance (numpy over the final search state)."""
+def instance_rows(state, result, blocks_y: tuple, edge_steps: int = 1) -> list:
+  """One dict of diagnostics per instance (numpy over the final search state); edge_steps:
+  the evaluations one edge costs."""
   pool = jax.tree.map(np.asarray, state.pool)
   rows = []
   low, high = blocks_y
@@ -50,7 +51,8 @@ def instance_rows(state, result, blocks_y: tuple) -> list:
         path_length=int(result.path_length[i]), expanded=int(closed.sum()),
         evaluated=int(result.evaluated[i]), invalid=int(result.invalid[i]),
         generated=size,
-        merged_share=1.0 - (size - 1) / max(1, int(result.evaluated[i] - result.invalid[i])),
+        merged_share=1.0 - (size - 1) / max(
+            1, int(result.evaluated[i]) // edge_steps - int(result.invalid[i])),
         depth_max=int(pool.depth[i, :size].max()),
         depth_expanded_mean=float(pool.depth[i, :size][closed].mean()) if closed.any() else 0.0,
         before_blocks=float((y[closed] > high).mean()) if closed.any() else 0.0,
@@ -111,6 +113,8 @@ def main():
   parser.add_argument('--budget', type=int, default=None, help="None: pachs plan's default")
   parser.add_argument('--weight', type=float, default=None)
   parser.add_argument('--num-actions', type=int, default=None)
+  parser.add_argument('--edge-steps', type=int, default=None,
+                      help='transitions per edge (SearchConfig.edge_steps)')
   parser.add_argument('--lattice-scale', type=float, default=1.0,
                       help='lattice cell sizes = this x the default')
   common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
@@ -118,7 +122,8 @@ def main():
   args.layout = args.layout or layouts.DEFAULT
   env, model = planner.load_model(TASK, None, args.backend, layout=args.layout)
   on_cpu = jax.default_backend() == 'cpu'
-  overrides = {'weight': args.weight, 'num_actions': args.num_actions}
+  overrides = {'weight': args.weight, 'num_actions': args.num_actions,
+               'edge_steps': args.edge_steps}
 
   config = planner.command_config(TASK, on_cpu, type(env).__name__ == 'MujocoCEnv',
                                   args.budget, **overrides)
@@ -135,7 +140,7 @@ def main():
   blocks = np.asarray(layouts.layout(args.layout).blocks)
   blocks_y = (float((blocks[:, 1] - blocks[:, 3]).min()), float((blocks[:, 1] + blocks[:, 3]).max()))
   discount = float(model.config.discount)
-  rows = instance_rows(state, result, blocks_y)
+  rows = instance_rows(state, result, blocks_y, config.edge_steps)
   payload = {'provenance': common.provenance(), 'layout': args.layout,
              'config': repr(config), 'blocks_y': blocks_y,
              'summary': summary(rows, config, discount), 'instances': rows}

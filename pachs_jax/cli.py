@@ -178,6 +178,7 @@ def _plan(args: argparse.Namespace) -> int:
   instances = planner.parse_instances(args.instances, num_available)
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
+      algorithm=args.algorithm, edge_steps=args.edge_steps,
       weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
       lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
       compact_fractions=args.compact_fractions)
@@ -195,7 +196,8 @@ def _plan(args: argparse.Namespace) -> int:
   if devices is not None:
     where = f'{len(devices)} {where} device(s), instances sharded'
   say(f'planning {env.name} instances {args.instances} with {model_path}: '
-      f'w={config.weight} N={config.num_actions} K={config.pop_size} budget={budget} '
+      f'w={config.weight} N={config.num_actions} K={config.pop_size} H={config.edge_steps} '
+      f'budget={budget} '
       f'on {where}', flush=True)
   start = time.perf_counter()
   key = jax.random.PRNGKey(args.seed)
@@ -243,6 +245,7 @@ def main(argv=None) -> int:
     os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs
   from pachs_jax.envs import layouts
+  from pachs_jax.envs import registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
@@ -271,6 +274,11 @@ def main(argv=None) -> int:
   plan.add_argument('--seed', type=_seed, default=0, help='PRNG seed (64-bit integer)')
   plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
   plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
+  plan.add_argument('--algorithm', default='pachs', choices=registry.ALGORITHMS,
+                    help="pachs (default: edges that follow the actor for edge_steps "
+                    "transitions) or original (the published one-step edges, its settings)")
+  plan.add_argument('--edge-steps', '-H', type=int, default=None,
+                    help='transitions per edge (default: the task\'s; 1 = one-step edges)')
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
   plan.add_argument('--lattice-resolution', type=lambda s: _numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')

@@ -22,17 +22,23 @@ CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
 
 
-def default_config(task: Optional[str], **overrides) -> search_types.SearchConfig:
-  """The task's tuned SearchConfig (task None: a user's task, `registry.USER_SEARCH`) with
-  fields replaced by the non-None `overrides`."""
+def default_config(task: Optional[str], algorithm: str = 'pachs',
+                   **overrides) -> search_types.SearchConfig:
+  """The task's SearchConfig for an algorithm of `registry.ALGORITHMS` ('pachs' or 'original';
+  task None: a user's task, `registry.USER_SEARCH`) with fields replaced by the non-None
+  `overrides`."""
   from pachs_jax.envs import registry
-  values = dict(envs.spec(task).search_defaults if task is not None else registry.USER_SEARCH)
+  if task is None:  # a user's task: one-step edges either way
+    values = dict(registry.USER_SEARCH) if registry.check_algorithm(algorithm) else {}
+  else:
+    values = dict(envs.spec(task).algorithm_defaults(algorithm))
   values.update({k: v for k, v in overrides.items() if v is not None})
   return search_types.SearchConfig(**values)
 
 
 def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
-                   budget: Optional[int] = None, **explicit) -> search_types.SearchConfig:
+                   budget: Optional[int] = None, algorithm: str = 'pachs',
+                   **explicit) -> search_types.SearchConfig:
   """The SearchConfig of `pachs plan`.
 
   The task's defaults; on a CPU without a `budget`, the backend's CPU budget (`CPU_DEFAULTS`)
@@ -44,7 +50,7 @@ def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
     settings.update(envs.spec(task).cpu_overrides if task is not None else {})
     budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]
   settings.update({k: v for k, v in explicit.items() if v is not None})
-  return default_config(task, max_evaluations=budget, **settings)
+  return default_config(task, algorithm, max_evaluations=budget, **settings)
 
 
 def checkpoint_path(task: str) -> str:

@@ -6,7 +6,7 @@ Measured reasons for the defaults: docs/task_defaults.md.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Dict, Mapping, Tuple
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 
 from pachs_jax.envs import base
 
@@ -20,8 +20,10 @@ class TaskSpec:
   make: (**options) -> Env, a new environment of the task.
   model_task: the task whose shipped actor-critic plans this one.
   num_instances: size of the canonical instance set (`Env.canonical_instances`).
-  search_defaults: SearchConfig field values tuned at the paper's budget (on a GPU).
-  cpu_overrides: SearchConfig field values that replace them at the CPU budget of `pachs plan`.
+  search_defaults: SearchConfig field values of PACHS, chosen at the paper's budget (on a GPU).
+  original_search: those of the original algorithm ('original' in `ALGORITHMS`: one-step
+    edges, as published; None: search_defaults with edge_steps 1).
+  cpu_overrides: SearchConfig field values that replace either at the CPU budget of `pachs plan`.
   options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`).
   """
 
@@ -30,8 +32,15 @@ class TaskSpec:
   model_task: str
   num_instances: int
   search_defaults: Mapping[str, Any]
+  original_search: Optional[Mapping[str, Any]] = None
   cpu_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
   options: Tuple[str, ...] = ()
+
+  def algorithm_defaults(self, algorithm: str = 'pachs') -> Mapping[str, Any]:
+    """The SearchConfig field values of an algorithm of `ALGORITHMS`; ValueError naming them."""
+    if check_algorithm(algorithm) == 'pachs':
+      return self.search_defaults
+    return self.original_search or dict(self.search_defaults, edge_steps=1)
 
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
@@ -46,13 +55,28 @@ def _shelf() -> base.Env:
   return shelf.ShelfEnv()
 
 
+# The search algorithms by name: 'pachs', the default (edges of `edge_steps` transitions that
+# follow the actor after their sampled action), and 'original', the published one-step edges.
+ALGORITHMS = ('pachs', 'original')
+
+
+
+def check_algorithm(algorithm: str) -> str:
+  """algorithm, when it names one of `ALGORITHMS`; ValueError listing them otherwise."""
+  if algorithm not in ALGORITHMS:
+    raise ValueError(f'unknown algorithm {algorithm!r}; valid: {", ".join(ALGORITHMS)}')
+  return algorithm
+
+
 # Weight w, actions per expansion N, edges popped per iteration K, edge evaluations per instance.
 _SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'max_evaluations': 100_000}
+# PushT: edges of 8 transitions (docs/task_defaults.md).
+_PUSHT = dict(_SEARCH, edge_steps=8)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
-    TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _SEARCH),
-    TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _SEARCH),
-    TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30,
+    TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH),
+    TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _PUSHT, _SEARCH),
+    TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30, _PUSHT,
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},

@@ -6,7 +6,7 @@ loop (`pachs.make_search`), compiled only when the search reaches it."""
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional, Sequence, Tuple
+from typing import Any, Callable, Optional, Sequence, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -21,10 +21,11 @@ def batch_sizes(total: int, fractions: Sequence[float], minimum: int = 1) -> Tup
                       if minimum <= max(1, math.ceil(f * total)) < total}))
 
 
-def evaluate_live(evaluate: Callable[[base.NodeState, jax.Array], base.EdgeOutcome],
-                  nodes: base.NodeState, actions: jax.Array, live: jax.Array,
+def evaluate_live(evaluate: Callable[[base.NodeState, Any], base.EdgeOutcome],
+                  nodes: base.NodeState, actions: Any, live: jax.Array,
                   size: Optional[int] = None) -> base.EdgeOutcome:
-  """evaluate(nodes [B], actions [B, A]) where it matters: live [B] bool lanes.
+  """evaluate(nodes [B], actions [B, A]) where it matters: live [B] bool lanes (actions may be
+  any pytree of [B, ...] arrays, e.g. actions and keys).
 
   size None simulates all B lanes. Otherwise the live lanes, at most `size` of them (the
   caller's guarantee), are gathered into `size` lanes and only those are simulated; the other
@@ -36,6 +37,6 @@ def evaluate_live(evaluate: Callable[[base.NodeState, jax.Array], base.EdgeOutco
   total = live.shape[0]
   lane = jnp.nonzero(live, size=size, fill_value=total)[0]  # [size]; padding: total
   source = jnp.minimum(lane, total - 1)
-  out = evaluate(jax.tree.map(lambda x: x[source], nodes), actions[source])
+  out = evaluate(*jax.tree.map(lambda x: x[source], (nodes, actions)))
   return jax.tree.map(
       lambda o: jnp.zeros((total,) + o.shape[1:], o.dtype).at[lane].set(o, mode='drop'), out)

@@ -21,6 +21,7 @@ from pachs_jax.search import memory
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search import segment
 from pachs_jax.search import types
 from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
 
@@ -102,6 +103,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   resolution = _check(env, actor_critic, config)
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
+  steps = config.edge_steps
+  edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -128,6 +131,12 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return pool, (f.reshape(num_instances, -1), values.reshape(num_instances, -1),
                   jnp.repeat(expanding, n, axis=1))
 
+  def segment_keys(state):
+    """[I, K, 2] keys of the actor's samples inside the K segments of each instance."""
+    keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
+    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, 1)  # apart from expand's samples
+    return jax.vmap(lambda key: jax.random.split(key, k))(keys)
+
   def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
     limit = heap_lib.kth_key(state.edge_heap, k)
@@ -142,25 +151,27 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     rows = jnp.arange(edges.node.shape[0])[:, None]
     action = pool.edge_actions[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
     q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
+    inputs = action if steps == 1 else (action, segment_keys(state))
     outcome, within, usable, out_of_budget = phases.evaluate(
-        env.evaluate, pool_lib.gather_nodes(pool, edges.node), action, edges.mask,
-        state.evaluated, config.max_evaluations, size)
+        edge_fn, pool_lib.gather_nodes(pool, edges.node), inputs, edges.mask,
+        state.evaluated, config.max_evaluations, size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
+    h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
     pool, table, dummy_key, node, write = phases.insert(
         pool, state.table, lattice_cells(outcome.next_node), edges.node, outcome, usable,
-        action, jnp.maximum(q - outcome.cost, 0.0), w)
+        action, h, w)
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | edges.mask, axis=1)
     return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
-                         config.iteration_limit, expanding, within, usable,
+                         config.iteration_limit, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = types.check_start_nodes(start_nodes, env)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes),
                                env.lattice_key(start_nodes, resolution), config.pool_size,
-                               config.table_size, n, env.action_size)
+                               config.table_size, n, env.action_size, steps)
     dummy_heap = heap_lib.init(num_instances, config.dummy_heap_size, k)
     return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
@@ -197,7 +208,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     if config.realtime_answer == 'min_h':
       h_value, has = path_lib.min_h_answer(state.pool, slots)
       value, in_open = jnp.where(has, h_value, value), has | in_open
-    return path_lib.search_result(state, value, in_open, slots, k,
+    return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
                                   config.max_path_length)
 

@@ -50,9 +50,20 @@ def extract(pool: pool_lib.NodePool, final: jax.Array, max_len: int) -> Path:
     state_pos = jnp.where(live & (depth <= max_len), depth, max_len + 1)
     nodes = jax.tree.map(lambda out, x: out.at[rows, state_pos].set(x[rows, at], mode='drop'),
                          nodes, pool.nodes)
-    action_pos = jnp.where(live & (depth >= 1) & (depth <= max_len), depth - 1, max_len)
+    parent = pool.parent[rows, at]
+    first = jnp.where(parent >= 0, pool.depth[rows, jnp.maximum(parent, 0)], depth)
+    action_pos = jnp.where(live & (depth >= 1) & (first < max_len), first, max_len)
     actions = actions.at[rows, action_pos].set(pool.action[rows, at], mode='drop')
-    node = jnp.where(live, pool.parent[rows, at], pool_lib.NO_PARENT)
+    # a segment edge (`segment`): its inner actions and states at rows first + 1 .. depth - 1
+    inner = jnp.arange(pool.segment_actions.shape[2])[None, :]
+    pos = first[:, None] + 1 + inner
+    inside = live[:, None] & (pos < depth[:, None])
+    actions = actions.at[rows[:, None], jnp.where(inside, pos, max_len)].set(
+        pool.segment_actions[rows, at], mode='drop')
+    nodes = jax.tree.map(
+        lambda out, x: out.at[rows[:, None], jnp.where(inside, pos, max_len + 1)].set(
+            x[rows, at], mode='drop'), nodes, pool.segment_nodes)
+    node = jnp.where(live, parent, pool_lib.NO_PARENT)
     return node, actions, nodes
 
   _, actions, nodes = jax.lax.while_loop(cond, body, (final.astype(jnp.int32), actions, nodes))
@@ -80,7 +91,7 @@ def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, 
   an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's
   or `min_h_answer`'s),
   or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
-  pop_size evaluation lanes per iteration.
+  pop_size evaluations per iteration (K edges times their transitions).
   """
   pool = state.pool
   found = state.stop_reason == StopReason.GOAL

@@ -3,7 +3,7 @@ budgeted evaluation, successor insertion and stop."""
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Optional, Tuple
+from typing import Any, Callable, NamedTuple, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -14,6 +14,7 @@ from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search import segment
 from pachs_jax.search.types import StopReason
 
 NO_NODE = -1  # goal_node of an instance that has found no goal
@@ -82,11 +83,12 @@ def count(mask: jax.Array) -> jax.Array:
 
 
 def start(start_nodes: base.NodeState, start_is_goal: jax.Array, start_cell: jax.Array,
-          pool_size: int, table_size: int, num_edges: int,
-          action_size: int) -> Tuple[pool_lib.NodePool, lattice_lib.LatticeTable]:
+          pool_size: int, table_size: int, num_edges: int, action_size: int,
+          edge_steps: int = 1) -> Tuple[pool_lib.NodePool, lattice_lib.LatticeTable]:
   """(pool, table) holding the start nodes [I] (cells start_cell [I, L]) as node 0."""
   num_instances = start_is_goal.shape[0]
-  pool = pool_lib.init(start_nodes, start_is_goal, pool_size, num_edges, action_size)
+  pool = pool_lib.init(start_nodes, start_is_goal, pool_size, num_edges, action_size,
+                       edge_steps)
   table = lattice_lib.init(num_instances, table_size, start_cell.shape[-1])
   root = jnp.ones((num_instances, 1), bool)
   table, slot, _, _ = lattice_lib.insert(table, start_cell[:, None], root)
@@ -132,21 +134,23 @@ def goal_check(pool: pool_lib.NodePool, popped: Popped,
   return fresh & ~at_goal, jnp.any(at_goal, axis=1), goal
 
 
-def evaluate(edge_fn: Callable[[base.NodeState, jax.Array], base.EdgeOutcome],
-             sources: base.NodeState, actions: jax.Array, real: jax.Array,
-             evaluated: jax.Array, max_evaluations: int, batch_size: Optional[int] = None):
+def evaluate(edge_fn: Callable[[base.NodeState, Any], base.EdgeOutcome],
+             sources: base.NodeState, actions: Any, real: jax.Array,
+             evaluated: jax.Array, max_evaluations: int, batch_size: Optional[int] = None,
+             edge_evaluations: int = 1):
   """Evaluates the real edges [I, K] that fit each instance's remaining budget.
 
-  sources: NodeState [I, K]; actions: [I, K, D]; evaluated: [I] int32 edges evaluated so far.
-  Returns (outcome EdgeOutcome [I, K], within [I, K] evaluated, usable [I, K] valid with finite
-  cost, out_of_budget [I] an edge was left unevaluated). batch_size: the physics lanes
-  (`compact.evaluate_live`; None: all I * K).
+  sources: NodeState [I, K]; actions: [I, K, D] (or a pytree of [I, K, ...] edge inputs);
+  evaluated: [I] int32 evaluations so far; edge_evaluations: the evaluations one edge costs
+  (its transitions). Returns (outcome EdgeOutcome [I, K], within [I, K] evaluated, usable
+  [I, K] valid with finite cost, out_of_budget [I] an edge was left unevaluated). batch_size:
+  the physics lanes (`compact.evaluate_live`; None: all I * K).
   """
   num_instances, k = real.shape
-  within = real & (jnp.cumsum(real, axis=1) <= (max_evaluations - evaluated)[:, None])
+  within = real & (jnp.cumsum(real, axis=1) * edge_evaluations
+                   <= (max_evaluations - evaluated)[:, None])
   lanes = num_instances * k
-  outcome = compact.evaluate_live(edge_fn, flat(sources, lanes),
-                                  actions.reshape(lanes, actions.shape[-1]),
+  outcome = compact.evaluate_live(edge_fn, flat(sources, lanes), flat(actions, lanes),
                                   within.reshape(lanes), batch_size)
   outcome = unflat(outcome, num_instances)
   usable = within & outcome.is_valid & jnp.isfinite(outcome.cost)
@@ -160,26 +164,32 @@ def insert(pool: pool_lib.NodePool, table: lattice_lib.LatticeTable, cells: jax.
 
   cells: [I, K, L] int32 lattice keys of outcome.next_node; h: [I, K] float32 cost-to-go
   estimates of the successors. A new cell, or an open node whose g improves, takes the
-  successor (see `pool.merge_successors`). Returns (pool, table, dummy keys g + w h [I, K],
-  nodes [I, K] int32, written [I, K] bool).
+  successor (see `pool.merge_successors`); a `segment.SegmentOutcome` also stores the
+  segment's inside. Returns (pool, table, dummy keys g + w h [I, K], nodes [I, K] int32,
+  written [I, K] bool).
   """
   g = pool_lib.gather(pool.g, parent) + outcome.cost
   pool, table, node, write = pool_lib.merge_successors(pool, table, cells, g, usable)
   dummy_key = g + weighted(h, weight)
-  depth = pool_lib.gather(pool.depth, parent) + 1
+  is_segment = isinstance(outcome, segment.SegmentOutcome)
+  depth = pool_lib.gather(pool.depth, parent) + (outcome.length if is_segment else 1)
   pool = pool_lib.set_nodes(pool, node, write, outcome.next_node, g, parent, action, depth,
                             outcome.is_goal, dummy_key)
+  if is_segment:
+    pool = pool_lib.set_segments(pool, node, write, outcome.actions, outcome.nodes)
   return pool, table, dummy_key, node, write
 
 
 def finish(state, found: jax.Array, goal: jax.Array, open_empty: jax.Array,
            out_of_budget: jax.Array, overflow: jax.Array, iteration_limit: int,
-           expanded: jax.Array, within: jax.Array, usable: jax.Array, **fields):
+           expanded: jax.Array, within: jax.Array, usable: jax.Array,
+           edge_evaluations: int = 1, **fields):
   """state.replace(**fields) with its stop reasons and counters updated after an iteration.
 
   state has [I] fields active, stop_reason, goal_node, iterations, expanded, evaluated and
   invalid; found, open_empty, out_of_budget: [I] bool; overflow: [I] int32 entries dropped;
-  expanded, within, usable: [I, K] bool. Stop reasons in precedence: goal, open list empty,
+  expanded, within, usable: [I, K] bool; edge_evaluations: the evaluations one edge costs (an
+  invalid edge counts once in invalid). Stop reasons in precedence: goal, open list empty,
   capacity, budget, iterations.
   """
   iterations = state.iterations + state.active
@@ -191,5 +201,5 @@ def finish(state, found: jax.Array, goal: jax.Array, open_empty: jax.Array,
   return state.replace(
       active=state.active & (reason == StopReason.RUNNING), stop_reason=reason,
       goal_node=jnp.where(found & state.active, goal, state.goal_node), iterations=iterations,
-      expanded=state.expanded + count(expanded), evaluated=state.evaluated + count(within),
+      expanded=state.expanded + count(expanded), evaluated=state.evaluated + count(within) * edge_evaluations,
       invalid=state.invalid + count(within & ~usable), **fields)

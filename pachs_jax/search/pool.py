@@ -31,6 +31,9 @@ class NodePool:
     another key is stale).
   edge_actions: [I, P, N, A] float32 the actions sampled when the node was expanded.
   edge_q: [I, P, N] float32 their cost-to-go estimates q = max(-Q, 0).
+  segment_actions: [I, P, H - 1, A] float32 with edges of H steps (`segment`), the actor's
+    actions after `action` on the way to the node; segment_nodes: NodeState [I, P, H - 1, ...]
+    the states passed (H = 1: empty).
   size: [I] int32 nodes in use; overflow: [I] int32 new nodes that found no room.
   """
 
@@ -44,6 +47,8 @@ class NodePool:
   open_key: jax.Array
   edge_actions: jax.Array
   edge_q: jax.Array
+  segment_actions: jax.Array
+  segment_nodes: base.NodeState
   size: jax.Array
   overflow: jax.Array
 
@@ -57,8 +62,9 @@ def _rows(index: jax.Array) -> jax.Array:
 
 
 def init(start: base.NodeState, start_is_goal: jax.Array, capacity: int, num_actions: int,
-         action_size: int) -> NodePool:
-  """A pool of `capacity` nodes per instance holding the start nodes start [I, ...] at index 0."""
+         action_size: int, edge_steps: int = 1) -> NodePool:
+  """A pool of `capacity` nodes per instance holding the start nodes start [I, ...] at index 0;
+  edge_steps: the transitions of one edge (the segment fields hold edge_steps - 1)."""
   num_instances = start_is_goal.shape[0]
   shape = (num_instances, capacity)
 
@@ -78,6 +84,10 @@ def init(start: base.NodeState, start_is_goal: jax.Array, capacity: int, num_act
       open_key=jnp.full(shape, jnp.inf, jnp.float32).at[:, ROOT_INDEX].set(0.0),
       edge_actions=jnp.zeros(shape + (num_actions, action_size), jnp.float32),
       edge_q=jnp.zeros(shape + (num_actions,), jnp.float32),
+      segment_actions=jnp.zeros(shape + (edge_steps - 1, action_size), jnp.float32),
+      segment_nodes=jax.tree.map(
+          lambda x: jnp.zeros(shape + (edge_steps - 1,) + jnp.shape(x)[1:], jnp.asarray(x).dtype),
+          start),
       size=jnp.ones((num_instances,), jnp.int32),
       overflow=jnp.zeros((num_instances,), jnp.int32))
 
@@ -121,6 +131,15 @@ def set_nodes(pool: NodePool, index: jax.Array, mask: jax.Array, nodes: base.Nod
       parent=put(pool.parent, parent), action=put(pool.action, action),
       depth=put(pool.depth, depth), closed=put(pool.closed, jnp.zeros_like(mask)),
       is_goal=put(pool.is_goal, is_goal), open_key=put(pool.open_key, open_key))
+
+
+def set_segments(pool: NodePool, index: jax.Array, mask: jax.Array, actions: jax.Array,
+                 nodes: base.NodeState) -> NodePool:
+  """Writes the insides of the segments [I, K] (actions [I, K, H - 1, A], nodes NodeState
+  [I, K, H - 1, ...]) that reached the nodes at index [I, K] where mask."""
+  put = lambda values, new: _scatter(values, index, mask, new)
+  return pool.replace(segment_actions=put(pool.segment_actions, actions),
+                      segment_nodes=jax.tree.map(put, pool.segment_nodes, nodes))
 
 
 def close(pool: NodePool, index: jax.Array, mask: jax.Array, edge_actions: jax.Array,

@@ -400,17 +400,25 @@ class SearchConfig(EdgeSearchConfig):
     of least estimated cost-to-go; needs w > 0).
   compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
     (`compact.evaluate_live`); () always simulates all lanes.
+  edge_steps: H, the transitions of one edge: its sampled action, then H - 1 actions that the
+    actor samples along the way (`segment`); an edge costs H evaluations, and a successor's h
+    is the critic's at its state. 1: the original's one-step edges, h = q - c.
   heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
-  (None: budget + 1).
+  (None: pool). pool_capacity None: budget // H + 1.
   """
 
   num_actions: int = 16
   realtime_answer: str = 'best_f'
   compact_fractions: Tuple[float, ...] = ()
+  edge_steps: int = 1
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
+    positive_int('SearchConfig', 'edge_steps', self.edge_steps)
+    if self.edge_steps > self.max_evaluations:
+      raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds max_evaluations '
+                       f'({self.max_evaluations}): no edge would fit the budget')
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')
@@ -430,14 +438,20 @@ class SearchConfig(EdgeSearchConfig):
                        f'(got heap {self.edge_heap_size}, table {self.table_size})')
 
   @property
+  def pool_size(self) -> int:
+    """Nodes per instance (one per edge the budget pays for, and the start)."""
+    return self.pool_capacity or self.max_evaluations // self.edge_steps + 1
+
+  @property
   def edge_heap_size(self) -> int:
     """Entries per instance of the real-edge heap: N per expanded node."""
     return self.heap_capacity or self.num_actions * self.pool_size
 
   @property
   def dummy_heap_size(self) -> int:
-    """Entries per instance of the dummy-edge heap: the start's plus one per evaluation."""
-    return min(self.heap_capacity or self.max_evaluations + 1, self.max_evaluations + 1)
+    """Entries per instance of the dummy-edge heap: the start's plus one per edge."""
+    edges = self.max_evaluations // self.edge_steps + 1
+    return min(self.heap_capacity or edges, edges)
 
   @property
   def iteration_limit(self) -> int:
@@ -459,7 +473,8 @@ class SearchResult:
   path_is_goal: [I] bool, the path's last state satisfies the goal rule.
   cost: [I] float32 path cost g of the last state (sum of edge costs, the env's cost units).
   expanded: [I] int32 states expanded (dummy edges popped and expanded).
-  evaluated: [I] int32 edges evaluated (env.evaluate calls counted per edge).
+  evaluated: [I] int32 edge evaluations: transitions simulated (env.evaluate calls counted per
+    edge; an edge of `edge_steps` H counts H).
   invalid: [I] int32 evaluated edges that were invalid (dropped).
   generated: [I] int32 nodes in the pool.
   iterations: [I] int32 loop iterations.

@@ -1,0 +1,150 @@
+"""Edges of several transitions (SearchConfig.edge_steps, search/segment.py) on the grid world,
+with a stochastic actor: paths replay exactly, segments stop at a goal and before an invalid
+step, the budget counts every transition, and compaction does not change the result."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import assert_results_equal
+from pachs_jax import planner
+from pachs_jax.envs import gridworld
+from pachs_jax.search import SearchConfig, StopReason, make_search, plan, sharding
+from pachs_jax.search import segment
+
+OBSTACLES = np.zeros((12, 12), bool)
+OBSTACLES[2:10, 6] = True  # a wall with gaps at both ends
+STARTS = np.array([[5, 1], [0, 0], [11, 11], [5, 4], [9, 2], [3, 3]])
+GOALS = np.array([[5, 10], [11, 11], [0, 0], [5, 5], [1, 10], [3, 3]])
+
+
+class NoisyGridActor(gridworld.GridActorCritic):
+  """The grid's stand-in critic with a stochastic actor: moves drawn with probabilities
+  softmax(Q), so that the actor's steps inside a segment depend on the key."""
+
+  def sample_actions(self, key, obs, num):
+    moves = super().sample_actions(key, obs, 8)  # [B, 8, 2]
+    logits = self.q_values(obs, moves)
+    pick = jax.random.categorical(key, logits[:, None, :], shape=(obs.shape[0], num))
+    return jnp.take_along_axis(moves, pick[..., None], axis=1)
+
+
+@pytest.fixture(scope='module')
+def grid():
+  env = gridworld.GridWorld(OBSTACLES, connectivity=8)
+  return env, NoisyGridActor(env), env.node(STARTS, GOALS)
+
+
+CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000, edge_steps=3)
+
+
+@pytest.fixture(scope='module')
+def result(grid):
+  env, ac, nodes = grid
+  return plan(env, ac, nodes, CONFIG, jax.random.PRNGKey(2))
+
+
+def _replay(env, result, i):
+  """Steps instance i's path actions one at a time; returns (cost, final node) after checking
+  every state against path_nodes bit for bit."""
+  r = jax.tree.map(np.asarray, result)
+  node = jax.tree.map(lambda x: x[i, :1], result.path_nodes)
+  cost = 0.0
+  for t in range(int(r.path_length[i])):
+    out = env.evaluate(node, jnp.asarray(r.path_actions[i, t:t + 1]))
+    assert bool(out.is_valid[0])
+    cost += float(out.cost[0])
+    node = out.next_node
+    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(r.path_nodes)):
+      np.testing.assert_array_equal(np.asarray(got)[0], want[i, t + 1])
+  assert not r.path_actions[i, int(r.path_length[i]):].any()
+  return cost, node
+
+
+def test_segment_paths_replay_and_end_at_goals(grid, result):
+  env, _, _ = grid
+  r = jax.tree.map(np.asarray, result)
+  assert r.found.all(), r.stop_reason
+  lengths = r.path_length[:-1]  # the last instance starts at its goal
+  assert (lengths % CONFIG.edge_steps != 0).any()  # some segment stopped at the goal
+  for i in range(len(STARTS)):
+    cost, node = _replay(env, result, i)
+    np.testing.assert_allclose(cost, r.cost[i], rtol=1e-6)
+    assert bool(env.is_goal(node)[0])
+  # every evaluated edge costs H transitions
+  assert (r.evaluated % CONFIG.edge_steps == 0).all() and (r.evaluated <= 3000).all()
+  np.testing.assert_allclose(r.lane_utilization[:-1],
+                             r.evaluated[:-1] / (CONFIG.pop_size * 3 * r.iterations[:-1]))
+
+
+def test_segment_stops_at_goal_and_before_an_invalid_step(grid):
+  env, ac, _ = grid
+  fn = jax.jit(segment.make_segment_fn(env, ac, 4))
+  # lane 0: one step from its goal; lane 1: the first step hits the wall; lane 2: free to go
+  nodes = env.node(np.array([[5, 4], [5, 5], [0, 0]]), np.array([[5, 5], [5, 10], [0, 5]]))
+  actions = jnp.array([[0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])
+  keys = jax.random.split(jax.random.PRNGKey(0), 3)
+  out = jax.tree.map(np.asarray, fn(nodes, (actions, keys)))
+  assert out.length[0] == 1 and out.is_goal[0] and out.is_valid[0]
+  assert out.length[1] == 0 and not out.is_valid[1] and out.cost[1] == 0
+  assert out.is_valid[2] and out.length[2] == 4 and out.cost[2] >= 4
+  # past the length the inner actions are zero and the inner states repeat the last state
+  assert not out.actions[0].any()
+  np.testing.assert_array_equal(out.nodes.qpos[0], np.broadcast_to([5.0, 5.0], (3, 2)))
+  np.testing.assert_array_equal(out.nodes.qpos[1], np.broadcast_to([5.0, 5.0], (3, 2)))
+  np.testing.assert_array_equal(out.next_node.qpos[:2], [[5.0, 5.0], [5.0, 5.0]])
+  # h: the critic's cost-to-go at the last state, at least the octile distance left (5)
+  assert out.h[1] >= 5.0 and np.isfinite(out.h).all()
+
+
+def test_budget_counts_every_transition(grid):
+  env, ac, nodes = grid
+  config = dataclasses.replace(CONFIG, max_evaluations=10, edge_steps=4, pop_size=1)
+  r = jax.tree.map(np.asarray, plan(env, ac, nodes, config, jax.random.PRNGKey(0)))
+  far = r.path_length[:3] > 8
+  assert (r.evaluated <= 10).all() and (r.evaluated % 4 == 0).all()
+  assert (r.stop_reason[:3][far] == StopReason.BUDGET).all()
+
+
+def test_segments_with_compaction_equal_without(grid):
+  env, ac, nodes = grid
+  key = jax.random.PRNGKey(2)
+  compacted = dataclasses.replace(CONFIG, compact_fractions=(0.25, 0.5))
+  want = plan(env, ac, nodes, CONFIG, key)
+  got = plan(env, ac, nodes, compacted, key)
+  assert len(set(np.asarray(want.iterations).tolist())) > 2
+  assert_results_equal(got, want)
+  sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
+                                  search=make_search(env, ac, compacted))
+  assert_results_equal(sharded, want)
+
+
+@pytest.mark.parametrize('changes, match', [
+    (dict(edge_steps=0), 'edge_steps'),
+    (dict(edge_steps=2.5), 'edge_steps'),
+    (dict(edge_steps=3001), 'exceeds max_evaluations'),
+])
+def test_edge_steps_validation(changes, match):
+  with pytest.raises(ValueError, match=match):
+    dataclasses.replace(CONFIG, **changes)
+
+
+def test_pool_and_heaps_are_sized_per_edge():
+  assert CONFIG.pool_size == 3000 // 3 + 1
+  assert CONFIG.dummy_heap_size == 1001
+  assert CONFIG.edge_heap_size == 8 * 1001
+
+
+def test_algorithms_are_named():
+  default = planner.default_config('pusht-obs')
+  original = planner.default_config('pusht-obs', 'original')
+  assert default.edge_steps == 8 and original.edge_steps == 1
+  assert original.pop_size == 256 and original.lattice_resolution == (0.005, 0.005, 0.05,
+                                                                      0.01, 0.01)
+  assert planner.default_config('pusht-fixed', 'original').edge_steps == 1
+  assert planner.default_config(None, 'original').edge_steps == 1
+  with pytest.raises(ValueError, match="unknown algorithm 'astar'; valid: pachs, original"):
+    planner.default_config('pusht-fixed', 'astar')
