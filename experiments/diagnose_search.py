@@ -115,6 +115,8 @@ def main():
   parser.add_argument('--num-actions', type=int, default=None)
   parser.add_argument('--edge-steps', type=int, default=None,
                       help='transitions per edge (SearchConfig.edge_steps)')
+  parser.add_argument('--rollout-share', type=float, default=None,
+                      help="share of PACHS's lanes that extend actor chains (default: the task's)")
   parser.add_argument('--lattice-scale', type=float, default=1.0,
                       help='lattice cell sizes = this x the default')
   common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
@@ -123,7 +125,7 @@ def main():
   env, model = planner.load_model(TASK, None, args.backend, layout=args.layout)
   on_cpu = jax.default_backend() == 'cpu'
   overrides = {'weight': args.weight, 'num_actions': args.num_actions,
-               'edge_steps': args.edge_steps}
+               'edge_steps': args.edge_steps, 'rollout_share': args.rollout_share}
 
   config = planner.command_config(TASK, on_cpu, type(env).__name__ == 'MujocoCEnv',
                                   args.budget, **overrides)

@@ -51,7 +51,8 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
     config = planner.default_config(task, 'original' if name == 'pachs-original' else 'pachs',
                                     max_evaluations=budget, pop_size=args.pop_size,
                                     weight=args.weight, num_actions=args.num_actions,
-                                    edge_steps=args.edge_steps)
+                                    edge_steps=args.edge_steps,
+                                    rollout_share=args.rollout_share)
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
@@ -216,6 +217,8 @@ def main():
   parser.add_argument('--weight', type=float, default=None, help='w (default: the task\'s)')
   parser.add_argument('--edge-steps', type=int, default=None,
                       help="PACHS's transitions per edge (default: the task's)")
+  parser.add_argument('--rollout-share', type=float, default=None,
+                      help="share of PACHS's lanes that extend actor chains (default: the task's)")
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')

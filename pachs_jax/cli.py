@@ -178,7 +178,7 @@ def _plan(args: argparse.Namespace) -> int:
   instances = planner.parse_instances(args.instances, num_available)
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
-      algorithm=args.algorithm, edge_steps=args.edge_steps,
+      algorithm=args.algorithm, edge_steps=args.edge_steps, rollout_share=args.rollout_share,
       weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
       lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
       compact_fractions=args.compact_fractions)
@@ -197,6 +197,7 @@ def _plan(args: argparse.Namespace) -> int:
     where = f'{len(devices)} {where} device(s), instances sharded'
   say(f'planning {env.name} instances {args.instances} with {model_path}: '
       f'w={config.weight} N={config.num_actions} K={config.pop_size} H={config.edge_steps} '
+      f'R={config.rollout_lanes} '
       f'budget={budget} '
       f'on {where}', flush=True)
   start = time.perf_counter()
@@ -279,6 +280,9 @@ def main(argv=None) -> int:
                     "transitions) or original (the published one-step edges, its settings)")
   plan.add_argument('--edge-steps', '-H', type=int, default=None,
                     help='transitions per edge (default: the task\'s; 1 = one-step edges)')
+  plan.add_argument('--rollout-share', type=float, default=None,
+                    help="the share of the K lanes that extend chains of the actor's edges "
+                    "(default: the task's; 0: none)")
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
   plan.add_argument('--lattice-resolution', type=lambda s: _numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')

@@ -1,4 +1,5 @@
-"""Edges of several transitions (SearchConfig.edge_steps, search/segment.py) on the grid world,
+"""Edges of several transitions (SearchConfig.edge_steps, search/segment.py) and rollout lanes
+(SearchConfig.rollout_share) on the grid world,
 with a stochastic actor: paths replay exactly, segments stop at a goal and before an invalid
 step, the budget counts every transition, and compaction does not change the result."""
 
@@ -141,10 +142,49 @@ def test_pool_and_heaps_are_sized_per_edge():
 def test_algorithms_are_named():
   default = planner.default_config('pusht-obs')
   original = planner.default_config('pusht-obs', 'original')
-  assert default.edge_steps == 8 and original.edge_steps == 1
+  assert (default.edge_steps, default.rollout_lanes) == (8, 32)
+  assert (original.edge_steps, original.rollout_lanes) == (1, 0)
+  assert planner.default_config('pusht-obs', pop_size=4).rollout_lanes == 2
+  assert planner.default_config('pusht-fixed').rollout_lanes == 0
   assert original.pop_size == 256 and original.lattice_resolution == (0.005, 0.005, 0.05,
                                                                       0.01, 0.01)
   assert planner.default_config('pusht-fixed', 'original').edge_steps == 1
   assert planner.default_config(None, 'original').edge_steps == 1
   with pytest.raises(ValueError, match="unknown algorithm 'astar'; valid: pachs, original"):
     planner.default_config('pusht-fixed', 'astar')
+
+
+def test_rollout_lanes_paths_replay_and_a_chain_goal_ends_the_search(grid):
+  env, ac, nodes = grid
+  config = dataclasses.replace(CONFIG, rollout_share=0.5)
+  search = make_search(env, ac, config)
+  state = search.run(search.init(nodes, jax.random.split(jax.random.PRNGKey(3), len(STARTS))))
+  result = jax.tree.map(np.asarray, search.result(state))
+  assert result.found.all(), result.stop_reason
+  assert state.chain.shape == (len(STARTS), 2)
+  for i in range(len(STARTS)):
+    cost, node = _replay(env, search.result(state), i)
+    np.testing.assert_allclose(cost, result.cost[i], rtol=1e-6)
+    assert bool(env.is_goal(node)[0])
+
+
+def test_a_chain_goal_ends_the_search_at_once(grid):
+  env, _, _ = grid
+  ac = gridworld.GridActorCritic(env)  # its one sample is the first move
+  start = np.array([[4, 4]])
+  node = env.node(start, start + np.asarray(env.moves)[:1])
+  one = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=100)
+  popped = jax.tree.map(np.asarray, plan(env, ac, node, one, jax.random.PRNGKey(0)))
+  chained = jax.tree.map(np.asarray, plan(env, ac, node,
+                                          dataclasses.replace(one, rollout_share=0.5),
+                                          jax.random.PRNGKey(0)))
+  # without chains the goal ends the search when its dummy edge is popped (iteration 2); a
+  # chain's goal ends it when generated
+  assert popped.found[0] and popped.iterations[0] == 2
+  assert chained.found[0] and chained.iterations[0] == 1 and chained.path_length[0] == 1
+
+
+@pytest.mark.parametrize('share', [-0.1, 1.0, '0.5', True, float('nan')])
+def test_rollout_share_validation(share):
+  with pytest.raises(ValueError, match='rollout_share'):
+    dataclasses.replace(CONFIG, rollout_share=share)

@@ -33,11 +33,13 @@ class SearchState(phases.EdgeSearchState):
   edge_heap: OPEN's real edges (s, a_j), key g(s) + w q_j.
   dummy_heap: OPEN's dummy edges (s, DUMMY), key g(s) + w h(s).
   rng: [I, 2] uint32 per-instance PRNG keys (folded with the iteration count).
+  chain: [I, R] int32 the node each rollout lane extends next (config.rollout_lanes R).
   """
 
   edge_heap: heap_lib.Heap
   dummy_heap: heap_lib.Heap
   rng: jax.Array
+  chain: jax.Array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +105,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   resolution = _check(env, actor_critic, config)
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
-  steps = config.edge_steps
+  steps, r = config.edge_steps, config.rollout_lanes
   edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
@@ -137,9 +139,35 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     keys = jax.vmap(jax.random.fold_in, (0, None))(keys, 1)  # apart from expand's samples
     return jax.vmap(lambda key: jax.random.split(key, k))(keys)
 
+  def chain_edges(state, pool):
+    """(tips [I, R], actions [I, R, A], q [I, R]): the actor's edge at each rollout lane's tip."""
+    tips = state.chain
+    num_instances = tips.shape[0]
+    obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
+    keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
+    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, 2)
+    keys = jax.vmap(lambda key: jax.random.split(key, r))(keys).reshape(-1, 2)
+    actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o[None], 1)[0])(keys, obs)
+    actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
+    q = types.cost_to_go(actor_critic.q_values(obs, actions))
+    return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
+
+  def next_chains(pool, tip, written, is_goal, found, goal):
+    """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
+    of their own, not merged in the lattice): a chain goes on from its successor and restarts at
+    the start after an unusable edge or an episode's depth; a chain's goal ends the instance at
+    once, as a rollout's does."""
+    if not r:
+      return tip, found, goal
+    go_on = written & (pool_lib.gather(pool.depth, tip) < env.episode_length)
+    chain = jnp.where(go_on, tip, pool_lib.ROOT_INDEX).astype(jnp.int32)
+    at_goal = written & is_goal
+    first = tip[jnp.arange(tip.shape[0]), jnp.argmax(at_goal, axis=1)]
+    return chain, found | jnp.any(at_goal, axis=1), jnp.where(found, goal, first)
+
   def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
-    limit = heap_lib.kth_key(state.edge_heap, k)
+    limit = heap_lib.kth_key(state.edge_heap, k - r)
     dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
     fresh, found, goal = phases.goal_check(state.pool, popped, dummy)
     working = state.active & ~found
@@ -147,25 +175,35 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     pool, new_edges = expand(state, popped, expanding)
     edge_heap = heap_lib.push(state.edge_heap, *new_edges)
     # evaluation: the K best real edges, one physics batch
-    edge_heap, edges = phases.pop(edge_heap, k, slots, working)
+    edge_heap, edges = phases.pop(edge_heap, k - r, slots, working)
     rows = jnp.arange(edges.node.shape[0])[:, None]
     action = pool.edge_actions[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
     q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
+    parent, mask = edges.node, edges.mask
+    if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
+      tips, tip_action, tip_q = chain_edges(state, pool)
+      parent, action, q = (jnp.concatenate(x, axis=1) for x in
+                           ((parent, tips), (action, tip_action), (q, tip_q)))
+      mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
     inputs = action if steps == 1 else (action, segment_keys(state))
     outcome, within, usable, out_of_budget = phases.evaluate(
-        edge_fn, pool_lib.gather_nodes(pool, edges.node), inputs, edges.mask,
+        edge_fn, pool_lib.gather_nodes(pool, parent), inputs, mask,
         state.evaluated, config.max_evaluations, size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
+    chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
     pool, table, dummy_key, node, write = phases.insert(
-        pool, state.table, lattice_cells(outcome.next_node), edges.node, outcome, usable,
-        action, h, w)
+        pool, state.table, lattice_cells(outcome.next_node), parent, outcome, usable,
+        action, h, w, unmerged=chain_lane if r else None)
+    chain, found, goal = next_chains(pool, node[:, k - r:], write[:, k - r:],
+                                     outcome.is_goal[:, k - r:], found, goal)
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
-    open_empty = state.active & ~jnp.any(popped.mask | edges.mask, axis=1)
+    open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
     return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
                          config.iteration_limit, expanding, within, usable, steps,
-                         edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table)
+                         edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
+                         chain=chain)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = types.check_start_nodes(start_nodes, env)
@@ -176,6 +214,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=types.instance_keys(keys, num_instances),
+                       chain=jnp.zeros((num_instances, r), jnp.int32),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None) -> SearchState:

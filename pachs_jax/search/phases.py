@@ -159,17 +159,18 @@ def evaluate(edge_fn: Callable[[base.NodeState, Any], base.EdgeOutcome],
 
 def insert(pool: pool_lib.NodePool, table: lattice_lib.LatticeTable, cells: jax.Array,
            parent: jax.Array, outcome: base.EdgeOutcome, usable: jax.Array, action: jax.Array,
-           h: jax.Array, weight: float):
+           h: jax.Array, weight: float, unmerged=None):
   """Successors of the edges [I, K] from parent into the lattice and pool.
 
   cells: [I, K, L] int32 lattice keys of outcome.next_node; h: [I, K] float32 cost-to-go
   estimates of the successors. A new cell, or an open node whose g improves, takes the
-  successor (see `pool.merge_successors`); a `segment.SegmentOutcome` also stores the
+  successor (see `pool.merge_successors`; `unmerged` [I, K] lanes always take a new node); a
+  `segment.SegmentOutcome` also stores the
   segment's inside. Returns (pool, table, dummy keys g + w h [I, K], nodes [I, K] int32,
   written [I, K] bool).
   """
   g = pool_lib.gather(pool.g, parent) + outcome.cost
-  pool, table, node, write = pool_lib.merge_successors(pool, table, cells, g, usable)
+  pool, table, node, write = pool_lib.merge_successors(pool, table, cells, g, usable, unmerged)
   dummy_key = g + weighted(h, weight)
   is_segment = isinstance(outcome, segment.SegmentOutcome)
   depth = pool_lib.gather(pool.depth, parent) + (outcome.length if is_segment else 1)

@@ -163,22 +163,24 @@ def best_of_cell(cell: jax.Array, g: jax.Array, mask: jax.Array) -> jax.Array:
 
 
 def merge_successors(pool: NodePool, table: lattice_lib.LatticeTable, cell: jax.Array,
-                     g: jax.Array, usable: jax.Array):
+                     g: jax.Array, usable: jax.Array, unmerged=None):
   """Duplicate detection with the g-value test for a batch of successors [I, K].
 
   cell: [I, K, L] int32 lattice keys; g: [I, K] float32 path costs through the new edges;
   usable: [I, K] bool, evaluated valid edges. A successor counts when it is the best of its cell
   in the batch and its cell is new (a node is allocated) or the cell's node is open and its g
   improves (closed nodes are never updated, so their children keep replaying exactly).
-  Returns (pool, table, node [I, K] int32 node to write, write [I, K] bool).
+  unmerged: [I, K] bool or None, usable successors that always get a node of their own (outside
+  the table). Returns (pool, table, node [I, K] int32 node to write, write [I, K] bool).
   """
-  candidate = best_of_cell(cell, g, usable)
+  own = jnp.zeros_like(usable) if unmerged is None else usable & unmerged
+  candidate = best_of_cell(cell, g, usable & ~own)
   table, slot, _, has_slot = lattice_lib.insert(table, cell, candidate)
   known = lattice_lib.get_values(table, slot)
   old = jnp.maximum(known, 0)
   is_new = candidate & has_slot & (known == lattice_lib.NO_VALUE)
   improves = (candidate & has_slot & (known >= 0) & ~gather(pool.closed, old)
               & (g < gather(pool.g, old)))
-  pool, new_node, fits = allocate(pool, is_new)
-  table = lattice_lib.set_values(table, slot, new_node, fits)
+  pool, new_node, fits = allocate(pool, is_new | own)
+  table = lattice_lib.set_values(table, slot, new_node, fits & ~own)
   return pool, table, jnp.where(fits, new_node, old), fits | improves

@@ -403,6 +403,10 @@ class SearchConfig(EdgeSearchConfig):
   edge_steps: H, the transitions of one edge: its sampled action, then H - 1 actions that the
     actor samples along the way (`segment`); an edge costs H evaluations, and a successor's h
     is the critic's at its state. 1: the original's one-step edges, h = q - c.
+  rollout_share: the share of the K evaluation lanes, R = floor(share K) (`rollout_lanes`), that
+    extend chains of the actor's edges (each from its chain's last successor, restarting at the
+    start after an unusable edge or an episode's length) instead of popping OPEN's best edges;
+    their successors join the search, and a chain's goal ends the instance at once.
   heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
   (None: pool). pool_capacity None: budget // H + 1.
   """
@@ -411,11 +415,16 @@ class SearchConfig(EdgeSearchConfig):
   realtime_answer: str = 'best_f'
   compact_fractions: Tuple[float, ...] = ()
   edge_steps: int = 1
+  rollout_share: float = 0.0
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
     positive_int('SearchConfig', 'edge_steps', self.edge_steps)
+    share = self.rollout_share
+    if (isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share < 1):
+      raise ValueError(f'SearchConfig.rollout_share must be a number in [0, 1), got {share!r}')
+    object.__setattr__(self, 'rollout_share', float(share))
     if self.edge_steps > self.max_evaluations:
       raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds max_evaluations '
                        f'({self.max_evaluations}): no edge would fit the budget')
@@ -436,6 +445,11 @@ class SearchConfig(EdgeSearchConfig):
     if self.edge_heap_size >= 2**31 or self.table_size >= 2**31:
       raise ValueError('heap and table capacities must stay below 2**31 '
                        f'(got heap {self.edge_heap_size}, table {self.table_size})')
+
+  @property
+  def rollout_lanes(self) -> int:
+    """R, the lanes of the K that extend chains of the actor's edges."""
+    return int(self.rollout_share * self.pop_size)
 
   @property
   def pool_size(self) -> int:
