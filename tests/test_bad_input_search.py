@@ -178,9 +178,15 @@ def test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can(grid, m
   plan(env, ac, nodes, dataclasses.replace(CONFIG, max_evaluations=best), jax.random.PRNGKey(0))
   with pytest.raises(ValueError, match='largest budget that fits'):
     sharding.plan_sharded(env, ac, nodes, huge, jax.random.PRNGKey(0))
+  # edges of 4 transitions: the budgets tried stay at or above 4 (a smaller one is invalid)
+  segments = dataclasses.replace(huge, edge_steps=4)
+  with pytest.raises(ValueError, match='largest budget that fits is about'):
+    plan(env, ac, nodes, segments, jax.random.PRNGKey(0))
   _fake_memory(monkeypatch, 1000)
   with pytest.raises(ValueError, match='not even a budget of 1 fits: plan fewer instances'):
     plan(env, ac, nodes, CONFIG, jax.random.PRNGKey(0))
+  with pytest.raises(ValueError, match='not even a budget of 4 fits'):
+    plan(env, ac, nodes, dataclasses.replace(CONFIG, edge_steps=4), jax.random.PRNGKey(0))
 
 
 def test_state_bytes_are_exact_and_checked_against_real_memory(grid):

@@ -65,10 +65,10 @@ def search_bytes(search, start_nodes: base.NodeState, num_instances: int) -> int
   return tree_bytes(state) + tree_bytes(jax.eval_shape(search.result, state))
 
 
-def largest_budget(bytes_at, budget: int, available: int) -> int:
-  """The largest budget <= budget whose bytes_at(budget) <= available, within 0.5% (0 when even
-  a budget of 1 does not fit); bytes_at grows about linearly with the budget."""
-  low, low_bytes = 1, bytes_at(1)
+def largest_budget(bytes_at, budget: int, available: int, minimum: int = 1) -> int:
+  """The largest budget in [minimum, budget] whose bytes_at(budget) <= available, within 0.5%
+  (0 when even `minimum` does not fit); bytes_at grows about linearly with the budget."""
+  low, low_bytes = minimum, bytes_at(minimum)
   if low_bytes > available:
     return 0
   high, high_bytes = budget, bytes_at(budget)
@@ -120,11 +120,12 @@ def check_fits(env: base.Env, actor_critic, search, start_nodes: base.NodeState,
                                 dataclasses.replace(config, max_evaluations=budget))
     return search_bytes(smaller, start_nodes, num_instances)
 
-  best = largest_budget(bytes_at, config.max_evaluations, available)
+  steps = getattr(config, 'edge_steps', 1)  # a budget below one edge's transitions is invalid
+  best = largest_budget(bytes_at, config.max_evaluations, available, minimum=steps)
   what = (f'the budget max_evaluations={config.max_evaluations} needs {_gb(need)} of search '
           f'state for {num_instances} instance{"s" * (num_instances > 1)} per device, but '
           f'{where}')
   if best == 0:
-    raise ValueError(f'{what}; not even a budget of 1 fits: plan fewer instances at once')
+    raise ValueError(f'{what}; not even a budget of {steps} fits: plan fewer instances at once')
   raise ValueError(f'{what}: the largest budget that fits is about {_round_down(best):,} (or '
                    'plan fewer instances at once)')

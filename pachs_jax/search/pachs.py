@@ -155,15 +155,16 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   def next_chains(pool, tip, written, is_goal, found, goal):
     """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
     of their own, not merged in the lattice): a chain goes on from its successor and restarts at
-    the start after an unusable edge or an episode's depth; a chain's goal ends the instance at
-    once, as a rollout's does."""
+    the start after an unusable edge or where its next edge would pass an episode's length; a
+    chain's goal (the cheapest, when several) ends the instance at once, as a rollout's does."""
     if not r:
       return tip, found, goal
-    go_on = written & (pool_lib.gather(pool.depth, tip) < env.episode_length)
+    go_on = written & (pool_lib.gather(pool.depth, tip) + steps <= env.episode_length)
     chain = jnp.where(go_on, tip, pool_lib.ROOT_INDEX).astype(jnp.int32)
     at_goal = written & is_goal
-    first = tip[jnp.arange(tip.shape[0]), jnp.argmax(at_goal, axis=1)]
-    return chain, found | jnp.any(at_goal, axis=1), jnp.where(found, goal, first)
+    cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
+    return (chain, found | jnp.any(at_goal, axis=1),
+            jnp.where(found, goal, tip[jnp.arange(tip.shape[0]), cheapest]))
 
   def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch

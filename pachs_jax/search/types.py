@@ -489,10 +489,10 @@ class SearchResult:
   expanded: [I] int32 states expanded (dummy edges popped and expanded).
   evaluated: [I] int32 edge evaluations: transitions simulated (env.evaluate calls counted per
     edge; an edge of `edge_steps` H counts H).
-  invalid: [I] int32 evaluated edges that were invalid (dropped).
+  invalid: [I] int32 evaluated edges that were invalid (dropped; edges, not transitions).
   generated: [I] int32 nodes in the pool.
   iterations: [I] int32 loop iterations.
-  lane_utilization: [I] float32 evaluated / (K * iterations): the share of the instance's K
+  lane_utilization: [I] float32 evaluated / (K * H * iterations): the share of the instance's K
     evaluation lanes that held an edge while it searched (0 before the first iteration).
   heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space.
   wall_time_s: [] float32 host wall-clock seconds of the planning call without compilation
