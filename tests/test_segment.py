@@ -110,11 +110,13 @@ def test_budget_counts_every_transition(grid):
   assert (r.stop_reason[:3][far] == StopReason.BUDGET).all()
 
 
-def test_segments_with_compaction_equal_without(grid):
+@pytest.mark.parametrize('share', [0.0, 0.5])
+def test_segments_with_compaction_equal_without(grid, share):
   env, ac, nodes = grid
   key = jax.random.PRNGKey(2)
-  compacted = dataclasses.replace(CONFIG, compact_fractions=(0.25, 0.5))
-  want = plan(env, ac, nodes, CONFIG, key)
+  config = dataclasses.replace(CONFIG, rollout_share=share)
+  compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
+  want = plan(env, ac, nodes, config, key)
   got = plan(env, ac, nodes, compacted, key)
   assert len(set(np.asarray(want.iterations).tolist())) > 2
   assert_results_equal(got, want)
