@@ -29,7 +29,8 @@ def default_config(task: Optional[str], algorithm: str = 'pachs',
   `overrides`."""
   from pachs_jax.envs import registry
   if task is None:  # a user's task: one-step edges either way
-    values = dict(registry.USER_SEARCH) if registry.check_algorithm(algorithm) else {}
+    registry.check_algorithm(algorithm)
+    values = dict(registry.USER_SEARCH)
   else:
     values = dict(envs.spec(task).algorithm_defaults(algorithm))
   values.update({k: v for k, v in overrides.items() if v is not None})

@@ -60,7 +60,6 @@ def _shelf() -> base.Env:
 ALGORITHMS = ('pachs', 'original')
 
 
-
 def check_algorithm(algorithm: str) -> str:
   """algorithm, when it names one of `ALGORITHMS`; ValueError listing them otherwise."""
   if algorithm not in ALGORITHMS:

@@ -133,23 +133,20 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return pool, (f.reshape(num_instances, -1), values.reshape(num_instances, -1),
                   jnp.repeat(expanding, n, axis=1))
 
-  def segment_keys(state):
-    """[I, K, 2] keys of the actor's samples inside the K segments of each instance."""
+  def lane_keys(state, stream: int, count: int):
+    """[I, count, 2] per-lane keys of this iteration's samples of one stream (1: inside the
+    segments, 2: the chains), apart from expand's."""
     keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
-    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, 1)  # apart from expand's samples
-    return jax.vmap(lambda key: jax.random.split(key, k))(keys)
+    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, stream)
+    return jax.vmap(lambda key: jax.random.split(key, count))(keys)
 
   def chain_edges(state, pool):
     """(tips [I, R], actions [I, R, A], q [I, R]): the actor's edge at each rollout lane's tip."""
     tips = state.chain
     num_instances = tips.shape[0]
     obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
-    keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
-    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, 2)
-    keys = jax.vmap(lambda key: jax.random.split(key, r))(keys).reshape(-1, 2)
-    actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o[None], 1)[0])(keys, obs)
-    actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
-    q = types.cost_to_go(actor_critic.q_values(obs, actions))
+    actions = segment.actor_samples(actor_critic, lane_keys(state, 2, r).reshape(-1, 2), obs)
+    q = types.cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
   def next_chains(pool, tip, written, is_goal, found, goal):
@@ -186,7 +183,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
-    inputs = action if steps == 1 else (action, segment_keys(state))
+    inputs = action if steps == 1 else (action, lane_keys(state, 1, k))
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_fn, pool_lib.gather_nodes(pool, parent), inputs, mask,
         state.evaluated, config.max_evaluations, size, steps)

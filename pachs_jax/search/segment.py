@@ -39,43 +39,48 @@ def _select(take: jax.Array, new, old):
       lambda n, o: jnp.where(take.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new, old)
 
 
+def actor_samples(actor_critic: types.ActorCritic, keys: jax.Array, obs: jax.Array) -> jax.Array:
+  """[B, A] float32 one actor sample per lane, drawn with the lane's own key (so that a lane's
+  sample does not depend on the batch it is in); keys [B, 2], obs [B, O]. Non-finite entries
+  become 0, and actions are clipped to [-1, 1]."""
+  sample = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o[None], 1)[0, 0])
+  return jnp.clip(jnp.nan_to_num(sample(keys, obs).astype(jnp.float32)), -1.0, 1.0)
+
+
 def make_segment_fn(env: base.Env, actor_critic: types.ActorCritic, edge_steps: int
                     ) -> Callable[[base.NodeState, Tuple[jax.Array, jax.Array]], SegmentOutcome]:
   """segment(nodes [B], (actions [B, A], keys [B, 2] uint32)) -> SegmentOutcome [B].
 
-  Step 1 applies the edge's action; steps 2 .. H apply the actor's sample at the current state,
-  drawn with the lane's own key (so a lane's segment does not depend on the batch it is in).
-  Every lane simulates all H steps (a stopped lane repeats its last state).
+  Step 1 applies the edge's action; steps 2 .. H apply the actor's sample at the current state
+  (`actor_samples` with the lane's key folded with the step). Every lane simulates all H steps
+  (a stopped lane repeats its last state).
   """
-
-  def actor_step(keys, nodes):
-    """[B, A] the actor's action at nodes [B], one sample per lane key [B, 2]."""
-    obs = env.observe(nodes)
-    sample = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o[None], 1)[0, 0])
-    return jnp.clip(jnp.nan_to_num(sample(keys, obs).astype(jnp.float32)), -1.0, 1.0), obs
 
   def segment(nodes: base.NodeState, inputs) -> SegmentOutcome:
     first_action, keys = inputs
     batch = first_action.shape[0]
 
     def body(carry, step):
-      node, action, cost, length, is_goal, done = carry
+      node, action, _, cost, length, is_goal, done = carry
       out = env.evaluate(node, action)
       take = ~done & out.is_valid & jnp.isfinite(out.cost)
       node = _select(take, out.next_node, node)
       cost = cost + jnp.where(take, out.cost, 0.0)
       is_goal = jnp.where(take, out.is_goal, is_goal)
       done = done | ~take | is_goal
-      next_action, _ = actor_step(jax.vmap(jax.random.fold_in, (0, None))(keys, step), node)
-      carry = (node, next_action, cost, length + take, is_goal, done)
+      obs = env.observe(node)
+      step_keys = jax.vmap(jax.random.fold_in, (0, None))(keys, step)
+      carry = (node, actor_samples(actor_critic, step_keys, obs), obs, cost, length + take,
+               is_goal, done)
       return carry, (jnp.where(take[:, None], action, 0.0), node)
 
     zeros = jnp.zeros((batch,), jnp.float32)
-    carry = (nodes, first_action.astype(jnp.float32), zeros, jnp.zeros((batch,), jnp.int32),
-             jnp.zeros((batch,), bool), jnp.zeros((batch,), bool))
-    (last, action, cost, length, is_goal, _), (actions, states) = jax.lax.scan(
+    obs = jax.ShapeDtypeStruct((batch, env.observation_size), jnp.float32)
+    carry = (nodes, first_action.astype(jnp.float32), jnp.zeros(obs.shape, obs.dtype), zeros,
+             jnp.zeros((batch,), jnp.int32), jnp.zeros((batch,), bool), jnp.zeros((batch,), bool))
+    (last, action, obs, cost, length, is_goal, _), (actions, states) = jax.lax.scan(
         body, carry, jnp.arange(edge_steps))
-    obs = env.observe(last)
+    # h: the critic at the last state, for the actor's sample there (drawn in the last step)
     h = types.cost_to_go(actor_critic.q_values(obs, action[:, None]))[:, 0]
     to_lanes = lambda x: jnp.swapaxes(x, 0, 1)  # [H, B, ...] -> [B, H, ...]
     return SegmentOutcome(
