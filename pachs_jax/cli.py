@@ -190,7 +190,7 @@ def _plan(args: argparse.Namespace) -> int:
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
   starts_all = planner.canonical_instances(env, num_available)
-  starts = jax.tree.map(lambda x: x[np.asarray(instances)], starts_all)
+  starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
   where = jax.devices()[0].platform
   if devices is not None:

@@ -150,7 +150,7 @@ class Env(abc.ABC):
   @functools.cached_property
   def observation_size(self) -> int:
     """Length O of `observation` (traced once, not computed)."""
-    node = jax.eval_shape(self.sample_instance, jax.random.PRNGKey(0))
+    node = jax.eval_shape(self.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
     return int(jax.eval_shape(self.observation, node).shape[-1])
 
   @property

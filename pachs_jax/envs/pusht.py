@@ -321,9 +321,8 @@ class PushTEnv(base.Env):
     self.obstacles = (self.layout.blocks_array() if self.layout is not None
                       else np.zeros((0, 5), np.float32))
     home = np.concatenate([HOME_QPOS, np.zeros(3)])
-    self._home_qpos = jnp.asarray(home, jnp.float32)
-    self._arm_lower = jnp.asarray(panda.JOINT_LOWER, jnp.float32)
-    self._arm_upper = jnp.asarray(panda.JOINT_UPPER, jnp.float32)
+    self._home_qpos, self._arm_lower, self._arm_upper = jax.device_put(
+        [np.asarray(x, np.float32) for x in (home, panda.JOINT_LOWER, panda.JOINT_UPPER)])
 
   @property
   def fingerprint(self) -> str:
@@ -337,7 +336,7 @@ class PushTEnv(base.Env):
   @property
   def default_lattice_resolution(self) -> jax.Array:
     # T x, T y (m), T yaw (rad), tip x, tip y (m).
-    return jnp.array([0.01, 0.01, 0.1, 0.02, 0.02], jnp.float32)
+    return jax.device_put(np.array([0.01, 0.01, 0.1, 0.02, 0.02], np.float32))
 
   @property
   def lattice_extent(self) -> np.ndarray:
@@ -383,14 +382,15 @@ class PushTEnv(base.Env):
     """
     if num <= 0:
       raise ValueError(f'num must be positive, got {num}')
-    keys = jax.random.split(jax.random.PRNGKey(seed), 8 * num + 64)
-    nodes = jax.jit(self.initial_nodes)(keys)
-    poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
-    ok = start_clear(poses, goals, self.obstacles, self.config.success_coverage)
+    candidates = jax.jit(lambda seed: self.initial_nodes(
+        jax.random.split(jax.random.PRNGKey(seed), 8 * num + 64)))
+    nodes = jax.device_get(candidates(np.uint32(seed)))
+    ok = start_clear(nodes.qpos[:, 7:10], nodes.goal, self.obstacles,
+                     self.config.success_coverage)
     index = np.flatnonzero(ok)[:num]
     if len(index) < num:
       raise RuntimeError(f'only {len(index)} of {num} instances passed the rejection tests')
-    return jax.tree.map(lambda x: x[index], nodes)
+    return jax.device_put(jax.tree.map(lambda x: x[index], nodes))
 
   # ---- physics: the only place where it happens ----
 

@@ -357,8 +357,8 @@ class ShelfEnv(base.Env):
     self._box_half = np.array([h for _, h in self.boxes.values()], np.float32)
     self._geom_size = m.geom_size.astype(np.float32)  # [ngeom, 3]
     self.home_qpos = np.array(config.home_qpos, np.float32)
-    self._lower = jnp.asarray(panda.JOINT_LOWER, jnp.float32)
-    self._upper = jnp.asarray(panda.JOINT_UPPER, jnp.float32)
+    self._lower, self._upper = jax.device_put(
+        [np.asarray(x, np.float32) for x in (panda.JOINT_LOWER, panda.JOINT_UPPER)])
     self._targets_cache: Dict[Tuple[int, int], Tuple[np.ndarray, np.ndarray]] = {}
 
   @property

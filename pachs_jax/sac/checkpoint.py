@@ -98,7 +98,7 @@ def _reason(error: BaseException, limit: int = 200) -> str:
 
 def _uncommitted(tree: Any) -> Any:
   """The tree's arrays as uncommitted device arrays (via the host), dtypes unchanged."""
-  return jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), tree)
+  return jax.device_put(jax.tree.map(np.asarray, tree))
 
 
 # ---------------------------------------------------------------- actor-critic export ----
@@ -191,7 +191,7 @@ def _read_model_config(path: str, require_hash: bool = True
 
 def _expected_params(config: ModelConfig) -> Dict[str, Any]:
   nets = config.networks()
-  key = jax.random.PRNGKey(0)
+  key = jax.ShapeDtypeStruct((2,), jnp.uint32)
   vec = jax.ShapeDtypeStruct((config.observation_size,), jnp.float32)
   return {'normalizer': {'mean': vec, 'std': vec},
           'policy': jax.eval_shape(nets.policy_init, key),
@@ -308,7 +308,7 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
     raise CheckpointError(f'checkpoint {path}: params hash mismatch (file damaged?): '
                           f'{CONFIG_FILE} records {meta[HASH_KEY][:12]}..., the files hold '
                           f'{digest[:12]}...')
-  restored = jax.tree.map(jnp.asarray, restored)
+  restored = jax.device_put(restored)
   params = ActorCriticParams(normalizer=restored['normalizer'], policy=restored['policy'],
                              q=restored['q'])
   return SacActorCritic(params=params, config=config)

@@ -9,6 +9,7 @@ from typing import Any, Callable, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from pachs_jax.search.types import SearchResult, StopReason
 
@@ -23,7 +24,7 @@ def run_until(advance: Callable[[Any], Any], state: Any,
   while True:
     began = time.perf_counter()
     state = advance(state)
-    active = bool(jnp.any(state.active))
+    active = bool(np.asarray(state.active).any())
     now = time.perf_counter()
     if not active or time_limit_s is None or now - start + (now - began) > time_limit_s:
       return state, active
@@ -41,4 +42,4 @@ def timed_result(advance: Callable[[Any], Any], state: Any,
   if active:
     out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING,
                                             StopReason.TIME_LIMIT, out.stop_reason))
-  return out.replace(wall_time_s=jnp.float32(wall))
+  return out.replace(wall_time_s=np.float32(wall))

@@ -296,9 +296,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
   padded = bucket_size(num_instances, min_bucket)
-  pad = lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - num_instances, axis=0)])
-  start_nodes, keys = jax.tree.map(pad, (start_nodes, keys))
-  live = jnp.arange(padded) < num_instances
+  if padded != num_instances:
+    start_nodes, keys = types.pad_rows((start_nodes, keys), padded)
+  live = jax.device_put(np.arange(padded) < num_instances)
   programs = search.compiled.get((padded, jax.default_backend()))
   if programs is None:
     memory.check_fits(env, actor_critic, search, start_nodes, padded)
@@ -330,10 +330,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     """One chunk (time limit) or the whole search: the loop of each size in turn."""
     while True:
       state = loop_program(search.size_for(state))(state, steps)
-      if time_limit_s is not None or not bool(jnp.any(state.active)):
+      if time_limit_s is not None or not np.asarray(state.active).any():
         return state
 
   out = anytime.timed_result(advance, programs['init'](start_nodes, keys, live),
                              programs['result'], time_limit_s)
-  out = out.replace(wall_time_s=out.wall_time_s - jnp.float32(compile_s))
-  return jax.tree.map(lambda x: x[:num_instances] if jnp.ndim(x) else x, out)
+  out = out.replace(wall_time_s=np.float32(float(out.wall_time_s) - compile_s))
+  return types.first_rows(out, num_instances)

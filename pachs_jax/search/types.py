@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import numbers
 import math
 from typing import Optional, Protocol, Tuple
@@ -164,11 +165,11 @@ def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
   int32 lattice coordinates of the env's states overflow (they saturate, and every state falls
   into one cell); the message names the smallest allowed size per coordinate.
   """
-  default = jnp.asarray(env.default_lattice_resolution, jnp.float32)
+  default = np.asarray(env.default_lattice_resolution, np.float32)
   if resolution is None:
-    return default
+    return jax.device_put(default)
   given = _format_sizes(np.asarray(resolution, np.float64).ravel())
-  resolution = jnp.asarray(resolution, jnp.float32)
+  resolution = np.asarray(resolution, np.float32)
   if resolution.shape != default.shape:
     raise ValueError(f'lattice_resolution has {resolution.shape[0]} entries, but the '
                      f'environment {env.name} uses {default.shape[0]}')
@@ -189,12 +190,12 @@ def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
     raise ValueError(f'lattice_resolution {given} overflows the int32 lattice coordinates of '
                      f'{env.name} (coordinate{"s" * (len(bad) > 1)} {", ".join(map(str, bad))}): '
                      f'cell sizes must be at least {_format_sizes(allowed)}')
-  return resolution
+  return jax.device_put(resolution)
 
 
 def node_spec(env: base.Env) -> base.NodeState:
   """The shapes of one node of env (no batch axis)."""
-  return jax.eval_shape(env.sample_instance, jax.random.PRNGKey(0))
+  return jax.eval_shape(env.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
 
 
 def check_start_nodes(start_nodes: base.NodeState, env: base.Env) -> int:
@@ -286,8 +287,7 @@ def check_model_outputs(env: base.Env, actor_critic: ActorCritic, start_nodes: b
   num = jax.tree.leaves(start_nodes)[0].shape[0]
   padded = next_pow2(num)
   if padded != num:
-    start_nodes = jax.tree.map(
-        lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded - num, axis=0)]), start_nodes)
+    start_nodes = pad_rows(start_nodes, padded)
   fn = _model_outputs_fn(env, actor_critic, num_actions)
   obs_ok, actions_ok, q_ok = (np.asarray(x)[:num]
                               for x in fn(start_nodes, jax.random.PRNGKey(0)))
@@ -324,6 +324,21 @@ def cost_to_go(q_value: jax.Array) -> jax.Array:
 def next_pow2(n: int) -> int:
   """The smallest power of two >= n (1 for n <= 1)."""
   return 1 << max(0, int(n - 1).bit_length())
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def pad_rows(tree, size: int):
+  """The pytree's leaves [n, ...] as [size, ...] (size >= n), the new rows copies of row 0:
+  one compiled program for the whole tree instead of a few per leaf."""
+  return jax.tree.map(
+      lambda x: jnp.concatenate([x, jnp.repeat(x[:1], size - x.shape[0], axis=0)]), tree)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def first_rows(tree, size: int):
+  """The pytree's leaves with a leading axis cut to their first `size` rows (scalars kept), as
+  one compiled program."""
+  return jax.tree.map(lambda x: x[:size] if jnp.ndim(x) else x, tree)
 
 
 @dataclasses.dataclass(frozen=True)
