@@ -83,16 +83,36 @@ def merge_open(payloads: List[Dict]) -> Dict:
   return merged
 
 
+def load_source(source: str) -> Dict:
+  """The payload of 'PATH' or 'PATH#OLD=NEW' (planner OLD renamed NEW in every table)."""
+  path, _, rename = source.partition('#')
+  with open(path) as f:
+    payload = json.load(f)
+  if not rename:
+    return payload
+  old, sep, new = rename.partition('=')
+  names = [s['planner'] for s in payload['summary']]
+  if not sep or old not in names or new in names:
+    raise ValueError(f'{source!r}: rename as PATH#OLD=NEW, OLD one of {names}, NEW a new name')
+  for row in payload['summary']:
+    if row['planner'] == old:
+      row['planner'] = new
+  for table in ('runs', 'episodes', 'configs', 'success_curve'):
+    if old in payload.get(table, {}):
+      payload[table][new] = payload[table].pop(old)
+  payload.setdefault('provenance', {})['renamed'] = {old: new}
+  return payload
+
+
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('kind', choices=['closed', 'open'])
-  parser.add_argument('sources', nargs='+', help='result JSON files of one task')
+  parser.add_argument('sources', nargs='+',
+                      help="result JSON files of one task; PATH#OLD=NEW renames that source's "
+                      "planner OLD (e.g. a PACHS variant kept beside a new default)")
   parser.add_argument('--out', required=True)
   args = parser.parse_args()
-  payloads = []
-  for path in args.sources:
-    with open(path) as f:
-      payloads.append(json.load(f))
+  payloads = [load_source(source) for source in args.sources]
   stem = os.path.splitext(args.out)[0]
   if args.kind == 'closed':
     merged = merge_closed(payloads)
