@@ -1,5 +1,6 @@
 """The experiment scripts' own logic: statistics, curves, cost ratios, closed-loop bookkeeping."""
 
+import json
 import os
 import sys
 
@@ -123,3 +124,16 @@ def test_merge_open_replaces_a_planner_and_recomputes_cost_ratios():
   assert ratio['runs'] == 2 and ratio['mean_ratio'] == pytest.approx((0.5 + 0.25) / 2)
   with pytest.raises(ValueError, match='budget'):
     merge_results.merge_open([base, dict(rerun, settings=dict(rerun['settings'], budget=5))])
+
+
+def test_merge_source_rename_keeps_an_earlier_variant_beside_a_new_default(tmp_path):
+  path = tmp_path / 'old.json'
+  path.write_text(json.dumps(_open({'pachs': [1.0, 2.0], 'parallel': [2.0, 2.0]})))
+  old = merge_results.load_source(f'{path}#pachs=pachs-h8')
+  merged = merge_results.merge_open([old, _open({'pachs': [4.0, None]})])
+  assert [r['planner'] for r in merged['summary']] == ['pachs-h8', 'parallel', 'pachs']
+  assert merged['runs']['pachs-h8'][1]['cost'] == 2.0
+  assert merged['cost_ratios']['pachs']['pachs-h8'] == {'mean_ratio': 4.0, 'runs': 1}
+  for bad in ('#nope=x', '#pachs=parallel', '#pachs'):
+    with pytest.raises(ValueError, match='rename'):
+      merge_results.load_source(f'{path}{bad}')
