@@ -63,9 +63,9 @@ def test_plan_compiles_whole_programs_once(grid):
   with compiled_programs() as again:
     plan(env, ac, nodes, CONFIG, key, search=search)
   assert again == []
-  # 4 instances fall in the bucket of 3 (padded to 4): only the key split and the cut of the
-  # result to the instance count are new
+  # 4 instances fall in the bucket of 3 (padded to 4): at most the key split and the cut of
+  # the result to the instance count are new (other tests may have compiled those already)
   more = jax.tree.map(lambda x: np.concatenate([x, x[:1]]), jax.device_get(nodes))
   with compiled_programs() as bucket:
     plan(env, ac, jax.device_put(more), CONFIG, key, search=search)
-  assert sorted(bucket) == ['jit(_threefry_split)', 'jit(first_rows)'], bucket
+  assert set(bucket) <= {'jit(_threefry_split)', 'jit(first_rows)'}, bucket
