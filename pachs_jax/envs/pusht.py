@@ -382,9 +382,8 @@ class PushTEnv(base.Env):
     """
     if num <= 0:
       raise ValueError(f'num must be positive, got {num}')
-    candidates = jax.jit(lambda seed: self.initial_nodes(
-        jax.random.split(jax.random.PRNGKey(seed), 8 * num + 64)))
-    nodes = jax.device_get(candidates(np.uint32(seed)))
+    candidates = jax.jit(lambda key: self.initial_nodes(jax.random.split(key, 8 * num + 64)))
+    nodes = jax.device_get(candidates(jax.random.PRNGKey(seed)))
     ok = start_clear(nodes.qpos[:, 7:10], nodes.goal, self.obstacles,
                      self.config.success_coverage)
     index = np.flatnonzero(ok)[:num]
