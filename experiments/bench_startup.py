@@ -26,53 +26,38 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     times[name] = now - mark
     mark = now
 
-  import logging
   import jax
   from pachs_jax import compile_cache, planner
   from pachs_jax.search import pachs, types
   phase('imports')
-  compiled = []
-
-  cache_hits = []
-
-  class Count(logging.Handler):
-    def emit(self, record):
-      message = record.getMessage()
-      if message.startswith('Compiling '):
-        compiled.append(message.split(' ')[1])
-      elif 'cache hit' in message.lower():
-        cache_hits.append(message)
-
-  logging.getLogger('jax').addHandler(Count())
-  logging.getLogger('jax').setLevel(logging.DEBUG)
-  jax.config.update('jax_log_compiles', True)
-  cache = compile_cache.enable()
-  on_cpu = jax.default_backend() == 'cpu'
-  env, model = planner.load_model(task, None, backend)
-  config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
-  phase('model_load')
-  starts = env.canonical_instances(instances)
-  jax.block_until_ready(starts)
-  phase('instance_generation')
-  search = pachs.make_search(env, model, config)
-  keys = types.instance_keys(jax.random.PRNGKey(0), instances)
-  phase('make_search')
-  # as `pachs plan` runs it: checks, tracing, compilation (the loop of each physics size when
-  # the search first reaches it, traced or loaded from the store of traced programs), search
-  began = time.perf_counter()
-  out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
-  times['search'] = float(out.wall_time_s)
-  times['checks_trace_compile'] = time.perf_counter() - began - times['search']
-  mark = time.perf_counter()
-  loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
-                 if isinstance(key, tuple))
-  rows = planner.result_rows(out, list(range(instances)))
-  print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
-        file=sys.stderr)
-  phase('output')
-  return {'phases_s': times, 'programs_compiled': len(compiled),
-          'persistent_cache_hits': len(cache_hits),
-          'program_names': sorted(set(compiled)), 'found': sum(r['found'] for r in rows),
+  with compile_cache.compile_log() as log:
+    cache = compile_cache.enable()
+    on_cpu = jax.default_backend() == 'cpu'
+    env, model = planner.load_model(task, None, backend)
+    config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
+    phase('model_load')
+    starts = env.canonical_instances(instances)
+    jax.block_until_ready(starts)
+    phase('instance_generation')
+    search = pachs.make_search(env, model, config)
+    keys = types.instance_keys(jax.random.PRNGKey(0), instances)
+    phase('make_search')
+    # as `pachs plan` runs it: checks, tracing, compilation (the loop of each physics size when
+    # the search first reaches it, traced or loaded from the store of traced programs), search
+    began = time.perf_counter()
+    out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
+    times['search'] = float(out.wall_time_s)
+    times['checks_trace_compile'] = time.perf_counter() - began - times['search']
+    mark = time.perf_counter()
+    loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
+                   if isinstance(key, tuple))
+    rows = planner.result_rows(out, list(range(instances)))
+    print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
+          file=sys.stderr)
+    phase('output')
+  return {'phases_s': times, 'programs_compiled': len(log.compiled),
+          'persistent_cache_hits': len(log.cache_hits),
+          'program_names': sorted(set(log.compiled)), 'found': sum(r['found'] for r in rows),
           'loop_sizes_compiled': loops,
           'device': str(jax.devices()[0]), 'cache_dir': cache,
           'in_process_s': time.perf_counter() - T_START}

@@ -4,11 +4,14 @@ second run of a command skips XLA compilation, and beside it the traced search p
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import functools
 import hashlib
 import importlib.metadata
+import logging
 import os
-from typing import Optional
+from typing import Iterator, List, Optional
 
 import jax
 import numpy as np
@@ -45,6 +48,41 @@ def enable(path: Optional[str] = None) -> Optional[str]:
   jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)
   jax.config.update('jax_persistent_cache_min_entry_size_bytes', 0)
   return path
+
+
+@dataclasses.dataclass
+class CompileLog:
+  """What JAX logged inside a `compile_log` block: the names of the XLA programs it compiled
+  ('jit(name)', one entry per compilation) and its persistent-cache hit messages."""
+
+  compiled: List[str] = dataclasses.field(default_factory=list)
+  cache_hits: List[str] = dataclasses.field(default_factory=list)
+
+
+@contextlib.contextmanager
+def compile_log() -> Iterator[CompileLog]:
+  """Records JAX's compilations inside the block (`jax.log_compiles`, the 'jax' logger at
+  DEBUG); the logger's level and handlers are restored afterwards."""
+  log = CompileLog()
+
+  class Record(logging.Handler):
+    def emit(self, record):
+      message = record.getMessage()
+      if message.startswith('Compiling '):
+        log.compiled.append(message.split(' ')[1])
+      elif 'cache hit' in message.lower():
+        log.cache_hits.append(message)
+
+  logger, handler = logging.getLogger('jax'), Record()
+  level = logger.level
+  logger.addHandler(handler)
+  logger.setLevel(logging.DEBUG)
+  try:
+    with jax.log_compiles(True):
+      yield log
+  finally:
+    logger.removeHandler(handler)
+    logger.setLevel(level)
 
 
 TRACES = 'traces'  # the subdirectory of the compilation cache that holds exported programs

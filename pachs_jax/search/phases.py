@@ -202,5 +202,6 @@ def finish(state, found: jax.Array, goal: jax.Array, open_empty: jax.Array,
   return state.replace(
       active=state.active & (reason == StopReason.RUNNING), stop_reason=reason,
       goal_node=jnp.where(found & state.active, goal, state.goal_node), iterations=iterations,
-      expanded=state.expanded + count(expanded), evaluated=state.evaluated + count(within) * edge_evaluations,
+      expanded=state.expanded + count(expanded),
+      evaluated=state.evaluated + count(within) * edge_evaluations,
       invalid=state.invalid + count(within & ~usable), **fields)

@@ -74,10 +74,10 @@ def make_segment_fn(env: base.Env, actor_critic: types.ActorCritic, edge_steps: 
                is_goal, done)
       return carry, (jnp.where(take[:, None], action, 0.0), node)
 
-    zeros = jnp.zeros((batch,), jnp.float32)
-    obs = jax.ShapeDtypeStruct((batch, env.observation_size), jnp.float32)
-    carry = (nodes, first_action.astype(jnp.float32), jnp.zeros(obs.shape, obs.dtype), zeros,
-             jnp.zeros((batch,), jnp.int32), jnp.zeros((batch,), bool), jnp.zeros((batch,), bool))
+    carry = (nodes, first_action.astype(jnp.float32),
+             jnp.zeros((batch, env.observation_size), jnp.float32),
+             jnp.zeros((batch,), jnp.float32), jnp.zeros((batch,), jnp.int32),
+             jnp.zeros((batch,), bool), jnp.zeros((batch,), bool))
     (last, action, obs, cost, length, is_goal, _), (actions, states) = jax.lax.scan(
         body, carry, jnp.arange(edge_steps))
     # h: the critic at the last state, for the actor's sample there (drawn in the last step)
