@@ -1,6 +1,7 @@
 """JAX's persistent compilation cache, on by default in the user's cache directory, so that a
 second run of a command skips XLA compilation, and beside it the traced search programs
-(`jax.export`), so that it also skips Python tracing."""
+(`jax.export`) and their compiled executables, so that it also skips Python tracing, lowering and
+the cache lookup."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import hashlib
 import importlib.metadata
 import logging
 import os
+import pickle
 from typing import Iterator, List, Optional
 
 import jax
+from jax.experimental import serialize_executable
 import numpy as np
 
 ENV_VAR = 'PACHS_COMPILATION_CACHE'  # a directory, or 0 / off / false to disable
@@ -85,7 +88,7 @@ def compile_log() -> Iterator[CompileLog]:
     logger.setLevel(level)
 
 
-TRACES = 'traces'  # the subdirectory of the compilation cache that holds exported programs
+TRACES = 'traces'  # the cache's subdirectory for exported programs and their executables
 
 
 @functools.lru_cache(maxsize=None)
@@ -120,10 +123,11 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
   """`jitted.lower(*args).compile()`, skipping Python tracing where it can.
 
   With a fingerprint and the compilation cache on (jax_compilation_cache_dir set), the
-  traced program is stored with `jax.export` under `<cache>/traces/` on first use, keyed by
-  fingerprint, the package sources, `library_versions`, the platform and the argument shapes,
-  and later processes compile it from there (XLA then hits the persistent cache). Programs
-  that cannot be exported (host callbacks) are remembered as such and compiled as usual.
+  traced program (`jax.export`) and its compiled executable are stored under
+  `<cache>/traces/` on first use, keyed by fingerprint, the package sources,
+  `library_versions`, the devices and the argument shapes; later processes load the
+  executable (else compile the stored trace; the CPU stores no executables). Programs that
+  cannot be exported (host callbacks) are remembered as such and compiled as usual.
   fingerprint: names everything jitted closes over (env, model parameters, config); None
     turns the store off. args: arrays or ShapeDtypeStructs. out_tree: a pytree with the
     output's structure (its leaves are ignored). Returns a callable of args' structure.
@@ -133,12 +137,18 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
     return jitted.lower(*args).compile()
   leaves, treedef = jax.tree.flatten(args)
   specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype) for x in leaves]
-  key = hashlib.sha256(repr((fingerprint, source_digest(), library_versions(),
-                             jax.default_backend(), str(treedef),
+  devices = [(d.platform, d.device_kind) for d in jax.devices()]
+  key = hashlib.sha256(repr((fingerprint, source_digest(), library_versions(), devices,
+                             str(treedef),
                              [(s.shape, str(s.dtype)) for s in specs])).encode()).hexdigest()
   path = os.path.join(directory, TRACES, key[:32])
   if os.path.exists(path + '.unexportable'):
     return jitted.lower(*args).compile()
+  out_def = jax.tree.structure(out_tree)
+  call = lambda compiled: lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs)))
+  compiled = _load_executable(path + '.executable')
+  if compiled is not None:
+    return call(compiled)
   exported = _load(path + '.exported')
   if exported is None:
     flat = lambda *xs: jax.tree.leaves(jitted(*jax.tree.unflatten(treedef, xs)))
@@ -152,8 +162,8 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
   starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
   donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
   compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
-  out_def = jax.tree.structure(out_tree)
-  return lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs)))
+  _write_executable(path + '.executable', compiled)
+  return call(compiled)
 
 
 def _load(path: str):
@@ -163,6 +173,29 @@ def _load(path: str):
       return jax.export.deserialize(bytearray(f.read()))
   except Exception:  # pylint: disable=broad-except
     return None
+
+
+def _load_executable(path: str):
+  """The compiled program stored at path (`_write_executable`), or None when missing or
+  unreadable (then rewritten)."""
+  try:
+    with open(path, 'rb') as f:
+      blob, in_tree, out_tree = pickle.load(f)
+    return serialize_executable.deserialize_and_load(blob, in_tree, out_tree)
+  except Exception:  # pylint: disable=broad-except
+    return None
+
+
+def _write_executable(path: str, compiled):
+  """Stores a compiled program where the platform can serialise it (else nothing). Not on
+  the CPU: an XLA:CPU executable loaded back can lack its kernels ('Function ... not found')."""
+  if jax.default_backend() == 'cpu':
+    return
+  try:
+    blob = pickle.dumps(serialize_executable.serialize(compiled))
+  except Exception:  # pylint: disable=broad-except
+    return
+  _write(path, blob)
 
 
 def _write(path: str, blob: bytes):

@@ -423,9 +423,10 @@ def test_plans_of_one_bucket_share_compiled_programs(problem):
 
 
 def test_traced_loop_is_stored_and_reused(problem, base_result, tmp_path, monkeypatch):
-  # A process with the cache on stores the traced loop (jax.export); a new Search with the
-  # same fingerprint compiles it from there without tracing and plans identically; another
-  # config is another program; a program with a host callback is compiled the usual way.
+  # A process with the cache on stores the traced loop (jax.export) and, on an accelerator,
+  # its executable; a new Search with the same fingerprint loads the executable (else
+  # compiles the stored trace) without tracing and plans identically; another config is
+  # another program; a program with a host callback is compiled the usual way.
   env, ac = problem.env, problem.actor_critic
   monkeypatch.setattr(type(env), 'fingerprint', property(lambda self: 'grid seed 4'))
   monkeypatch.setattr(type(ac), 'fingerprint', 'grid critic', raising=False)
@@ -434,16 +435,26 @@ def test_traced_loop_is_stored_and_reused(problem, base_result, tmp_path, monkey
   try:
     first = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
     stored = sorted(p.name for p in (tmp_path / 'traces').iterdir())
-    assert len(stored) == 1 and stored[0].endswith('.exported')
-    export = jax.export.export
+    kinds = ['exported'] if jax.default_backend() == 'cpu' else ['executable', 'exported']
+    assert [name.split('.')[1] for name in stored] == kinds, stored
+    export, deserialize = jax.export.export, jax.export.deserialize
     monkeypatch.setattr(jax.export, 'export', lambda *a, **k: pytest.fail('traced again'))
+    if len(kinds) == 2:  # the executable is loaded: the trace is not even read
+      monkeypatch.setattr(jax.export, 'deserialize', lambda *a, **k: pytest.fail('compiled'))
     again = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
     assert_results_equal(again, first)
     assert_results_equal(first, base_result)
+    monkeypatch.setattr(jax.export, 'deserialize', deserialize)
+    if len(kinds) == 2:  # without the executable: compiled from the trace, and stored again
+      (tmp_path / 'traces' / stored[0]).unlink()
+      from_trace = plan(env, ac, problem.nodes, BASE, problem.keys,
+                        search=make_search(env, ac, BASE))
+      assert_results_equal(from_trace, first)
+      assert (tmp_path / 'traces' / stored[0]).exists()
     monkeypatch.setattr(jax.export, 'export', export)
     other = dataclasses.replace(BASE, weight=2.0)
     plan(env, ac, problem.nodes, other, problem.keys, search=make_search(env, ac, other))
-    assert len(list((tmp_path / 'traces').iterdir())) == 2
+    assert len(list((tmp_path / 'traces').iterdir())) == 2 * len(kinds)
     callback = jax.jit(lambda x: jax.pure_callback(np.sin, x, x))
     x = jnp.arange(3.0)
     fn = compile_cache.compiled_program(callback, (x,), 'sin', out_tree=x)

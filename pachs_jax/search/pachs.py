@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
-import time
 from typing import Callable, Optional, Tuple
 
 import jax
@@ -60,7 +60,7 @@ class Search:
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
   compiled: (instances, platform) -> the compiled programs of `plan` (init, result and the
-    loops of the sizes reached so far), kept so that later calls compile nothing new.
+    loops of the sizes reachable so far), kept so that later calls compile nothing new.
   """
 
   init: Callable[..., SearchState]
@@ -275,9 +275,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
     least one) while the next chunk, timed as the last, would end within the limit (s), and
     instances still searching then report TIME_LIMIT with the path to their real-time answer.
-    With a limit every loop size is compiled before the clock starts; without one, the loop
-    of a compacted size is compiled when the search first reaches it, and wall_time_s leaves
-    that compilation out.
+    The loops of the physics sizes the search can reach (the start's size and the smaller
+    ones) are compiled concurrently before the clock starts: wall_time_s leaves them out.
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
@@ -308,32 +307,30 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     search.compiled[(padded, jax.default_backend())] = programs
   steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
   fingerprint = program_fingerprint(env, actor_critic, config)
-  compile_s = 0.0
 
-  def loop_program(size):
-    """The compiled loop of one physics size, compiled (or loaded) on first use."""
-    nonlocal compile_s
-    if ('loop', size) not in programs:
-      began = time.perf_counter()
-      programs[('loop', size)] = compile_cache.compiled_program(
-          jax.jit(lambda state, n: search.loop(state, n, size=size), donate_argnums=0),
-          (programs['shape'], steps), fingerprint and f'{fingerprint} size={size}',
-          out_tree=programs['shape'], donate_argnums=(0,))
-      compile_s += time.perf_counter() - began
-    return programs[('loop', size)]
+  def compile_loop(size):
+    return compile_cache.compiled_program(
+        jax.jit(lambda state, n: search.loop(state, n, size=size), donate_argnums=0),
+        (programs['shape'], steps), fingerprint and f'{fingerprint} size={size}',
+        out_tree=programs['shape'], donate_argnums=(0,))
 
-  if time_limit_s is not None:  # every size before the clock starts
-    for size in (None,) + search.lane_sizes(padded):
-      loop_program(size)
+  # the loops of the sizes this search can reach (lanes only shrink), compiled concurrently
+  state = programs['init'](start_nodes, keys, live)
+  first = search.size_for(state)
+  reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
+                         if first is None or s < first]
+  missing = [size for size in reachable if ('loop', size) not in programs]
+  if missing:
+    with concurrent.futures.ThreadPoolExecutor(len(missing)) as threads:
+      programs.update(zip([('loop', size) for size in missing],
+                          threads.map(compile_loop, missing)))
 
   def advance(state):
     """One chunk (time limit) or the whole search: the loop of each size in turn."""
     while True:
-      state = loop_program(search.size_for(state))(state, steps)
+      state = programs[('loop', search.size_for(state))](state, steps)
       if time_limit_s is not None or not np.asarray(state.active).any():
         return state
 
-  out = anytime.timed_result(advance, programs['init'](start_nodes, keys, live),
-                             programs['result'], time_limit_s)
-  out = out.replace(wall_time_s=np.float32(float(out.wall_time_s) - compile_s))
+  out = anytime.timed_result(advance, state, programs['result'], time_limit_s)
   return types.first_rows(out, num_instances)
