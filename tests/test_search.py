@@ -411,8 +411,10 @@ def test_plans_of_one_bucket_share_compiled_programs(problem):
   env, ac = problem.env, problem.actor_critic
   search = make_search(env, ac, BASE)
   rows = lambda tree, n: jax.tree.map(lambda x: x[:n] if jnp.ndim(x) else x, tree)
-  three = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search)
-  four = plan(env, ac, rows(problem.nodes, 4), BASE, problem.keys[:4], search=search)
+  three = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search,
+               min_bucket=1)
+  four = plan(env, ac, rows(problem.nodes, 4), BASE, problem.keys[:4], search=search,
+              min_bucket=1)
   assert list(search.compiled) == [(4, jax.default_backend())]
   assert_results_equal(three, rows(four, 3))
   eight = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search,
