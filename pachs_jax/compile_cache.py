@@ -13,7 +13,7 @@ import importlib.metadata
 import logging
 import os
 import pickle
-from typing import Iterator, List, Optional
+from typing import Any, Callable, Iterator, List, Optional
 
 import jax
 from jax.experimental import serialize_executable
@@ -118,9 +118,30 @@ def library_versions() -> tuple:
   return tuple(versions)
 
 
-def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
-                     donate_argnums: tuple = ()):
-  """`jitted.lower(*args).compile()`, skipping Python tracing where it can.
+@dataclasses.dataclass(frozen=True)
+class Program:
+  """A compiled program, called with its arguments' pytree structure.
+
+  call: the compiled function. out_shapes: its outputs, a pytree of ShapeDtypeStructs (known
+    without tracing when the program was stored).
+  """
+
+  call: Callable[..., Any]
+  out_shapes: Any
+
+  def __call__(self, *args):
+    return self.call(*args)
+
+
+def _compile(jitted, args: tuple) -> Program:
+  compiled = jitted.lower(*args).compile()
+  return Program(compiled, jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype),
+                                        compiled.out_info))
+
+
+def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
+                     donate_argnums: tuple = ()) -> Program:
+  """`jitted.lower(*args).compile()` as a `Program`, skipping Python tracing where it can.
 
   With a fingerprint and the compilation cache on (jax_compilation_cache_dir set), the
   traced program (`jax.export`) and its compiled executable are stored under
@@ -129,12 +150,11 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
   executable (else compile the stored trace; the CPU stores no executables). Programs that
   cannot be exported (host callbacks) are remembered as such and compiled as usual.
   fingerprint: names everything jitted closes over (env, model parameters, config); None
-    turns the store off. args: arrays or ShapeDtypeStructs. out_tree: a pytree with the
-    output's structure (its leaves are ignored). Returns a callable of args' structure.
+    turns the store off. args: arrays or ShapeDtypeStructs.
   """
   directory = jax.config.jax_compilation_cache_dir
   if fingerprint is None or not directory:
-    return jitted.lower(*args).compile()
+    return _compile(jitted, args)
   leaves, treedef = jax.tree.flatten(args)
   specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype) for x in leaves]
   devices = [(d.platform, d.device_kind) for d in jax.devices()]
@@ -143,59 +163,64 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str], out_tree,
                              [(s.shape, str(s.dtype)) for s in specs])).encode()).hexdigest()
   path = os.path.join(directory, TRACES, key[:32])
   if os.path.exists(path + '.unexportable'):
-    return jitted.lower(*args).compile()
-  out_def = jax.tree.structure(out_tree)
-  call = lambda compiled: lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs)))
-  compiled = _load_executable(path + '.executable')
-  if compiled is not None:
-    return call(compiled)
-  exported = _load(path + '.exported')
-  if exported is None:
-    flat = lambda *xs: jax.tree.leaves(jitted(*jax.tree.unflatten(treedef, xs)))
-    try:
-      exported = jax.export.export(jax.jit(flat))(*specs)
-      blob = exported.serialize()
-    except Exception:  # pylint: disable=broad-except  (e.g. host callbacks)
-      _write(path + '.unexportable', b'')
-      return jitted.lower(*args).compile()
-    _write(path + '.exported', blob)
-  starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
-  donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
-  compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
-  _write_executable(path + '.executable', compiled)
-  return call(compiled)
+    return _compile(jitted, args)
+  stored = _load(path + '.executable', _executable)
+  if stored is None:
+    stored = _load(path + '.exported', _exported)
+    if stored is None:
+      out_defs = []
+
+      def flat(*xs):
+        out = jitted(*jax.tree.unflatten(treedef, xs))
+        out_defs.append(jax.tree.structure(out))
+        return jax.tree.leaves(out)
+
+      try:
+        exported = jax.export.export(jax.jit(flat))(*specs)
+        blob = exported.serialize()
+      except Exception:  # pylint: disable=broad-except  (e.g. host callbacks)
+        _write(path + '.unexportable', b'')
+        return _compile(jitted, args)
+      stored = exported, out_defs[0]
+      _write(path + '.exported', pickle.dumps((blob, out_defs[0])))
+    exported, out_def = stored
+    starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
+    donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
+    compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
+    out_specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exported.out_avals]
+    stored = compiled, out_def, out_specs
+    if jax.default_backend() != 'cpu':  # XLA:CPU executables can lack their kernels when loaded
+      try:
+        blob = pickle.dumps((serialize_executable.serialize(compiled), out_def,
+                             [(s.shape, s.dtype.name) for s in out_specs]))
+        _write(path + '.executable', blob)
+      except Exception:  # pylint: disable=broad-except  (a platform that cannot serialise)
+        pass
+  compiled, out_def, out_specs = stored
+  return Program(lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs))),
+                 jax.tree.unflatten(out_def, out_specs))
 
 
-def _load(path: str):
-  """The exported program at path, or None when missing or unreadable (then rewritten)."""
+def _exported(blob: bytes):
+  """(jax.export.Exported, output treedef) of an '.exported' file."""
+  program, out_def = pickle.loads(blob)
+  return jax.export.deserialize(bytearray(program)), out_def
+
+
+def _executable(blob: bytes):
+  """(loaded executable, output treedef, output ShapeDtypeStructs) of an '.executable' file."""
+  (program, in_tree, flat_out), out_def, out_specs = pickle.loads(blob)
+  compiled = serialize_executable.deserialize_and_load(program, in_tree, flat_out)
+  return compiled, out_def, [jax.ShapeDtypeStruct(shape, dtype) for shape, dtype in out_specs]
+
+
+def _load(path: str, parse):
+  """parse(the bytes at path), or None when missing or unreadable (then rewritten)."""
   try:
     with open(path, 'rb') as f:
-      return jax.export.deserialize(bytearray(f.read()))
+      return parse(f.read())
   except Exception:  # pylint: disable=broad-except
     return None
-
-
-def _load_executable(path: str):
-  """The compiled program stored at path (`_write_executable`), or None when missing or
-  unreadable (then rewritten)."""
-  try:
-    with open(path, 'rb') as f:
-      blob, in_tree, out_tree = pickle.load(f)
-    return serialize_executable.deserialize_and_load(blob, in_tree, out_tree)
-  except Exception:  # pylint: disable=broad-except
-    return None
-
-
-def _write_executable(path: str, compiled):
-  """Stores a compiled program where the platform can serialise it (else nothing). Not on
-  the CPU: an XLA:CPU executable loaded back can lack its kernels ('Function ... not found')."""
-  if jax.default_backend() == 'cpu':
-    return
-  try:
-    blob = pickle.dumps(serialize_executable.serialize(compiled))
-  except Exception:  # pylint: disable=broad-except
-    return
-  _write(path, blob)
 
 
 def _write(path: str, blob: bytes):

@@ -425,41 +425,49 @@ def test_plans_of_one_bucket_share_compiled_programs(problem):
 
 
 def test_traced_loop_is_stored_and_reused(problem, base_result, tmp_path, monkeypatch):
-  # A process with the cache on stores the traced loop (jax.export) and, on an accelerator,
-  # its executable; a new Search with the same fingerprint loads the executable (else
-  # compiles the stored trace) without tracing and plans identically; another config is
-  # another program; a program with a host callback is compiled the usual way.
+  # A process with the cache on stores the traced programs (init, loop, result: jax.export)
+  # and, on an accelerator, their executables; a new Search with the same fingerprint loads
+  # the executables (else compiles the stored traces) without tracing and plans identically;
+  # another config is other programs; a program with a host callback is compiled as usual.
   env, ac = problem.env, problem.actor_critic
   monkeypatch.setattr(type(env), 'fingerprint', property(lambda self: 'grid seed 4'))
   monkeypatch.setattr(type(ac), 'fingerprint', 'grid critic', raising=False)
   previous = jax.config.jax_compilation_cache_dir
   jax.config.update('jax_compilation_cache_dir', str(tmp_path))
+  stored = lambda: sorted(p.name for p in (tmp_path / 'traces').iterdir())
+  programs = lambda: {name.split('.')[0] for name in stored()}
   try:
     first = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
-    stored = sorted(p.name for p in (tmp_path / 'traces').iterdir())
-    kinds = ['exported'] if jax.default_backend() == 'cpu' else ['executable', 'exported']
-    assert [name.split('.')[1] for name in stored] == kinds, stored
-    export, deserialize = jax.export.export, jax.export.deserialize
+    kinds = {'exported'} if jax.default_backend() == 'cpu' else {'executable', 'exported'}
+    assert len(programs()) >= 3 and {n.split('.')[1] for n in stored()} == kinds, stored()
+    assert len(stored()) == len(programs()) * len(kinds)
+    export, deserialize, lattice_key = (jax.export.export, jax.export.deserialize,
+                                        type(env).lattice_key)
     monkeypatch.setattr(jax.export, 'export', lambda *a, **k: pytest.fail('traced again'))
-    if len(kinds) == 2:  # the executable is loaded: the trace is not even read
+    monkeypatch.setattr(type(env), 'lattice_key', lambda *a: pytest.fail('init traced again'))
+    if len(kinds) == 2:  # the executables are loaded: the traces are not even read
       monkeypatch.setattr(jax.export, 'deserialize', lambda *a, **k: pytest.fail('compiled'))
     again = plan(env, ac, problem.nodes, BASE, problem.keys, search=make_search(env, ac, BASE))
     assert_results_equal(again, first)
     assert_results_equal(first, base_result)
     monkeypatch.setattr(jax.export, 'deserialize', deserialize)
-    if len(kinds) == 2:  # without the executable: compiled from the trace, and stored again
-      (tmp_path / 'traces' / stored[0]).unlink()
+    if len(kinds) == 2:  # without the executables: compiled from the traces, and stored again
+      executables = [tmp_path / 'traces' / n for n in stored() if n.endswith('.executable')]
+      for path in executables:
+        path.unlink()
       from_trace = plan(env, ac, problem.nodes, BASE, problem.keys,
                         search=make_search(env, ac, BASE))
       assert_results_equal(from_trace, first)
-      assert (tmp_path / 'traces' / stored[0]).exists()
+      assert all(path.exists() for path in executables)
     monkeypatch.setattr(jax.export, 'export', export)
+    monkeypatch.setattr(type(env), 'lattice_key', lattice_key)
+    before = programs()
     other = dataclasses.replace(BASE, weight=2.0)
     plan(env, ac, problem.nodes, other, problem.keys, search=make_search(env, ac, other))
-    assert len(list((tmp_path / 'traces').iterdir())) == 2 * len(kinds)
+    assert len(programs() - before) >= 3
     callback = jax.jit(lambda x: jax.pure_callback(np.sin, x, x))
     x = jnp.arange(3.0)
-    fn = compile_cache.compiled_program(callback, (x,), 'sin', out_tree=x)
+    fn = compile_cache.compiled_program(callback, (x,), 'sin')
     np.testing.assert_allclose(fn(x), np.sin(np.arange(3.0)), rtol=1e-6)
     assert any(p.name.endswith('.unexportable') for p in (tmp_path / 'traces').iterdir())
   finally:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Tuple
+from typing import Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -102,11 +102,12 @@ def _round_down(n: int) -> int:
 
 
 def check_fits(env: base.Env, actor_critic, search, start_nodes: base.NodeState,
-               num_instances: int, device=None) -> int:
+               num_instances: int, device=None, need: Optional[int] = None) -> int:
   """Returns the device bytes of a PACHS search of num_instances (padded) instances; ValueError
   when they exceed the device's memory (`device_memory`), naming the largest budget
-  (max_evaluations) that fits. Traces, compiles nothing."""
-  need = search_bytes(search, start_nodes, num_instances)
+  (max_evaluations) that fits. need: those bytes when the caller knows them (None: traced
+  with `search_bytes`). Compiles nothing."""
+  need = search_bytes(search, start_nodes, num_instances) if need is None else need
   available, where = device_memory(device)
   if need <= available:
     return need

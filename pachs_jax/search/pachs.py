@@ -290,7 +290,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   elif search.config != config:
     raise ValueError('search was built with another config')
   num_instances = types.check_start_nodes(start_nodes, env)
-  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions)
+  fingerprint = program_fingerprint(env, actor_critic, config)
+  stored = lambda name: fingerprint and f'{fingerprint} {name}'
+  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions,
+                            stored('model check'))
   keys = types.instance_keys(key, num_instances)
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
@@ -300,19 +303,18 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   live = jax.device_put(np.arange(padded) < num_instances)
   programs = search.compiled.get((padded, jax.default_backend()))
   if programs is None:
-    memory.check_fits(env, actor_critic, search, start_nodes, padded)
-    shape = jax.eval_shape(search.init, start_nodes, keys, live)
-    programs = {'shape': shape, 'init': search.init.lower(start_nodes, keys, live).compile(),
-                'result': search.result.lower(shape).compile()}
+    init = compile_cache.compiled_program(search.init, (start_nodes, keys, live), stored('init'))
+    result = compile_cache.compiled_program(search.result, (init.out_shapes,), stored('result'))
+    memory.check_fits(env, actor_critic, search, start_nodes, padded,
+                      need=memory.tree_bytes((init.out_shapes, result.out_shapes)))
+    programs = {'init': init, 'result': result}
     search.compiled[(padded, jax.default_backend())] = programs
   steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
-  fingerprint = program_fingerprint(env, actor_critic, config)
 
   def compile_loop(size):
     return compile_cache.compiled_program(
         jax.jit(lambda state, n: search.loop(state, n, size=size), donate_argnums=0),
-        (programs['shape'], steps), fingerprint and f'{fingerprint} size={size}',
-        out_tree=programs['shape'], donate_argnums=(0,))
+        (programs['init'].out_shapes, steps), stored(f'loop size={size}'), donate_argnums=(0,))
 
   # the loops of the sizes this search can reach (lanes only shrink), compiled concurrently
   state = programs['init'](start_nodes, keys, live)

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from pachs_jax import compile_cache
 from pachs_jax.envs import base
 
 REALTIME_ANSWERS = ('best_f', 'min_h')
@@ -250,10 +251,14 @@ def _list(index, most: int = 10) -> str:
 _MODEL_CHECKS: collections.OrderedDict = collections.OrderedDict()
 
 
-def _model_outputs_fn(env: base.Env, actor_critic, num_actions: int):
-  """jit(nodes [B], key) -> ([B] bool finite observations, [B] finite actions, [B] finite Q),
-  cached per (env, actor_critic, num_actions) object (the last 8, held so ids stay unique)."""
-  cache_key = (id(env), id(actor_critic), num_actions)
+def _model_outputs_program(env: base.Env, actor_critic, num_actions: int, nodes: base.NodeState,
+                           fingerprint: Optional[str]):
+  """The compiled (nodes [B], key) -> ([B] bool finite observations, [B] finite actions, [B]
+  finite Q) for nodes shaped like `nodes` (stored under fingerprint,
+  `compile_cache.compiled_program`), cached per (env, actor_critic, num_actions) object and
+  batch size (the last 8, held so ids stay unique)."""
+  batch = jax.tree.leaves(nodes)[0].shape[0]
+  cache_key = (id(env), id(actor_critic), num_actions, batch)
   hit = _MODEL_CHECKS.get(cache_key)
   if hit is not None and hit[0] is env and hit[1] is actor_critic:
     _MODEL_CHECKS.move_to_end(cache_key)
@@ -268,29 +273,31 @@ def _model_outputs_fn(env: base.Env, actor_critic, num_actions: int):
     q = actor_critic.q_values(obs, clean)
     return finite(obs), finite(actions), finite(q)
 
-  fn = jax.jit(outputs)
-  _MODEL_CHECKS[cache_key] = (env, actor_critic, fn)
+  program = compile_cache.compiled_program(jax.jit(outputs), (nodes, jax.random.PRNGKey(0)),
+                                           fingerprint)
+  _MODEL_CHECKS[cache_key] = (env, actor_critic, program)
   while len(_MODEL_CHECKS) > 8:
     _MODEL_CHECKS.popitem(last=False)
-  return fn
+  return program
 
 
 def check_model_outputs(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
-                        num_actions: int) -> None:
+                        num_actions: int, fingerprint: Optional[str] = None) -> None:
   """ValueError when the actor-critic's sampled actions or critic Q on the start states are
   not finite (a damaged model, or one of another task): the search would drop every edge and
   report OPEN empty, as if the task had been searched exhaustively.
 
   One small jitted call on the start nodes [I] (padded to a power of two, so that nearby
-  instance counts share its compilation); also ValueError for non-finite observations.
+  instance counts share its compilation; stored under fingerprint, see
+  `compile_cache.compiled_program`); also ValueError for non-finite observations.
   """
   num = jax.tree.leaves(start_nodes)[0].shape[0]
   padded = next_pow2(num)
   if padded != num:
     start_nodes = pad_rows(start_nodes, padded)
-  fn = _model_outputs_fn(env, actor_critic, num_actions)
+  program = _model_outputs_program(env, actor_critic, num_actions, start_nodes, fingerprint)
   obs_ok, actions_ok, q_ok = (np.asarray(x)[:num]
-                              for x in fn(start_nodes, jax.random.PRNGKey(0)))
+                              for x in program(start_nodes, jax.random.PRNGKey(0)))
   for ok, what in ((obs_ok, f'{env.name} gives non-finite observations of the start states'),
                    (actions_ok, 'actor-critic samples non-finite actions on the start states'),
                    (q_ok, 'actor-critic returns non-finite Q on the start states')):
