@@ -334,6 +334,13 @@ class PushTEnv(base.Env):
     return panda.NUM_JOINTS
 
   @property
+  def observation_size(self) -> int:
+    """Length of `observation`: arm q and 0.1 qdot (14), tip (3), T x y, cos sin yaw, goal x y,
+    cos sin goal yaw, T in the goal frame, cos sin yaw error, tip in the T frame (12), T
+    velocity (3); declared, so that no process traces the kinematics to learn it."""
+    return 34
+
+  @property
   def default_lattice_resolution(self) -> jax.Array:
     # T x, T y (m), T yaw (rad), tip x, tip y (m).
     return jax.device_put(np.array([0.01, 0.01, 0.1, 0.02, 0.02], np.float32))
