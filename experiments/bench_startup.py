@@ -88,7 +88,13 @@ def main():
                       'cold and warm, comma separated')
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
+  parser.add_argument('--merge', default='',
+                      help='comma-separated result files of earlier runs to merge into --out '
+                      '(runs nothing)')
   args = parser.parse_args()
+  if args.merge:
+    merge(args.merge.split(','), args.out)
+    return
   if args.child:
     print(json.dumps(child(args.task, int(args.instances), args.budget, args.backend)))
     return
@@ -114,15 +120,38 @@ def main():
                            run=run, process_wall_s=wall, summary=summary))
       print(json.dumps(commands[-1]), flush=True)
   result = {'provenance': common.provenance(), 'task': args.task, 'rows': rows,
-            'commands': commands}
+             'commands': commands}
   common.write_json(args.out, result)
+  write_markdown(result, os.path.splitext(args.out)[0] + '.md')
+
+
+def merge(paths: list, out: str):
+  """One report of several runs of this benchmark (e.g. one instance count per device call):
+  their rows and commands in order, the first file's provenance with the others' listed."""
+  import common
+  parts = []
+  for path in paths:
+    with open(path) as f:
+      parts.append(json.load(f))
+  result = {'provenance': dict(parts[0]['provenance'], merged_from=[
+      dict(p['provenance'], file=os.path.basename(path)) for p, path in zip(parts, paths)]),
+            'task': parts[0]['task'],
+            'rows': [row for p in parts for row in p['rows']],
+            'commands': [c for p in parts for c in p['commands']]}
+  common.write_json(out, result)
+  write_markdown(result, os.path.splitext(out)[0] + '.md')
+
+
+def write_markdown(result: dict, path: str):
+  import common
+  rows, commands = result['rows'], result['commands']
   phases = list(rows[0]['phases_s']) if rows else []
   table = [dict(instances=r['instances'], run=r['run'], process_wall_s=r['process_wall_s'],
                 programs=r['programs_compiled'],
                 cache_hits=r['persistent_cache_hits'], found=r['found'],
                 **{p: r['phases_s'][p] for p in phases}) for r in rows]
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write(f"# Start-up of `pachs plan --task {args.task}`\n\n{result['provenance']}\n\n")
+  with open(path, 'w') as f:
+    f.write(f"# Start-up of `pachs plan --task {result['task']}`\n\n{result['provenance']}\n\n")
     if table:
       f.write(common.markdown_table(table, list(table[0])) + '\n')
     if commands:
