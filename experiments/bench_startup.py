@@ -42,8 +42,8 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     search = pachs.make_search(env, model, config)
     keys = types.instance_keys(jax.random.PRNGKey(0), instances)
     phase('make_search')
-    # as `pachs plan` runs it: checks, tracing, compilation (the loop of each physics size when
-    # the search first reaches it, traced or loaded from the store of traced programs), search
+    # as `pachs plan` runs it: checks, tracing and compilation (or loading the stored programs;
+    # the loops of the reachable physics sizes concurrently), search
     began = time.perf_counter()
     out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
     times['search'] = float(out.wall_time_s)
