@@ -81,7 +81,8 @@ def policy_actions(env, model):
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
-  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E]) numpy.
+  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E], edge
+  evaluations [E]) numpy.
 
   parallel: steps in chunks until the next would end past the query time, then its best
   rollout; pachs: real-time mode (`--realtime-answer`); mppi: warm-started from the policy, then
@@ -96,7 +97,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     def query(nodes, keys, executed):
       out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
                        chunk_iterations=args.chunk_iterations, search=search)
-      return np.asarray(out.path_actions), np.asarray(out.path_length)
+      return np.asarray(out.path_actions), np.asarray(out.path_length), np.asarray(out.evaluated)
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
@@ -117,7 +118,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
       state, _ = anytime.run_until(chunk, compiled['init'](nodes, keys), args.query_time)
       # at the time limit the unfinished copies compete too (TIME_LIMIT)
       out = compiled['result'](compiled['stop'](state))
-      return np.asarray(out.path_actions), np.asarray(out.path_length)
+      return np.asarray(out.path_actions), np.asarray(out.path_length), np.asarray(out.evaluated)
     return query, config
   if name == 'mppi':
     config = bl.MppiConfig(max_evaluations=args.budget)
@@ -138,7 +139,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
       out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
-      return previous['actions'], previous['length']
+      return previous['actions'], previous['length'], np.asarray(out.evaluated)
     return query, config
   raise ValueError(f'unknown planner {name!r}')
 
@@ -166,7 +167,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   fallback = policy_actions(env, model)
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
-  empty_answers, actions_per_query, policy_steps = 0, [], 0
+  empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -174,7 +175,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
     start = time.perf_counter()
-    actions, lengths = query(nodes, keys, executed)
+    actions, lengths, evaluated = query(nodes, keys, executed)
     elapsed = time.perf_counter() - start
     if q == 0:
       compile_s = elapsed  # the first query includes compilation
@@ -185,6 +186,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     empty = lengths == 0
     empty_answers += int(np.sum(empty & episodes.active))
     actions_per_query += lengths[episodes.active].tolist()
+    evaluations_per_query += evaluated[episodes.active].tolist()
     if empty.any():
       actions = actions.copy()
       actions[empty, 0] = np.asarray(fallback(nodes))[empty, 0]
@@ -206,7 +208,8 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
           'policy_fill_steps': policy_steps,
-          'actions_per_query_mean': stats.mean_or_none(actions_per_query)}
+          'actions_per_query_mean': stats.mean_or_none(actions_per_query),
+          'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}
 
 
 def main():
@@ -282,7 +285,7 @@ def write_markdown(payload: Dict, path: str) -> None:
     f.write(common.markdown_table(rows, [
         'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
         'queries_per_episode_mean', 'empty_answers', 'actions_per_query_mean',
-        'policy_fill_steps',
+        'evaluations_per_query_mean', 'policy_fill_steps',
         'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
     f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '
             'instances; the rounds of an instance are not independent).\n')
