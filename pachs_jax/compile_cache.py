@@ -166,39 +166,52 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
     return _compile(jitted, args)
   stored = _load(path + '.executable', _executable)
   if stored is None:
-    stored = _load(path + '.exported', _exported)
-    if stored is None:
-      out_defs = []
-
-      def flat(*xs):
-        out = jitted(*jax.tree.unflatten(treedef, xs))
-        out_defs.append(jax.tree.structure(out))
-        return jax.tree.leaves(out)
-
-      try:
-        exported = jax.export.export(jax.jit(flat))(*specs)
-        blob = exported.serialize()
-      except Exception:  # pylint: disable=broad-except  (e.g. host callbacks)
-        _write(path + '.unexportable', b'')
-        return _compile(jitted, args)
-      stored = exported, out_defs[0]
-      _write(path + '.exported', pickle.dumps((blob, out_defs[0])))
-    exported, out_def = stored
-    starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
-    donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
-    compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
-    out_specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exported.out_avals]
-    stored = compiled, out_def, out_specs
-    if jax.default_backend() != 'cpu':  # XLA:CPU executables can lack their kernels when loaded
-      try:
-        blob = pickle.dumps((serialize_executable.serialize(compiled), out_def,
-                             [(s.shape, s.dtype.name) for s in out_specs]))
-        _write(path + '.executable', blob)
-      except Exception:  # pylint: disable=broad-except  (a platform that cannot serialise)
-        pass
+    traced = _load(path + '.exported', _exported) or _export(jitted, treedef, specs, path)
+    if traced is None:  # not exportable (e.g. host callbacks)
+      return _compile(jitted, args)
+    stored = _compile_trace(*traced, args, specs, donate_argnums, path)
   compiled, out_def, out_specs = stored
   return Program(lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs))),
                  jax.tree.unflatten(out_def, out_specs))
+
+
+def _export(jitted, treedef, specs: list, path: str):
+  """(jax.export.Exported of jitted on the flat specs, output treedef), also written to
+  path.exported; None (and path.unexportable written) when it cannot be exported."""
+  out_defs = []
+
+  def flat(*xs):
+    out = jitted(*jax.tree.unflatten(treedef, xs))
+    out_defs.append(jax.tree.structure(out))
+    return jax.tree.leaves(out)
+
+  try:
+    exported = jax.export.export(jax.jit(flat))(*specs)
+    blob = exported.serialize()
+  except Exception:  # pylint: disable=broad-except  (e.g. host callbacks)
+    _write(path + '.unexportable', b'')
+    return None
+  _write(path + '.exported', pickle.dumps((blob, out_defs[0])))
+  return exported, out_defs[0]
+
+
+def _compile_trace(exported, out_def, args: tuple, specs: list, donate_argnums: tuple,
+                   path: str):
+  """(compiled, out_def, output ShapeDtypeStructs) of an exported program; the executable is
+  written to path.executable where the platform serialises it. Not on the CPU: an XLA:CPU
+  executable loaded back can lack its kernels ('Function ... not found')."""
+  starts = np.cumsum([0] + [len(jax.tree.leaves(a)) for a in args])
+  donated = tuple(j for i in donate_argnums for j in range(starts[i], starts[i + 1]))
+  compiled = jax.jit(exported.call, donate_argnums=donated).lower(*specs).compile()
+  out_specs = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exported.out_avals]
+  if jax.default_backend() != 'cpu':
+    try:
+      _write(path + '.executable', pickle.dumps((
+          serialize_executable.serialize(compiled), out_def,
+          [(s.shape, s.dtype.name) for s in out_specs])))
+    except Exception:  # pylint: disable=broad-except  (a platform that cannot serialise)
+      pass
+  return compiled, out_def, out_specs
 
 
 def _exported(blob: bytes):
