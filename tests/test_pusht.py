@@ -70,6 +70,23 @@ def test_end_effector_matches_dh_in_mujoco_c_and_mjx(env):
                                atol=1e-4)
 
 
+def test_tip_chain_kinematics_matches_mujoco(env, jitted):
+  """The tip the observation and lattice read (the arm's chain alone) is MuJoCo's tip site, for
+  any arm angles and T pose."""
+  rng = np.random.default_rng(1)
+  m = env.mj_model
+  data = mujoco.MjData(m)
+  for _ in range(8):
+    qpos = np.concatenate([rng.uniform(panda.JOINT_LOWER, panda.JOINT_UPPER),
+                           rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi, 1)])
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(m, data)
+    node = env.node_from_pose(jnp.zeros(3), jnp.zeros(3)).replace(
+        qpos=jnp.asarray(qpos, jnp.float32))
+    np.testing.assert_allclose(np.asarray(jitted['tip'](node)), data.site_xpos[m.site('tip').id],
+                               atol=2e-6)
+
+
 def test_model_uses_only_explicit_primitive_contacts(env):
   m = env.mj_model
   assert np.all(m.geom_contype == 0) and np.all(m.geom_conaffinity == 0)

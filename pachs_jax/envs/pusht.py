@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from pachs_jax.envs import base, coverage, layouts, panda
+from pachs_jax.envs import base, coverage, kinematics, layouts, panda
 
 BASE_POS = (-0.615, 0.0, 0.0)
 FIXED_GOAL = (-0.156, -0.1, 5.0 * np.pi / 3.0)  # x (m), y (m), yaw (rad)
@@ -318,6 +318,8 @@ class PushTEnv(base.Env):
     self.mjx_model = mjx.put_model(self.mj_model)
     self._data_template = mjx.make_data(self.mjx_model)
     self._tip_site = self.mj_model.site('tip').id
+    self._tip_chain = kinematics.ChainKinematics(self.mj_model,
+                                                 [self.mj_model.site_bodyid[self._tip_site]])
     self.obstacles = (self.layout.blocks_array() if self.layout is not None
                       else np.zeros((0, 5), np.float32))
     home = np.concatenate([HOME_QPOS, np.zeros(3)])
@@ -431,9 +433,10 @@ class PushTEnv(base.Env):
     return data.site_xpos[self._tip_site, :2]
 
   def tip_position(self, node: base.NodeState) -> jax.Array:
-    """[3] world position of the stick tip (m) of one node, by forward kinematics."""
-    data = mjx.kinematics(self.mjx_model, self.restore(node))
-    return data.site_xpos[self._tip_site]
+    """[3] world position of the stick tip (m) of one node, by forward kinematics of the arm's
+    chain (`kinematics.ChainKinematics`; equal to mjx.kinematics' to float32 rounding)."""
+    xpos, xmat = self._tip_chain.bodies(node.qpos)
+    return self._tip_chain.site(xpos, xmat, self._tip_site)
 
   def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
     c = self.config

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from pachs_jax.envs import base, ik, panda
+from pachs_jax.envs import base, ik, kinematics, panda
 
 HOME_QPOS = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 FAR_DISTANCE = 10.0  # m: the distance reported for a geom with no pair (never near the shelf)
@@ -236,73 +236,6 @@ def _box_box_distance(centre: jax.Array, rot: jax.Array, half_a: jax.Array, half
   return jnp.where(sat > 0.0, jnp.minimum(jnp.min(edge), jnp.min(corner)), sat)
 
 
-# ---------------------------------------------------------------- forward kinematics (jax)
-
-
-def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
-  """[3, 3] rotation of a unit quaternion (w, x, y, z)."""
-  w, x, y, z = np.asarray(quat, np.float64) / np.linalg.norm(quat)
-  return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                   [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                   [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-class ChainKinematics:
-  """Forward kinematics of an MjModel whose joints are all hinges, read from its arrays.
-
-  The same composition as MuJoCo's: body = parent * (body_pos, body_quat), then each hinge
-  turns the body about its axis through its anchor by qpos - qpos0.
-  """
-
-  def __init__(self, model: mujoco.MjModel):
-    if np.any(model.jnt_type != int(mujoco.mjtJoint.mjJNT_HINGE)):
-      raise ValueError('ChainKinematics supports hinge joints only')
-    self.parent = model.body_parentid.copy()
-    self.body_pos = model.body_pos.astype(np.float32)
-    self.body_mat = np.array([_quat_to_mat(q) for q in model.body_quat], np.float32)
-    self.joints = [[(model.jnt_axis[j].astype(np.float32), model.jnt_pos[j].astype(np.float32),
-                     int(model.jnt_qposadr[j]), float(model.qpos0[model.jnt_qposadr[j]]))
-                    for j in range(model.njnt) if model.jnt_bodyid[j] == b]
-                   for b in range(model.nbody)]
-    self.geom_body = model.geom_bodyid.copy()
-    self.geom_pos = model.geom_pos.astype(np.float32)
-    self.geom_mat = np.array([_quat_to_mat(q) for q in model.geom_quat], np.float32)
-    self.site_body = model.site_bodyid.copy()
-    self.site_pos = model.site_pos.astype(np.float32)
-
-  def bodies(self, qpos: jax.Array) -> Tuple[jax.Array, jax.Array]:
-    """(xpos [nbody, 3] (m), xmat [nbody, 3, 3]) of configuration qpos [nq]."""
-    xpos, xmat = [jnp.zeros(3, jnp.float32)], [jnp.eye(3, dtype=jnp.float32)]
-    for b in range(1, len(self.parent)):
-      p = self.parent[b]
-      pos = xpos[p] + xmat[p] @ self.body_pos[b]
-      mat = xmat[p] @ self.body_mat[b]
-      for axis, jpos, adr, q0 in self.joints[b]:
-        anchor = pos + mat @ jpos
-        mat = mat @ _axis_angle(axis, qpos[adr] - q0)
-        pos = anchor - mat @ jpos
-      xpos.append(pos)
-      xmat.append(mat)
-    return jnp.stack(xpos), jnp.stack(xmat)
-
-  def geoms(self, xpos: jax.Array, xmat: jax.Array, ids: np.ndarray):
-    """(pos [G, 3], mat [G, 3, 3]) of the geoms `ids` [G] from the body poses."""
-    b = self.geom_body[ids]
-    pos = xpos[b] + jnp.einsum('gij,gj->gi', xmat[b], self.geom_pos[ids])
-    return pos, jnp.einsum('gij,gjk->gik', xmat[b], self.geom_mat[ids])
-
-  def site(self, xpos: jax.Array, xmat: jax.Array, site: int) -> jax.Array:
-    """[3] position (m) of one site."""
-    return xpos[self.site_body[site]] + xmat[self.site_body[site]] @ self.site_pos[site]
-
-
-def _axis_angle(axis: np.ndarray, angle: jax.Array) -> jax.Array:
-  """[3, 3] rotation by angle (rad) about the unit axis [3] (Rodrigues)."""
-  k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]],
-               np.float32)
-  return jnp.eye(3, dtype=jnp.float32) + jnp.sin(angle) * k + (1.0 - jnp.cos(angle)) * (k @ k)
-
-
 # ---------------------------------------------------------------- the task
 
 
@@ -333,7 +266,7 @@ class ShelfEnv(base.Env):
     self.mj_model = mujoco.MjModel.from_xml_string(model_xml(config))
     self.mjx_model = mjx.put_model(self.mj_model)
     self._data_template = mjx.make_data(self.mjx_model)
-    self.chain = ChainKinematics(self.mj_model)
+    self.chain = kinematics.ChainKinematics(self.mj_model)
     m = self.mj_model
     self.tip_site = m.site('tip').id
     self.geom_ids = np.array([m.geom(n).id for n in config.collision_geoms])
