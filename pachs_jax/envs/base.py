@@ -125,7 +125,7 @@ class Env(abc.ABC):
 
   def evaluate(self, nodes: NodeState, actions: jax.Array) -> EdgeOutcome:
     """Evaluates B edges: nodes [B], actions [B, action_size] in [-1, 1]."""
-    _check_actions(actions, self.action_size, batched=True)
+    check_actions(actions, self.action_size, batched=True)
     return jax.vmap(self.transition)(nodes, actions)
 
   def observe(self, nodes: NodeState) -> jax.Array:
@@ -168,7 +168,7 @@ class Env(abc.ABC):
 
   def step(self, state: State, action: jax.Array) -> State:
     """One control step; reward = -cost, done on success, invalid edge or time limit."""
-    _check_actions(action, self.action_size, batched=False)
+    check_actions(action, self.action_size, batched=False)
     out = self.transition(state.pipeline_state, action)
     node = out.next_node
     success = out.is_goal.astype(jnp.float32)
@@ -182,7 +182,7 @@ class Env(abc.ABC):
     return State(node, self.observation(node), -out.cost, done, metrics, info)
 
 
-def _check_actions(actions: jax.Array, action_size: int, batched: bool) -> None:
+def check_actions(actions: jax.Array, action_size: int, batched: bool) -> None:
   """Raises a clear error for a wrong action shape (shapes are static under jit)."""
   shape = jnp.shape(actions)
   want = 2 if batched else 1

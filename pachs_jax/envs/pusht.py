@@ -408,12 +408,30 @@ class PushTEnv(base.Env):
                                        qacc_warmstart=node.qacc_warmstart)
 
   def transition(self, node: base.NodeState, action: jax.Array) -> base.EdgeOutcome:
+    data, action_ok = self._actuated(node, action)
+    data = jax.lax.fori_loop(0, self.config.substeps,
+                             lambda _, d: mjx.step(self.mjx_model, d), data)
+    return self._outcome(node, data, action_ok)
+
+  def evaluate(self, nodes: base.NodeState, actions: jax.Array) -> base.EdgeOutcome:
+    """`transition` of B edges, nodes [B], actions [B, A]: the same physics with the batch
+    inside the substep loop (the step is traced once under vmap, not batched as a loop body)."""
+    base.check_actions(actions, self.action_size, batched=True)
+    data, action_ok = jax.vmap(self._actuated)(nodes, actions)
+    step = jax.vmap(lambda d: mjx.step(self.mjx_model, d))
+    data = jax.lax.fori_loop(0, self.config.substeps, lambda _, d: step(d), data)
+    return jax.vmap(self._outcome)(nodes, data, action_ok)
+
+  def _actuated(self, node: base.NodeState, action: jax.Array):
+    """(mjx.Data of node with the action's joint targets as ctrl, [] bool action usable)."""
     action, action_ok = base.sanitize_actions(action)
     target = jnp.clip(node.qpos[:7] + ARM_ACTION_SCALE * action, self._arm_lower,
                       self._arm_upper)
-    data = self.restore(node).replace(ctrl=target)
-    data = jax.lax.fori_loop(0, self.config.substeps,
-                             lambda _, d: mjx.step(self.mjx_model, d), data)
+    return self.restore(node).replace(ctrl=target), action_ok
+
+  def _outcome(self, node: base.NodeState, data: mjx.Data, action_ok: jax.Array
+               ) -> base.EdgeOutcome:
+    """The EdgeOutcome of node's edge whose substeps ended in data."""
     next_node = base.NodeState(qpos=data.qpos, qvel=data.qvel, ctrl=data.ctrl,
                                qacc_warmstart=data.qacc_warmstart, goal=node.goal,
                                t=node.t + 1)

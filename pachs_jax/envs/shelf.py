@@ -498,7 +498,7 @@ class ShelfEnv(base.Env):
   def step(self, state: base.State, action: jax.Array) -> base.State:
     """One control step with the dense reward (not -cost); done on success, invalid edge or
     time limit. After an invalid edge the (terminal) state is the attempted configuration."""
-    base._check_actions(action, self.action_size, batched=False)  # pylint: disable=protected-access
+    base.check_actions(action, self.action_size, batched=False)
     c = self.config
     out, tip0, tip1, dists = self._edge(state.pipeline_state, action)
     node = out.next_node
