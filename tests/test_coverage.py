@@ -126,6 +126,20 @@ def test_rigid_motion_invariance(coverage_fn):
     assert np.abs(moved - base).max() <= 2.0 / cov_lib.GOAL_CELL_COUNT
 
 
+def test_numpy_version_matches_jax(coverage_fn):
+  """The host checks' numpy coverage and points_in_t (no compiled programs) agree with JAX's."""
+  rng = np.random.default_rng(3)
+  poses = np.concatenate([GOAL[:2] + rng.uniform(-0.08, 0.08, (256, 2)),
+                          rng.uniform(0, 2 * np.pi, (256, 1))], -1).astype(np.float32)
+  want = np.asarray(coverage_fn(poses, GOAL))
+  got = cov_lib.coverage(poses, GOAL, np)
+  assert got.dtype == np.float32 and want.min() < 0.5 < want.max()
+  np.testing.assert_allclose(got, want, atol=1.5 / cov_lib.GOAL_CELL_COUNT)
+  points = rng.uniform(-0.3, 0.1, (256, 40, 2)).astype(np.float32)
+  inside = np.asarray(jax.jit(cov_lib.points_in_t)(points, poses))
+  assert inside.any() and (np.mean(cov_lib.points_in_t(points, poses, np) != inside) < 1e-3)
+
+
 def test_non_finite_gives_zero(coverage_fn):
   poses = np.array([[np.nan, 0.0, 0.0], [0.0, 0.0, np.inf], [0.0, -np.inf, 0.0],
                     [0.0, 0.0, 0.0]])

@@ -66,21 +66,22 @@ GOAL_CELLS = _grid_cell_centres()[goal_mask()]  # [P, 2] goal-frame centres of t
 GOAL_CELL_COUNT = int(GOAL_CELLS.shape[0])  # P (740 for this T and grid)
 
 
-def points_in_t(points: jax.Array, t_pose: jax.Array) -> jax.Array:
-  """[..., P] bool: world points [..., P, 2] (m) inside the T at t_pose [..., 3]."""
-  points = jnp.asarray(points, jnp.float32)
-  t_pose = jnp.asarray(t_pose, jnp.float32)
-  c, s = jnp.cos(t_pose[..., 2:3]), jnp.sin(t_pose[..., 2:3])
+def points_in_t(points: jax.Array, t_pose: jax.Array, xp=jnp) -> jax.Array:
+  """[..., P] bool: world points [..., P, 2] (m) inside the T at t_pose [..., 3]; xp: jax.numpy
+  (traceable) or numpy (host checks, nothing compiled)."""
+  points = xp.asarray(points, xp.float32)
+  t_pose = xp.asarray(t_pose, xp.float32)
+  c, s = xp.cos(t_pose[..., 2:3]), xp.sin(t_pose[..., 2:3])
   dx = points[..., 0] - t_pose[..., 0:1]
   dy = points[..., 1] - t_pose[..., 1:2]
-  local = jnp.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
-  return _points_in_boxes(local)
+  local = xp.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+  return _points_in_boxes(local, xp)
 
 
-def _check_poses(t_pose, goal_pose) -> tuple[jax.Array, jax.Array]:
+def _check_poses(t_pose, goal_pose, xp=jnp) -> tuple[jax.Array, jax.Array]:
   """Converts to float32 and checks the (static) shapes; raises ValueError when wrong."""
-  t_pose = jnp.asarray(t_pose, jnp.float32)
-  goal_pose = jnp.asarray(goal_pose, jnp.float32)
+  t_pose = xp.asarray(t_pose, xp.float32)
+  goal_pose = xp.asarray(goal_pose, xp.float32)
   for name, pose in (('t_pose', t_pose), ('goal_pose', goal_pose)):
     if pose.ndim < 1 or pose.shape[-1] != 3:
       raise ValueError(f'{name} must have shape [..., 3] (x, y, yaw), got {tuple(pose.shape)}')
@@ -94,28 +95,28 @@ def _check_poses(t_pose, goal_pose) -> tuple[jax.Array, jax.Array]:
   return t_pose, goal_pose
 
 
-def coverage(t_pose: jax.Array, goal_pose: jax.Array) -> jax.Array:
+def coverage(t_pose: jax.Array, goal_pose: jax.Array, xp=jnp) -> jax.Array:
   """[...] float32 area(T n goal T) / area(goal T), rasterised; t_pose, goal_pose [..., 3].
 
   A grid cell belongs to a shape when its centre lies inside it; the result is the fraction of
   the goal T's cells (`GOAL_CELLS`) inside the T. Leading axes broadcast; a non-finite pose
-  gives 0.
+  gives 0. xp: jax.numpy (traceable) or numpy (host checks, nothing compiled).
   """
-  t_pose, goal_pose = _check_poses(t_pose, goal_pose)
+  t_pose, goal_pose = _check_poses(t_pose, goal_pose, xp)
   # Pose of the goal frame in the T frame: a goal-frame point p maps to R(d) p + offset.
   d_yaw = goal_pose[..., 2] - t_pose[..., 2]
-  ct, st = jnp.cos(t_pose[..., 2]), jnp.sin(t_pose[..., 2])
+  ct, st = xp.cos(t_pose[..., 2]), xp.sin(t_pose[..., 2])
   gx = goal_pose[..., 0] - t_pose[..., 0]
   gy = goal_pose[..., 1] - t_pose[..., 1]
   off_x = (ct * gx + st * gy)[..., None]
   off_y = (-st * gx + ct * gy)[..., None]
-  cd, sd = jnp.cos(d_yaw)[..., None], jnp.sin(d_yaw)[..., None]
+  cd, sd = xp.cos(d_yaw)[..., None], xp.sin(d_yaw)[..., None]
   cx, cy = GOAL_CELLS[:, 0], GOAL_CELLS[:, 1]
-  local = jnp.stack([cd * cx - sd * cy + off_x, sd * cx + cd * cy + off_y], axis=-1)
-  inside = _points_in_boxes(local)  # [..., P]
-  cov = jnp.sum(inside, axis=-1, dtype=jnp.int32).astype(jnp.float32) / GOAL_CELL_COUNT
-  finite = jnp.all(jnp.isfinite(t_pose), axis=-1) & jnp.all(jnp.isfinite(goal_pose), axis=-1)
-  return jnp.where(finite, cov, 0.0)
+  local = xp.stack([cd * cx - sd * cy + off_x, sd * cx + cd * cy + off_y], axis=-1)
+  inside = _points_in_boxes(local, xp)  # [..., P]
+  cov = xp.sum(inside, axis=-1, dtype=xp.int32).astype(xp.float32) / xp.float32(GOAL_CELL_COUNT)
+  finite = xp.all(xp.isfinite(t_pose), axis=-1) & xp.all(xp.isfinite(goal_pose), axis=-1)
+  return xp.where(finite, cov, xp.float32(0.0))
 
 
 def is_success(

@@ -165,11 +165,6 @@ def _box_corners(box: np.ndarray) -> np.ndarray:
                    cy + s * local[:, 0] + c * local[:, 1]], -1)
 
 
-# One compiled program each for the layout checks (eager, they dispatch dozens of small ones).
-_coverage_jit = jax.jit(coverage.coverage)
-_points_in_t_jit = jax.jit(coverage.points_in_t)
-
-
 def start_clear(poses: np.ndarray, goals: np.ndarray, blocks: np.ndarray,
                 success_coverage: float = coverage.SUCCESS_THRESHOLD) -> np.ndarray:
   """[N] bool: T poses [N, 3] that are valid starts for goals [N, 3] among blocks [M, 5].
@@ -178,12 +173,12 @@ def start_clear(poses: np.ndarray, goals: np.ndarray, blocks: np.ndarray,
   position (a 6 cm square around `TIP_START_XY`) or overlaps a block grown by 5 mm.
   """
   poses = np.asarray(poses, np.float32)
-  ok = np.asarray(_coverage_jit(poses, np.asarray(goals, np.float32))) < success_coverage
+  ok = coverage.coverage(poses, np.asarray(goals, np.float32), np) < success_coverage
   keep_out = [_box_points(np.array([TIP_START_XY[0], TIP_START_XY[1], 0.03, 0.03, 0.0]))]
   keep_out += [_box_points(np.asarray(o) + np.array([0, 0, 0.005, 0.005, 0]))
                for o in np.asarray(blocks).reshape(-1, 5)]
   for pts in keep_out:
-    hit = np.asarray(_points_in_t_jit(np.broadcast_to(pts, (len(poses),) + pts.shape), poses))
+    hit = coverage.points_in_t(np.broadcast_to(pts, (len(poses),) + pts.shape), poses, np)
     ok &= ~hit.any(axis=-1)
     ok &= ~_t_points_in_box(poses, pts)
   return ok
@@ -204,7 +199,7 @@ def check_layout(layout: layouts.Layout,
       raise ValueError(f'{where}: block {i} {tuple(block.tolist())} needs finite values and '
                        'positive half sizes')
     grown = _box_points(block + np.array([0, 0, 0.005, 0.005, 0], np.float32))
-    if (np.asarray(_points_in_t_jit(grown, goal)).any()
+    if (coverage.points_in_t(grown, goal, np).any()
         or _t_points_in_box(goal[None], grown)[0]):
       raise ValueError(f'{where}: block {i} {tuple(np.round(block, 4).tolist())} overlaps the '
                        f'goal T at {FIXED_GOAL[:2]} (or comes within 5 mm of it)')
