@@ -33,6 +33,8 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
   with compile_cache.compile_log() as log:
     cache = compile_cache.enable()
     on_cpu = jax.default_backend() == 'cpu'
+    jax.devices()
+    phase('backend_init')
     env, model = planner.load_model(task, None, backend)
     config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
     phase('model_load')

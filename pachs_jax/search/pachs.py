@@ -273,8 +273,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
   time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
-    least one) while the next chunk, timed as the last, would end within the limit (s), and
-    instances still searching then report TIME_LIMIT with the path to their real-time answer.
+    least one) while the next chunk and the result, timed as their last runs, would end within
+    the limit (s), and instances still searching then report TIME_LIMIT with the path to their
+    real-time answer.
     The loops of the physics sizes the search can reach (the start's size and the smaller
     ones) are compiled concurrently before the clock starts: wall_time_s leaves them out.
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
@@ -334,5 +335,6 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       if time_limit_s is not None or not np.asarray(state.active).any():
         return state
 
-  out = anytime.timed_result(advance, state, programs['result'], time_limit_s)
+  out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
+                             timing=programs.setdefault('timing', {}))
   return types.first_rows(out, num_instances)

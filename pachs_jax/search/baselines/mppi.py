@@ -333,6 +333,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
         heap_overflow=zeros, pool_overflow=zeros, table_overflow=zeros,
         wall_time_s=jnp.float32(jnp.nan))
 
+  timing = {}  # instance count -> the last result's time (`anytime.timed_result`)
   init_jit, step_jit, run_jit, result_jit = (jax.jit(init), jax.jit(step), jax.jit(run),
                                              jax.jit(result))
 
@@ -340,8 +341,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
            nominal: Optional[jax.Array] = None) -> SearchResult:
     """Plans from start_nodes [I] (key: one PRNG key or [I, 2]; nominal: optional warm start
     [I, H, A]). time_limit_s None: all iterations in one jitted loop; otherwise one jitted
-    iteration per host step while the next one, timed as the last, would end within the
-    wall-clock limit (at least one iteration), and instances still running then report
+    iteration per host step while the next one and the result, timed as their last runs, would
+    end within the wall-clock limit (at least one iteration), and instances still running then report
     TIME_LIMIT. Compilation happens before the clock starts."""
     if time_limit_s is not None and not time_limit_s > 0:
       raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
@@ -353,7 +354,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     result_c = result_jit.lower(shape).compile()
 
     return anytime.timed_result(loop_c, init_c(start_nodes, keys, nominal), result_c,
-                                time_limit_s)
+                                time_limit_s, timing=timing.setdefault(num, {}))
 
   return Mppi(init=init_jit, step=step_jit, run=run_jit, result=result_jit, plan=plan,
               config=config)

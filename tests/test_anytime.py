@@ -1,0 +1,98 @@
+"""The anytime wall-clock rule on a simulated clock: chunks stop where the next chunk and the
+result, timed as their last runs, would pass the limit."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pachs_jax.search import anytime
+from pachs_jax.search.types import StopReason
+
+
+class Clock:
+  """A perf_counter that only moves when the fake planner works."""
+
+  def __init__(self):
+    self.now = 100.0
+
+  def __call__(self):
+    return self.now
+
+
+@dataclasses.dataclass
+class State:
+  active: np.ndarray
+  chunks: int = 0
+
+
+@dataclasses.dataclass
+class Result:
+  stop_reason: np.ndarray
+  wall_time_s: float = float('nan')
+
+  def replace(self, **changes):
+    return dataclasses.replace(self, **changes)
+
+
+@pytest.fixture
+def clock(monkeypatch):
+  clock = Clock()
+  monkeypatch.setattr(anytime.time, 'perf_counter', clock)
+  monkeypatch.setattr(anytime.jax, 'block_until_ready', lambda x: x)
+  return clock
+
+
+def make_planner(clock, chunk_s, result_s, stop_after=None):
+  def advance(state):
+    clock.now += chunk_s
+    chunks = state.chunks + 1
+    done = stop_after is not None and chunks >= stop_after
+    return State(np.array([not done, False]), chunks)
+
+  def result(state):
+    clock.now += result_s
+    result.chunks = state.chunks
+    return Result(np.where(state.active, StopReason.RUNNING, StopReason.GOAL))
+  return advance, result
+
+
+def test_result_time_is_held_in_reserve(clock):
+  advance, result = make_planner(clock, chunk_s=0.25, result_s=0.6)
+  timing = {}
+  first = anytime.timed_result(advance, State(np.array([True, False])), result, 3.0,
+                               timing=timing)
+  # no result time known yet: chunks run while the next one ends by 3 s (12 x 0.25 = 3)
+  assert result.chunks == 12
+  np.testing.assert_allclose(first.wall_time_s, 3.0 + 0.6, rtol=1e-6)
+  np.testing.assert_allclose(timing['result_s'], 0.6)
+  second = anytime.timed_result(advance, State(np.array([True, False])), result, 3.0,
+                                timing=timing)
+  # the next chunk and the 0.6 s result must end by 3 s: 9 chunks (2.25 + 0.6 = 2.85)
+  assert result.chunks == 9
+  np.testing.assert_allclose(second.wall_time_s, 2.85, rtol=1e-6)
+  assert list(second.stop_reason) == [StopReason.TIME_LIMIT, StopReason.GOAL]
+
+
+def test_clock_counts_from_the_given_start(clock):
+  advance, result = make_planner(clock, chunk_s=0.25, result_s=0.0)
+  start = clock.now
+  clock.now += 1.0  # e.g. an init between the start and the first chunk
+  out = anytime.timed_result(advance, State(np.array([True, False])), result, 3.0, start)
+  assert result.chunks == 8  # 1 + 8 x 0.25 = 3
+  np.testing.assert_allclose(out.wall_time_s, 3.0, rtol=1e-6)
+
+
+def test_finished_instances_stop_the_run_early(clock):
+  advance, result = make_planner(clock, chunk_s=0.25, result_s=0.1, stop_after=3)
+  out = anytime.timed_result(advance, State(np.array([True, False])), result, 3.0)
+  assert result.chunks == 3
+  assert list(out.stop_reason) == [StopReason.GOAL, StopReason.GOAL]
+
+
+def test_at_least_one_chunk_runs(clock):
+  advance, result = make_planner(clock, chunk_s=5.0, result_s=0.0)
+  out = anytime.timed_result(advance, State(np.array([True, False])), result, 1.0,
+                             timing={'result_s': 10.0})
+  assert result.chunks == 1
+  assert out.stop_reason[0] == StopReason.TIME_LIMIT
