@@ -69,12 +69,20 @@ def merge_open(payloads: List[Dict]) -> Dict:
             'curve_budgets': first['curve_budgets'], 'success_curve': {}}
   summary = {}
   for p in payloads:
-    merged['provenance']['merged_from'].append(
-        dict(p['provenance'], planners=[s['planner'] for s in p['summary']]))
+    provenance = dict(p['provenance'])
+    renamed = provenance.pop('renamed', None)
+    if 'merged_from' in provenance:  # an earlier merge: its sources, flat
+      merged['provenance']['merged_from'].extend(provenance['merged_from'])
+    else:
+      merged['provenance']['merged_from'].append(
+          dict(provenance, planners=[s['planner'] for s in p['summary']]))
+    if renamed:
+      merged['provenance'].setdefault('renamed', {}).update(renamed)
     for row in p['summary']:
       name = row['planner']
       summary[name] = row
-      merged['settings_per_planner'][name] = p['settings']
+      merged['settings_per_planner'][name] = p.get('settings_per_planner', {}).get(
+          name, p['settings'])
       merged['configs'][name] = p['configs'][name]
       merged['runs'][name] = p['runs'][name]
       merged['success_curve'][name] = p['success_curve'][name]
@@ -97,7 +105,7 @@ def load_source(source: str) -> Dict:
   for row in payload['summary']:
     if row['planner'] == old:
       row['planner'] = new
-  for table in ('runs', 'episodes', 'configs', 'success_curve'):
+  for table in ('runs', 'episodes', 'configs', 'success_curve', 'settings_per_planner'):
     if old in payload.get(table, {}):
       payload[table][new] = payload[table].pop(old)
   payload.setdefault('provenance', {})['renamed'] = {old: new}

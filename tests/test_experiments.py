@@ -137,3 +137,15 @@ def test_merge_source_rename_keeps_an_earlier_variant_beside_a_new_default(tmp_p
   for bad in ('#nope=x', '#pachs=parallel', '#pachs'):
     with pytest.raises(ValueError, match='rename'):
       merge_results.load_source(f'{path}{bad}')
+
+
+def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
+  first = dict(_open({'pachs': [1.0, 2.0]}), provenance={'git_revision': 'a'})
+  second = dict(_open({'beam': [3.0, None]}), provenance={'git_revision': 'b'})
+  second['settings'] = dict(second['settings'], note='beam run')
+  merged = merge_results.merge_open([first, second])
+  third = dict(_open({'pachs': [2.0, 2.0]}), provenance={'git_revision': 'c'})
+  again = merge_results.merge_open([merged, third])
+  assert [p['git_revision'] for p in again['provenance']['merged_from']] == ['a', 'b', 'c']
+  assert again['settings_per_planner']['beam']['note'] == 'beam run'
+  assert again['runs']['pachs'] == third['runs']['pachs']
