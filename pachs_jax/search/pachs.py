@@ -54,7 +54,8 @@ class Search:
     buffers are donated; `size` is static: one program per size).
   lane_sizes(I) -> the compacted lane counts (ascending; config.compact_fractions of I * K,
     each at least K).
-  size_for(state) -> the `size` whose loop applies to state now (host; reads state.active).
+  size_of(num_active, I) -> the `size` whose loop applies to num_active of I instances;
+    size_for(state) -> the one that applies to state now (host; reads state.active).
   run_chunk(state, num_iterations) -> loop(state, num_iterations, size_for(state)).
   run(state) -> state when every instance has stopped (one program: the loops of every size).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
@@ -71,10 +72,12 @@ class Search:
   config: SearchConfig
   compiled: dict = dataclasses.field(default_factory=dict, compare=False, hash=False)
 
+  def size_of(self, num_active: int, num_instances: int) -> Optional[int]:
+    lanes = num_active * self.config.pop_size
+    return next((size for size in self.lane_sizes(num_instances) if size >= lanes), None)
+
   def size_for(self, state: SearchState) -> Optional[int]:
-    lanes = int(np.sum(np.asarray(state.active))) * self.config.pop_size
-    return next((size for size in self.lane_sizes(state.active.shape[0]) if size >= lanes),
-                None)
+    return self.size_of(int(np.sum(np.asarray(state.active))), state.active.shape[0])
 
   def run_chunk(self, state: SearchState, num_iterations) -> SearchState:
     return self.loop(state, num_iterations, size=self.size_for(state))
@@ -276,8 +279,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     least one) while the next chunk and the result, timed as their last runs, would end within
     the limit (s), and instances still searching then report TIME_LIMIT with the path to their
     real-time answer.
-    The loops of the physics sizes the search can reach (the start's size and the smaller
-    ones) are compiled concurrently before the clock starts: wall_time_s leaves them out.
+    The programs (the loops of the physics sizes the search can reach: the live instances'
+    size and the smaller ones) are compiled or loaded concurrently, beside the model check,
+    before the clock starts: wall_time_s leaves them out.
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
@@ -293,40 +297,45 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   num_instances = types.check_start_nodes(start_nodes, env)
   fingerprint = program_fingerprint(env, actor_critic, config)
   stored = lambda name: fingerprint and f'{fingerprint} {name}'
-  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions,
-                            stored('model check'))
   keys = types.instance_keys(key, num_instances)
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
   padded = bucket_size(num_instances, min_bucket)
-  if padded != num_instances:
-    start_nodes, keys = types.pad_rows((start_nodes, keys), padded)
-  live = jax.device_put(np.arange(padded) < num_instances)
-  programs = search.compiled.get((padded, jax.default_backend()))
-  if programs is None:
-    init = compile_cache.compiled_program(search.init, (start_nodes, keys, live), stored('init'))
-    result = compile_cache.compiled_program(search.result, (init.out_shapes,), stored('result'))
-    memory.check_fits(env, actor_critic, search, start_nodes, padded,
-                      need=memory.tree_bytes((init.out_shapes, result.out_shapes)))
-    programs = {'init': init, 'result': result}
-    search.compiled[(padded, jax.default_backend())] = programs
   steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
-
-  def compile_loop(size):
-    return compile_cache.compiled_program(
-        jax.jit(lambda state, n: search.loop(state, n, size=size), donate_argnums=0),
-        (programs['init'].out_shapes, steps), stored(f'loop size={size}'), donate_argnums=(0,))
-
-  # the loops of the sizes this search can reach (lanes only shrink), compiled concurrently
-  state = programs['init'](start_nodes, keys, live)
-  first = search.size_for(state)
+  # the loops of the sizes this search can reach (lanes only shrink from the live instances')
+  first = search.size_of(num_instances, padded)
   reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
                          if first is None or s < first]
-  missing = [size for size in reachable if ('loop', size) not in programs]
-  if missing:
-    with concurrent.futures.ThreadPoolExecutor(len(missing)) as threads:
-      programs.update(zip([('loop', size) for size in missing],
-                          threads.map(compile_loop, missing)))
+  programs = dict(search.compiled.get((padded, jax.default_backend()), {}))
+  # every program compiled (or loaded from the store) at once, beside the model check
+  threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
+  try:
+    checked = threads.submit(types.check_model_outputs, env, actor_critic, start_nodes,
+                             config.num_actions, stored('model check'))
+    if padded != num_instances:
+      start_nodes, keys = types.pad_rows((start_nodes, keys), padded)
+    live = jax.device_put(np.arange(padded) < num_instances)
+    new = 'init' not in programs
+    if new:
+      programs['init'] = compile_cache.compiled_program(
+          search.init, (start_nodes, keys, live), stored('init'))
+      result = threads.submit(compile_cache.compiled_program, search.result,
+                              (programs['init'].out_shapes,), stored('result'))
+    loops = {('loop', size): threads.submit(
+        compile_cache.compiled_program,
+        jax.jit(lambda state, n, size=size: search.loop(state, n, size=size), donate_argnums=0),
+        (programs['init'].out_shapes, steps), stored(f'loop size={size}'), donate_argnums=(0,))
+             for size in reachable if ('loop', size) not in programs}
+    checked.result()  # a bad model's error before anything runs
+    if new:
+      programs['result'] = result.result()
+      memory.check_fits(env, actor_critic, search, start_nodes, padded, need=memory.tree_bytes(
+          (programs['init'].out_shapes, programs['result'].out_shapes)))
+    programs.update({name: loop.result() for name, loop in loops.items()})
+  finally:
+    threads.shutdown(wait=False, cancel_futures=True)
+  search.compiled[(padded, jax.default_backend())] = programs
+  state = programs['init'](start_nodes, keys, live)
 
   def advance(state):
     """One chunk (time limit) or the whole search: the loop of each size in turn."""
