@@ -341,9 +341,9 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
            nominal: Optional[jax.Array] = None) -> SearchResult:
     """Plans from start_nodes [I] (key: one PRNG key or [I, 2]; nominal: optional warm start
     [I, H, A]). time_limit_s None: all iterations in one jitted loop; otherwise one jitted
-    iteration per host step while the next one and the result, timed as their last runs, would
-    end within the wall-clock limit (at least one iteration), and instances still running then report
-    TIME_LIMIT. Compilation happens before the clock starts."""
+    iteration per host step while the next one and the result, timed as their last runs,
+    would end within the wall-clock limit (at least one iteration), and instances still running
+    then report TIME_LIMIT. Compilation happens before the clock starts."""
     if time_limit_s is not None and not time_limit_s > 0:
       raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
     num = types.check_start_nodes(start_nodes, env)
