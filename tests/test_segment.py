@@ -144,9 +144,9 @@ def test_pool_and_heaps_are_sized_per_edge():
 def test_algorithms_are_named():
   default = planner.default_config('pusht-obs')
   original = planner.default_config('pusht-obs', 'original')
-  assert (default.edge_steps, default.rollout_lanes) == (8, 32)
+  assert (default.edge_steps, default.rollout_lanes) == (8, 56)
   assert (original.edge_steps, original.rollout_lanes) == (1, 0)
-  assert planner.default_config('pusht-obs', pop_size=4).rollout_lanes == 2
+  assert planner.default_config('pusht-obs', pop_size=4).rollout_lanes == 3
   assert planner.default_config('pusht-fixed').rollout_lanes == 0
   assert original.pop_size == 256 and original.lattice_resolution == (0.005, 0.005, 0.05,
                                                                       0.01, 0.01)
