@@ -65,13 +65,16 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
           'in_process_s': time.perf_counter() - T_START}
 
 
-def cold_then_warm(command: list):
-  """Runs command twice with one fresh persistent cache: yields (run, process wall s, stdout)
-  for run 'cold' and then 'warm'; a failing run ends the benchmark with its stderr."""
+def cold_then_warm(command: list, warm_variants: dict = None, repeats: int = 1):
+  """Runs command cold and then warm `repeats` times (each warm variant, label -> command, in
+  turn) with one fresh persistent cache: yields (run, process wall s, stdout), run 'cold',
+  'warm' or a variant's label; a failing run ends the benchmark with its stderr."""
+  runs = [('cold', command)] + [run for _ in range(repeats)
+                                for run in [('warm', command)] + list((warm_variants or {}).items())]
   with tempfile.TemporaryDirectory() as cache:
-    for run in ('cold', 'warm'):
+    for run, argv in runs:
       began = time.perf_counter()
-      done = subprocess.run(command, capture_output=True, text=True,
+      done = subprocess.run(argv, capture_output=True, text=True,
                             env=dict(os.environ, PACHS_COMPILATION_CACHE=cache))
       wall = time.perf_counter() - began
       if done.returncode:
@@ -88,6 +91,8 @@ def main():
   parser.add_argument('--commands', default='',
                       help='instance counts of the real `pachs plan` processes to time too, '
                       'cold and warm, comma separated')
+  parser.add_argument('--repeats', type=int, default=1,
+                      help='warm runs of each real command (and as many without prefetch)')
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
   parser.add_argument('--merge', default='',
@@ -114,11 +119,15 @@ def main():
   commands = []
   for count in map(int, filter(None, args.commands.split(','))):
     spec = '0' if count == 1 else f'0-{count - 1}'
-    command = [sys.executable, '-m', 'pachs_jax.cli', 'plan', '--task', args.task,
-               '--instances', spec, '--backend', args.backend] + budget
-    for run, wall, stdout in cold_then_warm(command):
+    words = ['plan', '--task', args.task, '--instances', spec, '--backend', args.backend] + budget
+    command = [sys.executable, '-m', 'pachs_jax.cli'] + words
+    # the command without `cli.main`'s prefetch of the executables it used last time
+    unfetched = [sys.executable, '-c', 'import sys; from pachs_jax import cli; '
+                 'sys.exit(cli._main(sys.argv[1:]))'] + words
+    for run, wall, stdout in cold_then_warm(command, {'warm, no prefetch': unfetched},
+                                            args.repeats):
       summary = [l for l in stdout.splitlines() if l.startswith('found ')][-1]
-      commands.append(dict(command=' '.join(['pachs'] + command[3:]), instances=count,
+      commands.append(dict(command=' '.join(['pachs'] + words), instances=count,
                            run=run, process_wall_s=wall, summary=summary))
       print(json.dumps(commands[-1]), flush=True)
   result = {'provenance': common.provenance(), 'task': args.task, 'rows': rows,

@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 
 from pachs_jax import argtypes
 
@@ -237,9 +238,33 @@ def _plan(args: argparse.Namespace) -> int:
   return _write_outputs('pachs plan', outputs)
 
 
+def _prefetch(words) -> None:
+  """Loads the stored executables that this command line used last time (in a thread)."""
+  try:
+    from pachs_jax import compile_cache
+    compile_cache.prefetch(compile_cache.command_index(words))
+  except Exception:  # pylint: disable=broad-except  (it only saves time)
+    pass
+
+
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
   words = sys.argv[1:] if argv is None else list(argv)
+  # `pachs plan`: the executables this command used last time load beside the imports and model
+  # load (not with --no-cache, nor where --devices may join a multi-host job first)
+  prefetching = None
+  if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
+    prefetching = threading.Thread(target=_prefetch, args=(words,), daemon=True)
+    prefetching.start()
+  code = _main(words)
+  if prefetching is not None:  # (an error exits without waiting for it)
+    prefetching.join()
+    from pachs_jax import compile_cache
+    compile_cache.finish_prefetch()
+  return code
+
+
+def _main(words) -> int:
   if any(w == '--gif' or w.startswith('--gif=') for w in words):
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
@@ -310,7 +335,7 @@ def main(argv=None) -> int:
                     help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
                          'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')
   plan.set_defaults(func=_plan)
-  args = parser.parse_args(argv)
+  args = parser.parse_args(words)
   num_instances = envs.spec(args.task).num_instances
   if args.command == 'demo' and not 0 <= args.instance < num_instances:
     demo.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')

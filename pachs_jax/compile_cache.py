@@ -5,6 +5,7 @@ the cache lookup."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import functools
@@ -171,6 +172,8 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
       return _compile(jitted, args)
     stored = _compile_trace(*traced, args, specs, donate_argnums, path)
   compiled, out_def, out_specs = stored
+  if _PREFETCH is not None and os.path.exists(path + '.executable'):
+    _PREFETCH.used.append(path + '.executable')
   return Program(lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs))),
                  jax.tree.unflatten(out_def, out_specs))
 
@@ -227,13 +230,24 @@ def _executable(blob: bytes):
   return compiled, out_def, [jax.ShapeDtypeStruct(shape, dtype) for shape, dtype in out_specs]
 
 
-def _load(path: str, parse):
-  """parse(the bytes at path), or None when missing or unreadable (then rewritten)."""
+def _read(path: str, parse):
+  """parse(the bytes at path), or None when missing or unreadable."""
   try:
     with open(path, 'rb') as f:
       return parse(f.read())
   except Exception:  # pylint: disable=broad-except
     return None
+
+
+def _load(path: str, parse):
+  """parse(the bytes at path), or None when missing or unreadable (then rewritten); an
+  executable that `prefetch` is loading is taken from it."""
+  loading = _PREFETCH.loading.pop(path, None) if _PREFETCH is not None else None
+  if loading is not None:
+    stored = loading.result()
+    if stored is not None:
+      return stored
+  return _read(path, parse)
 
 
 def _write(path: str, blob: bytes):
@@ -247,3 +261,69 @@ def _write(path: str, blob: bytes):
     os.replace(temporary, path)
   except OSError:
     pass
+
+
+COMMANDS = 'commands'  # the traces' subdirectory: per command line, the executables it used
+
+
+@dataclasses.dataclass
+class _Prefetch:
+  """The executables of one command line: `loading` (path -> Future of `_executable`'s
+  result) those it used last time, `used` the paths it uses now, `index` where they are kept."""
+
+  index: str
+  loading: dict
+  used: list
+  thread: Any = None
+
+
+_PREFETCH: Optional[_Prefetch] = None  # this process's command line (`prefetch`)
+
+
+def command_index(words) -> Optional[str]:
+  """The file that lists the stored executables a command line (its words and working
+  directory) used last time; None when the cache is off."""
+  directory = default_dir()
+  if directory is None:
+    return None
+  key = hashlib.sha256(repr((list(words), os.getcwd(), source_digest(),
+                             library_versions())).encode()).hexdigest()
+  return os.path.join(directory, TRACES, COMMANDS, key[:32] + '.txt')
+
+
+def prefetch(index: Optional[str]) -> None:
+  """Loads, in this thread, the executables listed in index (`command_index`) for
+  `compiled_program` to take, and records the ones this process uses (`finish_prefetch` writes
+  them back). Called at a command's start, beside its imports and model load."""
+  global _PREFETCH
+  if index is None:
+    return
+  try:
+    with open(index) as f:
+      paths = [line.strip() for line in f if line.strip()]
+  except OSError:
+    paths = []
+  futures = {path: concurrent.futures.Future() for path in paths}
+  _PREFETCH = _Prefetch(index, dict(futures), [])
+  for path, future in futures.items():
+    if future.set_running_or_notify_cancel():
+      future.set_result(_read(path, _executable))
+
+
+def finish_prefetch() -> None:
+  """Writes the executables this process used to its command line's index (when they changed)
+  and drops the executables loaded but not used."""
+  global _PREFETCH
+  if _PREFETCH is None:
+    return
+  done, _PREFETCH = _PREFETCH, None
+  for future in done.loading.values():
+    future.cancel()
+  try:
+    with open(done.index) as f:
+      if set(f.read().split()) == set(done.used):
+        return
+  except OSError:
+    pass
+  _write(done.index, ''.join(f'{path}\n' for path in done.used).encode())
+

@@ -1,6 +1,8 @@
 """Programs compiled by `pachs.plan` (issue 15): the search compiles a few whole programs, never
 one program per array operation, and a second call of the same shapes compiles nothing."""
 
+import threading
+
 import jax
 import numpy as np
 import pytest
@@ -47,3 +49,50 @@ def test_plan_compiles_whole_programs_once(grid):
   with compile_cache.compile_log() as log:
     plan(env, ac, jax.device_put(more), CONFIG, key, search=search)
   assert set(log.compiled) <= {'jit(_threefry_split)', 'jit(first_rows)'}, log.compiled
+
+
+def test_prefetch_loads_what_the_command_line_used_last_time(tmp_path, monkeypatch):
+  # A command line's stored executables are listed in its index when it finishes; the next
+  # process with the same words loads them in the prefetch thread and `compiled_program` takes
+  # them from there. (The CPU stores no executables: they are faked here by name.)
+  monkeypatch.setenv(compile_cache.ENV_VAR, str(tmp_path))
+  previous = jax.config.jax_compilation_cache_dir
+  jax.config.update('jax_compilation_cache_dir', str(tmp_path))
+  compiled, parsed = {}, []
+  real = compile_cache._compile_trace
+
+  def compile_and_store(exported, out_def, args, specs, donate_argnums, path):
+    out = real(exported, out_def, args, specs, donate_argnums, path)
+    compiled[path + '.executable'] = out
+    with open(path + '.executable', 'w') as f:
+      f.write(path + '.executable')
+    return out
+
+  def load(blob):
+    parsed.append((blob.decode(), threading.current_thread().name))
+    return compiled[blob.decode()]
+
+  monkeypatch.setattr(compile_cache, '_compile_trace', compile_and_store)
+  monkeypatch.setattr(compile_cache, '_executable', load)
+  double = jax.jit(lambda x: 2 * x)
+  x = np.arange(3.0, dtype=np.float32)
+  words = ['plan', '--task', 'grid']
+  index = compile_cache.command_index(words)
+  assert index != compile_cache.command_index(words + ['--weight', '2'])
+  try:
+    compile_cache.prefetch(index)  # no index yet: nothing to load
+    np.testing.assert_allclose(compile_cache.compiled_program(double, (x,), 'double')(x), 2 * x)
+    compile_cache.finish_prefetch()
+    with open(index) as f:
+      listed = f.read().split()
+    assert listed == list(compiled) and parsed == []
+    thread = threading.Thread(target=compile_cache.prefetch, args=(index,), name='prefetch')
+    thread.start()
+    thread.join()
+    program = compile_cache.compiled_program(double, (x,), 'double')
+    np.testing.assert_allclose(program(x), 2 * x)
+    assert parsed == [(listed[0], 'prefetch')]  # loaded once, in the prefetch thread
+    compile_cache.finish_prefetch()
+  finally:
+    compile_cache.finish_prefetch()
+    jax.config.update('jax_compilation_cache_dir', previous)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import time
 from typing import Callable, Optional, Tuple
 
 import jax
@@ -268,6 +269,17 @@ def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: Search
   return None if None in parts else repr(parts + (config,))
 
 
+def _ready(programs: dict, name, waiting: Optional[dict] = None):
+  """programs[name], waiting for (and then storing) one still being compiled in a thread; the
+  time waited (s) is added to waiting['s'] when given."""
+  if isinstance(programs[name], concurrent.futures.Future):
+    began = time.perf_counter()
+    programs[name] = programs[name].result()
+    if waiting is not None:
+      waiting['s'] += time.perf_counter() - began
+  return programs[name]
+
+
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
          chunk_iterations: int = 32, search: Optional[Search] = None,
@@ -279,9 +291,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     least one) while the next chunk and the result, timed as their last runs, would end within
     the limit (s), and instances still searching then report TIME_LIMIT with the path to their
     real-time answer.
-    The programs (the loops of the physics sizes the search can reach: the live instances'
-    size and the smaller ones) are compiled or loaded concurrently, beside the model check,
-    before the clock starts: wall_time_s leaves them out.
+    The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
+    leaves them out: init, result and the loop of the live instances' physics size before the
+    clock starts; the loops of the smaller sizes the search can reach also before it with a
+    time limit, else beside the search (time spent waiting for one is not counted).
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
@@ -306,8 +319,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   first = search.size_of(num_instances, padded)
   reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
                          if first is None or s < first]
-  programs = dict(search.compiled.get((padded, jax.default_backend()), {}))
-  # every program compiled (or loaded from the store) at once, beside the model check
+  programs = search.compiled.setdefault((padded, jax.default_backend()), {})
+  # every program compiled (or loaded from the store) at once, beside the model check; without
+  # a time limit the smaller loops go on beside the search
   threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
   try:
     checked = threads.submit(types.check_model_outputs, env, actor_critic, start_nodes,
@@ -321,29 +335,41 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
           search.init, (start_nodes, keys, live), stored('init'))
       result = threads.submit(compile_cache.compiled_program, search.result,
                               (programs['init'].out_shapes,), stored('result'))
-    loops = {('loop', size): threads.submit(
-        compile_cache.compiled_program,
-        jax.jit(lambda state, n, size=size: search.loop(state, n, size=size), donate_argnums=0),
-        (programs['init'].out_shapes, steps), stored(f'loop size={size}'), donate_argnums=(0,))
-             for size in reachable if ('loop', size) not in programs}
+    for size in reachable:
+      if ('loop', size) not in programs:
+        programs[('loop', size)] = threads.submit(
+            compile_cache.compiled_program,
+            jax.jit(lambda state, n, size=size: search.loop(state, n, size=size),
+                    donate_argnums=0),
+            (programs['init'].out_shapes, steps), stored(f'loop size={size}'),
+            donate_argnums=(0,))
     checked.result()  # a bad model's error before anything runs
     if new:
       programs['result'] = result.result()
       memory.check_fits(env, actor_critic, search, start_nodes, padded, need=memory.tree_bytes(
           (programs['init'].out_shapes, programs['result'].out_shapes)))
-    programs.update({name: loop.result() for name, loop in loops.items()})
+    for size in reachable[:1] if time_limit_s is None else reachable:
+      _ready(programs, ('loop', size))
+    waiting = {'s': 0.0}  # for the smaller loops during the search
+    state = programs['init'](start_nodes, keys, live)
+
+    def advance(state):
+      """One chunk (time limit) or the whole search: the loop of each size in turn."""
+      while True:
+        state = _ready(programs, ('loop', search.size_for(state)), waiting)(state, steps)
+        if time_limit_s is not None or not np.asarray(state.active).any():
+          return state
+
+    out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
+                               timing=programs.setdefault('timing', {}))
+    out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
+    for size in reachable:  # nothing left compiling once plan returns
+      _ready(programs, ('loop', size), waiting)
+  except BaseException:
+    for name in [name for name, p in programs.items()
+                 if isinstance(p, concurrent.futures.Future)]:
+      programs.pop(name).cancel()
+    raise
   finally:
-    threads.shutdown(wait=False, cancel_futures=True)
-  search.compiled[(padded, jax.default_backend())] = programs
-  state = programs['init'](start_nodes, keys, live)
-
-  def advance(state):
-    """One chunk (time limit) or the whole search: the loop of each size in turn."""
-    while True:
-      state = programs[('loop', search.size_for(state))](state, steps)
-      if time_limit_s is not None or not np.asarray(state.active).any():
-        return state
-
-  out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
-                             timing=programs.setdefault('timing', {}))
+    threads.shutdown(wait=False)
   return types.first_rows(out, num_instances)
