@@ -258,9 +258,9 @@ def main(argv=None) -> int:
     prefetching.start()
   code = _main(words)
   if prefetching is not None:  # (an error exits without waiting for it)
-    prefetching.join()
     from pachs_jax import compile_cache
     compile_cache.finish_prefetch()
+    prefetching.join()
   return code
 
 

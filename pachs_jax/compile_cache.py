@@ -1,7 +1,8 @@
 """JAX's persistent compilation cache, on by default in the user's cache directory, so that a
 second run of a command skips XLA compilation, and beside it the traced search programs
 (`jax.export`) and their compiled executables, so that it also skips Python tracing, lowering and
-the cache lookup."""
+the cache lookup; a command line's executables can load at its start, beside its imports
+(`prefetch`)."""
 
 from __future__ import annotations
 
@@ -165,6 +166,8 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
   path = os.path.join(directory, TRACES, key[:32])
   if os.path.exists(path + '.unexportable'):
     return _compile(jitted, args)
+  if _PREFETCH is not None:  # in the order the command asks for them
+    _PREFETCH.used.append(path + '.executable')
   stored = _load(path + '.executable', _executable)
   if stored is None:
     traced = _load(path + '.exported', _exported) or _export(jitted, treedef, specs, path)
@@ -172,8 +175,6 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
       return _compile(jitted, args)
     stored = _compile_trace(*traced, args, specs, donate_argnums, path)
   compiled, out_def, out_specs = stored
-  if _PREFETCH is not None and os.path.exists(path + '.executable'):
-    _PREFETCH.used.append(path + '.executable')
   return Program(lambda *xs: jax.tree.unflatten(out_def, compiled(*jax.tree.leaves(xs))),
                  jax.tree.unflatten(out_def, out_specs))
 
@@ -241,9 +242,10 @@ def _read(path: str, parse):
 
 def _load(path: str, parse):
   """parse(the bytes at path), or None when missing or unreadable (then rewritten); an
-  executable that `prefetch` is loading is taken from it."""
+  executable that `prefetch` has begun loading is taken from it (one it has not, is loaded
+  here)."""
   loading = _PREFETCH.loading.pop(path, None) if _PREFETCH is not None else None
-  if loading is not None:
+  if loading is not None and not loading.cancel():  # prefetch has begun loading it: take it
     stored = loading.result()
     if stored is not None:
       return stored
@@ -274,7 +276,6 @@ class _Prefetch:
   index: str
   loading: dict
   used: list
-  thread: Any = None
 
 
 _PREFETCH: Optional[_Prefetch] = None  # this process's command line (`prefetch`)
@@ -311,19 +312,19 @@ def prefetch(index: Optional[str]) -> None:
 
 
 def finish_prefetch() -> None:
-  """Writes the executables this process used to its command line's index (when they changed)
-  and drops the executables loaded but not used."""
+  """Writes the executables this process asked for, in that order, to its command line's index
+  (when they changed), and cancels the loads `prefetch` has not begun."""
   global _PREFETCH
   if _PREFETCH is None:
     return
   done, _PREFETCH = _PREFETCH, None
   for future in done.loading.values():
     future.cancel()
+  listed = [path for path in dict.fromkeys(done.used) if os.path.exists(path)]
   try:
     with open(done.index) as f:
-      if set(f.read().split()) == set(done.used):
+      if f.read().split() == listed:
         return
   except OSError:
     pass
-  _write(done.index, ''.join(f'{path}\n' for path in done.used).encode())
-
+  _write(done.index, ''.join(f'{path}\n' for path in listed).encode())
