@@ -256,12 +256,31 @@ def main(argv=None) -> int:
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
     prefetching = threading.Thread(target=_prefetch, args=(words,), daemon=True)
     prefetching.start()
-  code = _main(words)
-  if prefetching is not None:  # (an error exits without waiting for it)
+  try:
+    code = _main(words)
+  except BaseException:
+    if prefetching is not None:  # (an error exits without waiting for it)
+      from pachs_jax import compile_cache
+      compile_cache.finish_prefetch(write=False)
+    raise
+  if prefetching is not None:
     from pachs_jax import compile_cache
     compile_cache.finish_prefetch()
     prefetching.join()
   return code
+
+
+def run() -> None:
+  """The `pachs` console command: `main()`, then the process ends at once (output flushed),
+  skipping the interpreter's and JAX's teardown (most of a second after a GPU run); a
+  multi-process JAX job ends normally."""
+  code = main()
+  jax = sys.modules.get('jax')
+  if jax is not None and jax.process_count() > 1:
+    sys.exit(code)
+  sys.stdout.flush()
+  sys.stderr.flush()
+  os._exit(code)
 
 
 def _main(words) -> int:
@@ -350,4 +369,4 @@ def _main(words) -> int:
 
 
 if __name__ == '__main__':
-  sys.exit(main())
+  run()

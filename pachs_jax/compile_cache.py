@@ -311,15 +311,17 @@ def prefetch(index: Optional[str]) -> None:
       future.set_result(_read(path, _executable))
 
 
-def finish_prefetch() -> None:
-  """Writes the executables this process asked for, in that order, to its command line's index
-  (when they changed), and cancels the loads `prefetch` has not begun."""
+def finish_prefetch(write: bool = True) -> None:
+  """Cancels the loads `prefetch` has not begun and, with write, lists the executables this
+  process asked for, in that order, in its command line's index (when they changed)."""
   global _PREFETCH
   if _PREFETCH is None:
     return
   done, _PREFETCH = _PREFETCH, None
   for future in done.loading.values():
     future.cancel()
+  if not write:
+    return
   listed = [path for path in dict.fromkeys(done.used) if os.path.exists(path)]
   try:
     with open(done.index) as f:
