@@ -92,7 +92,8 @@ def main():
                       help='instance counts of the real `pachs plan` processes to time too, '
                       'cold and warm, comma separated')
   parser.add_argument('--repeats', type=int, default=1,
-                      help='warm runs of each real command (and as many without prefetch)')
+                      help='warm runs of each real command (and as many of each variant: '
+                      'without prefetch, with the teardown)')
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
   parser.add_argument('--merge', default='',
@@ -121,11 +122,15 @@ def main():
     spec = '0' if count == 1 else f'0-{count - 1}'
     words = ['plan', '--task', args.task, '--instances', spec, '--backend', args.backend] + budget
     command = [sys.executable, '-m', 'pachs_jax.cli'] + words
-    # the command without `cli.main`'s prefetch of the executables it used last time
-    unfetched = [sys.executable, '-c', 'import sys; from pachs_jax import cli; '
-                 'sys.exit(cli._main(sys.argv[1:]))'] + words
-    for run, wall, stdout in cold_then_warm(command, {'warm, no prefetch': unfetched},
-                                            args.repeats):
+    # the command without `cli.main`'s prefetch of the executables it used last time, and
+    # without `cli.run`'s immediate exit (the interpreter's and JAX's teardown)
+    variants = {
+        'warm, no prefetch': [sys.executable, '-c', 'import os, sys; from pachs_jax import cli; '
+                              'code = cli._main(sys.argv[1:]); sys.stdout.flush(); '
+                              'os._exit(code)'] + words,
+        'warm, teardown': [sys.executable, '-c', 'import sys; from pachs_jax import cli; '
+                           'sys.exit(cli.main(sys.argv[1:]))'] + words}
+    for run, wall, stdout in cold_then_warm(command, variants, args.repeats):
       summary = [l for l in stdout.splitlines() if l.startswith('found ')][-1]
       commands.append(dict(command=' '.join(['pachs'] + words), instances=count,
                            run=run, process_wall_s=wall, summary=summary))
