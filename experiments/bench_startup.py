@@ -18,17 +18,28 @@ T_START = time.perf_counter()
 def child(task: str, instances: int, budget, backend: str) -> dict:
   """One process's phases (s), as `pachs plan` runs them (with its prefetch of the executables
   this child used last time, in a thread from the start), and the XLA programs it compiled."""
+  import logging
   import threading
+  reads = []  # (file, thread, began, ended): s from this process's start
+
+  class Reads(logging.Handler):
+    def emit(self, record):
+      name, _, began, ended, thread = record.args
+      reads.append((name[:12], thread, round(began - T_START, 3), round(ended - T_START, 3)))
+
+  store_log = logging.getLogger('pachs_jax.compile_cache')
+  store_log.addHandler(Reads())
+  store_log.setLevel(logging.DEBUG)
   from pachs_jax import cli
-  prefetching = threading.Thread(target=cli._prefetch, args=(sys.argv[1:],))
+  prefetching = threading.Thread(target=cli._prefetch, args=(sys.argv[1:],), name='prefetch')
   prefetching.start()
-  times = {}
+  times, ends = {}, {}
   mark = time.perf_counter()
 
   def phase(name):
     nonlocal mark
     now = time.perf_counter()
-    times[name] = now - mark
+    times[name], ends[name] = now - mark, round(now - T_START, 3)
     mark = now
 
   import jax
@@ -55,6 +66,7 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
     times['search'] = float(out.wall_time_s)
     times['checks_trace_compile'] = time.perf_counter() - began - times['search']
+    ends['plan'] = round(time.perf_counter() - T_START, 3)
     mark = time.perf_counter()
     loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
                    if isinstance(key, tuple))
@@ -64,7 +76,8 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     phase('output')
   compile_cache.finish_prefetch()
   prefetching.join()
-  return {'phases_s': times, 'programs_compiled': len(log.compiled),
+  return {'phases_s': times, 'phase_ends_s': ends, 'executable_reads': reads,
+          'programs_compiled': len(log.compiled),
           'persistent_cache_hits': len(log.cache_hits),
           'program_names': sorted(set(log.compiled)), 'found': sum(r['found'] for r in rows),
           'loop_sizes_compiled': loops,

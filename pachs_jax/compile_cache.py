@@ -15,12 +15,15 @@ import importlib.metadata
 import logging
 import os
 import pickle
+import threading
+import time
 from typing import Any, Callable, Iterator, List, Optional
 
 import jax
 from jax.experimental import serialize_executable
 import numpy as np
 
+LOGGER = logging.getLogger(__name__)
 ENV_VAR = 'PACHS_COMPILATION_CACHE'  # a directory, or 0 / off / false to disable
 
 
@@ -232,12 +235,17 @@ def _executable(blob: bytes):
 
 
 def _read(path: str, parse):
-  """parse(the bytes at path), or None when missing or unreadable."""
+  """parse(the bytes at path), or None when missing or unreadable; logs its time (debug)."""
+  began = time.perf_counter()
   try:
     with open(path, 'rb') as f:
       return parse(f.read())
   except Exception:  # pylint: disable=broad-except
     return None
+  finally:
+    LOGGER.debug('read %s in %.3f s (%.3f-%.3f s, thread %s)', os.path.basename(path),
+                 time.perf_counter() - began, began, time.perf_counter(),
+                 threading.current_thread().name)
 
 
 def _load(path: str, parse):
