@@ -250,10 +250,9 @@ def _read(path: str, parse):
 
 def _load(path: str, parse):
   """parse(the bytes at path), or None when missing or unreadable (then rewritten); an
-  executable that `prefetch` has begun loading is taken from it (one it has not, is loaded
-  here)."""
+  executable that `prefetch` loads is taken from it."""
   loading = _PREFETCH.loading.pop(path, None) if _PREFETCH is not None else None
-  if loading is not None and not loading.cancel():  # prefetch has begun loading it: take it
+  if loading is not None:  # loads are serialised inside XLA: wait rather than load beside it
     stored = loading.result()
     if stored is not None:
       return stored
