@@ -253,9 +253,10 @@ def _load(path: str, parse):
   executable that `prefetch` loads is taken from it."""
   loading = _PREFETCH.loading.pop(path, None) if _PREFETCH is not None else None
   if loading is not None:  # loads are serialised inside XLA: wait rather than load beside it
-    stored = loading.result()
-    if stored is not None:
-      return stored
+    try:
+      return loading.result()
+    except concurrent.futures.CancelledError:
+      pass
   return _read(path, parse)
 
 
@@ -313,9 +314,13 @@ def prefetch(index: Optional[str]) -> None:
     paths = []
   futures = {path: concurrent.futures.Future() for path in paths}
   _PREFETCH = _Prefetch(index, dict(futures), [])
-  for path, future in futures.items():
-    if future.set_running_or_notify_cancel():
-      future.set_result(_read(path, _executable))
+  try:
+    for path, future in futures.items():
+      if future.set_running_or_notify_cancel():
+        future.set_result(_read(path, _executable))
+  finally:  # should this thread fail, nobody waits for the rest
+    for future in futures.values():
+      future.cancel()
 
 
 def finish_prefetch(write: bool = True) -> None:
