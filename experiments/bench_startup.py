@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -111,6 +112,9 @@ def main():
   parser.add_argument('--commands', default='',
                       help='instance counts of the real `pachs plan` processes to time too, '
                       'cold and warm, comma separated')
+  parser.add_argument('--plan-args', default='',
+                      help="more `pachs plan` options for the real commands, given as "
+                      "--plan-args='--compact-fractions=' (with '=': they begin with --)")
   parser.add_argument('--repeats', type=int, default=1,
                       help='warm runs of each real command (and as many of each variant: '
                       'without prefetch, with the teardown)')
@@ -140,7 +144,8 @@ def main():
   commands = []
   for count in map(int, filter(None, args.commands.split(','))):
     spec = '0' if count == 1 else f'0-{count - 1}'
-    words = ['plan', '--task', args.task, '--instances', spec, '--backend', args.backend] + budget
+    words = (['plan', '--task', args.task, '--instances', spec, '--backend', args.backend]
+             + budget + shlex.split(args.plan_args))
     command = [sys.executable, '-m', 'pachs_jax.cli'] + words
     # the command without `cli.main`'s prefetch of the executables it used last time, and
     # without `cli.run`'s immediate exit (the interpreter's and JAX's teardown)
