@@ -204,7 +204,10 @@ def _plan(args: argparse.Namespace) -> int:
   start = time.perf_counter()
   key = jax.random.PRNGKey(args.seed)
   if devices is None:
-    result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit)
+    # one-shot: the whole search in the loop of the live instances' physics size (no further
+    # loop to compile or load; experiments/results/bench_startup_gpu_s11_*.md)
+    result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
+                        shrink=False)
   else:
     result = sharding.plan_sharded(env, model, starts, config, key,
                                    mesh=sharding.instance_mesh(devices))

@@ -83,6 +83,15 @@ def test_pachs_with_compaction_equals_without():
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
   assert_results_equal(got, want)
+  # without shrinking (the one-shot command): the search stays in the first size's loop
+  compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
+  search = make_search(env, ac, compacted)
+  env.batches.clear()
+  assert_results_equal(plan(env, ac, nodes, compacted, key, search=search, shrink=False), want)
+  jax.effects_barrier()
+  assert set(env.batches) == {32}, env.batches
+  assert [name for name in search.compiled[(8, jax.default_backend())]
+          if isinstance(name, tuple)] == [('loop', None)]
   # the same inside shard_map (the default mesh)
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
   sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,

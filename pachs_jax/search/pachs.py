@@ -49,10 +49,11 @@ class Search:
 
   init(start_nodes [I], keys [I, 2], live [I] bool) -> SearchState with the start states'
     dummy edges in OPEN; instances that are not live (padding) start stopped.
-  loop(state, num_iterations, size) -> state after at most num_iterations more iterations
-    whose edges are simulated in `size` physics lanes (None: all I * K), stopping early once
-    the active instances' lanes fit the next smaller of `lane_sizes(I)` (the input state's
-    buffers are donated; `size` is static: one program per size).
+  loop(state, num_iterations, size, shrink=True) -> state after at most num_iterations more
+    iterations whose edges are simulated in `size` physics lanes (None: all I * K), with
+    shrink (a traced bool) stopping early once the active instances' lanes fit the next
+    smaller of `lane_sizes(I)` (the input state's buffers are donated; `size` is static: one
+    program per size).
   lane_sizes(I) -> the compacted lane counts (ascending; config.compact_fractions of I * K,
     each at least K).
   size_of(num_active, I) -> the `size` whose loop applies to num_active of I instances;
@@ -219,14 +220,15 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                        chain=jnp.zeros((num_instances, r), jnp.int32),
                        **phases.start_state(pool, table, live))
 
-  def loop(state: SearchState, num_iterations, size: Optional[int] = None) -> SearchState:
+  def loop(state: SearchState, num_iterations, size: Optional[int] = None,
+           shrink=True) -> SearchState:
     smaller = [s for s in lane_sizes(state.active.shape[0]) if size is None or s < size]
     floor = max(smaller, default=0)  # lanes at which the next smaller size takes over
 
     def cond(carry):
       state, done = carry
       lanes = jnp.sum(state.active, dtype=jnp.int32) * k
-      return (lanes > floor) & (done < num_iterations)
+      return ((lanes > floor) | ~shrink) & (done < num_iterations)
 
     def body(carry):
       state, done = carry
@@ -283,7 +285,7 @@ def _ready(programs: dict, name, waiting: Optional[dict] = None):
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
          chunk_iterations: int = 32, search: Optional[Search] = None,
-         min_bucket: Optional[int] = None) -> SearchResult:
+         min_bucket: Optional[int] = None, shrink: bool = True) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -298,6 +300,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   search: a `make_search` result to reuse: its compiled programs stay warm between calls.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
+  shrink: move to the loops of smaller physics sizes as instances stop (each one more program
+    to compile or load); False runs the whole search in the loop of the live instances' size
+    (the one-shot `pachs plan`: a shorter start-up for a longer search).
   """
   if time_limit_s is not None and not time_limit_s > 0:
     raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
@@ -318,7 +323,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   # the loops of the sizes this search can reach (lanes only shrink from the live instances')
   first = search.size_of(num_instances, padded)
   reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
-                         if first is None or s < first]
+                         if shrink and (first is None or s < first)]
+  shrinking = jnp.asarray(shrink)
   programs = search.compiled.setdefault((padded, jax.default_backend()), {})
   # every program compiled (or loaded from the store) at once, beside the model check; without
   # a time limit the smaller loops go on beside the search
@@ -339,9 +345,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       if ('loop', size) not in programs:
         programs[('loop', size)] = threads.submit(
             compile_cache.compiled_program,
-            jax.jit(lambda state, n, size=size: search.loop(state, n, size=size),
+            jax.jit(lambda state, n, shrink, size=size: search.loop(state, n, size, shrink),
                     donate_argnums=0),
-            (programs['init'].out_shapes, steps), stored(f'loop size={size}'),
+            (programs['init'].out_shapes, steps, shrinking), stored(f'loop size={size}'),
             donate_argnums=(0,))
     checked.result()  # a bad model's error before anything runs
     if new:
@@ -356,7 +362,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     def advance(state):
       """One chunk (time limit) or the whole search: the loop of each size in turn."""
       while True:
-        state = _ready(programs, ('loop', search.size_for(state)), waiting)(state, steps)
+        size = search.size_for(state) if shrink else first
+        state = _ready(programs, ('loop', size), waiting)(state, steps, shrinking)
         if time_limit_s is not None or not np.asarray(state.active).any():
           return state
 
