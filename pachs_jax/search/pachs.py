@@ -228,7 +228,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     def cond(carry):
       state, done = carry
       lanes = jnp.sum(state.active, dtype=jnp.int32) * k
-      return ((lanes > floor) | ~shrink) & (done < num_iterations)
+      return (lanes > jnp.where(shrink, floor, 0)) & (done < num_iterations)
 
     def body(carry):
       state, done = carry
