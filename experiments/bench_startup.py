@@ -31,9 +31,6 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
   store_log = logging.getLogger('pachs_jax.compile_cache')
   store_log.addHandler(Reads())
   store_log.setLevel(logging.DEBUG)
-  from pachs_jax import cli
-  prefetching = threading.Thread(target=cli._prefetch, args=(sys.argv[1:],), name='prefetch')
-  prefetching.start()
   times, ends = {}, {}
   mark = time.perf_counter()
 
@@ -43,8 +40,11 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     times[name], ends[name] = now - mark, round(now - T_START, 3)
     mark = now
 
+  from pachs_jax import cli, compile_cache  # jax imported before the thread starts, as in cli
+  prefetching = threading.Thread(target=cli._prefetch, args=(sys.argv[1:],), name='prefetch')
+  prefetching.start()
   import jax
-  from pachs_jax import compile_cache, planner
+  from pachs_jax import planner
   from pachs_jax.search import pachs, types
   phase('imports')
   with compile_cache.compile_log() as log:

@@ -242,9 +242,10 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _prefetch(words) -> None:
-  """Loads the stored executables that this command line used last time (in a thread)."""
+  """Loads the stored executables that this command line used last time (in a thread; jax is
+  imported before it starts, so that the two threads never import one module at once)."""
+  from pachs_jax import compile_cache
   try:
-    from pachs_jax import compile_cache
     compile_cache.prefetch(compile_cache.command_index(words))
   except Exception:  # pylint: disable=broad-except  (it only saves time)
     pass
@@ -257,6 +258,7 @@ def main(argv=None) -> int:
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   prefetching = None
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
+    from pachs_jax import compile_cache  # pylint: disable=unused-import  (imports jax here)
     prefetching = threading.Thread(target=_prefetch, args=(words,), daemon=True)
     prefetching.start()
   try:
