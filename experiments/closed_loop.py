@@ -92,7 +92,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = dataclasses.replace(
         planner.default_config(task, algorithm, max_evaluations=args.budget),
-        realtime_answer=args.realtime_answer)
+        realtime_answer=args.realtime_answer, compact_fractions=args.compact_fractions)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):
@@ -233,6 +233,11 @@ def main():
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
   parser.add_argument('--realtime-answer', default='best_f', choices=['best_f', 'min_h'],
                       help="PACHS's answer without a goal (SearchConfig.realtime_answer)")
+  parser.add_argument('--compact-fractions', default=(),
+                      type=lambda text: tuple(float(x) for x in text.split(',') if x.strip()),
+                      help="PACHS's smaller physics batches, as fractions of the padded I x K "
+                      "lanes, comma separated (SearchConfig.compact_fractions; default none, "
+                      "as recorded)")
   parser.add_argument('--chunk-iterations', type=int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
