@@ -20,7 +20,6 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
   """One process's phases (s), as `pachs plan` runs them (with its prefetch of the executables
   this child used last time, in a thread from the start), and the XLA programs it compiled."""
   import logging
-  import threading
   reads = []  # (file, thread, began, ended): s from this process's start
 
   class Reads(logging.Handler):
@@ -40,43 +39,40 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     times[name], ends[name] = now - mark, round(now - T_START, 3)
     mark = now
 
-  from pachs_jax import cli, compile_cache  # jax imported before the thread starts, as in cli
-  prefetching = threading.Thread(target=cli._prefetch, args=(sys.argv[1:],), name='prefetch')
-  prefetching.start()
-  import jax
-  from pachs_jax import planner
-  from pachs_jax.search import pachs, types
-  phase('imports')
-  with compile_cache.compile_log() as log:
-    cache = compile_cache.enable()
-    on_cpu = jax.default_backend() == 'cpu'
-    jax.devices()
-    phase('backend_init')
-    env, model = planner.load_model(task, None, backend)
-    config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
-    phase('model_load')
-    starts = env.canonical_instances(instances)
-    jax.block_until_ready(starts)
-    phase('instance_generation')
-    search = pachs.make_search(env, model, config)
-    keys = types.instance_keys(jax.random.PRNGKey(0), instances)
-    phase('make_search')
-    # as `pachs plan` runs it: checks, tracing and compilation (or loading the stored programs;
-    # the loops of the reachable physics sizes concurrently), search
-    began = time.perf_counter()
-    out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
-    times['search'] = float(out.wall_time_s)
-    times['checks_trace_compile'] = time.perf_counter() - began - times['search']
-    ends['plan'] = round(time.perf_counter() - T_START, 3)
-    mark = time.perf_counter()
-    loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
-                   if isinstance(key, tuple))
-    rows = planner.result_rows(out, list(range(instances)))
-    print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
-          file=sys.stderr)
-    phase('output')
-  compile_cache.finish_prefetch()
-  prefetching.join()
+  from pachs_jax import compile_cache
+  with compile_cache.prefetching(sys.argv[1:]):  # as `pachs plan` (cli.main) runs it
+    import jax
+    from pachs_jax import planner
+    from pachs_jax.search import pachs, types
+    phase('imports')
+    with compile_cache.compile_log() as log:
+      cache = compile_cache.enable()
+      on_cpu = jax.default_backend() == 'cpu'
+      jax.devices()
+      phase('backend_init')
+      env, model = planner.load_model(task, None, backend)
+      config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
+      phase('model_load')
+      starts = env.canonical_instances(instances)
+      jax.block_until_ready(starts)
+      phase('instance_generation')
+      search = pachs.make_search(env, model, config)
+      keys = types.instance_keys(jax.random.PRNGKey(0), instances)
+      phase('make_search')
+      # as `pachs plan` runs it: checks, tracing and compilation (or loading the stored programs;
+      # the loops of the reachable physics sizes concurrently), search
+      began = time.perf_counter()
+      out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
+      times['search'] = float(out.wall_time_s)
+      times['checks_trace_compile'] = time.perf_counter() - began - times['search']
+      ends['plan'] = round(time.perf_counter() - T_START, 3)
+      mark = time.perf_counter()
+      loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
+                     if isinstance(key, tuple))
+      rows = planner.result_rows(out, list(range(instances)))
+      print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),
+            file=sys.stderr)
+      phase('output')
   return {'phases_s': times, 'phase_ends_s': ends, 'executable_reads': reads,
           'programs_compiled': len(log.compiled),
           'persistent_cache_hits': len(log.cache_hits),
@@ -90,8 +86,8 @@ def cold_then_warm(command: list, warm_variants: dict = None, repeats: int = 1):
   """Runs command cold and then warm `repeats` times (each warm variant, label -> command, in
   turn) with one fresh persistent cache: yields (run, process wall s, stdout), run 'cold',
   'warm' or a variant's label; a failing run ends the benchmark with its stderr."""
-  runs = [('cold', command)] + [run for _ in range(repeats)
-                                for run in [('warm', command)] + list((warm_variants or {}).items())]
+  warm = [('warm', command)] + list((warm_variants or {}).items())
+  runs = [('cold', command)] + warm * repeats
   with tempfile.TemporaryDirectory() as cache:
     for run, argv in runs:
       began = time.perf_counter()

@@ -17,7 +17,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import planner
+from pachs_jax import argtypes, planner
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import anytime, pachs
@@ -234,7 +234,7 @@ def main():
   parser.add_argument('--realtime-answer', default='best_f', choices=['best_f', 'min_h'],
                       help="PACHS's answer without a goal (SearchConfig.realtime_answer)")
   parser.add_argument('--compact-fractions', default=(),
-                      type=lambda text: tuple(float(x) for x in text.split(',') if x.strip()),
+                      type=lambda text: argtypes.numbers(text, 'fractions'),
                       help="PACHS's smaller physics batches, as fractions of the padded I x K "
                       "lanes, comma separated (SearchConfig.compact_fractions; default none, "
                       "as recorded)")

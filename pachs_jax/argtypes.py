@@ -23,3 +23,11 @@ def positive_float(text: str) -> float:
   if not (math.isfinite(value) and value > 0):
     raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
   return value
+
+
+def numbers(text: str, what: str) -> tuple:
+  """A comma-separated list of numbers ('' gives ()); what names them in the error."""
+  try:
+    return tuple(float(x) for x in text.split(',') if x.strip())
+  except ValueError:
+    raise argparse.ArgumentTypeError(f'must be {what}, comma separated, got {text!r}') from None

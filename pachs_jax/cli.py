@@ -6,7 +6,6 @@ import argparse
 import json
 import os
 import sys
-import threading
 
 from pachs_jax import argtypes
 
@@ -30,14 +29,6 @@ def _seed(text: str) -> int:
   if not -2**63 <= value < 2**63:
     raise argparse.ArgumentTypeError(f'must fit in 64 bits (-2**63 .. 2**63 - 1), got {text}')
   return value
-
-
-def _numbers(text: str, what: str):
-  """A comma-separated list of numbers ('' gives ())."""
-  try:
-    return tuple(float(x) for x in text.split(',') if x.strip())
-  except ValueError:
-    raise argparse.ArgumentTypeError(f'must be {what}, comma separated, got {text!r}') from None
 
 
 def check_output_path(flag: str, path: str) -> None:
@@ -241,38 +232,16 @@ def _plan(args: argparse.Namespace) -> int:
   return _write_outputs('pachs plan', outputs)
 
 
-def _prefetch(words) -> None:
-  """Loads the stored executables that this command line used last time (in a thread; jax is
-  imported before it starts, so that the two threads never import one module at once)."""
-  from pachs_jax import compile_cache
-  try:
-    compile_cache.prefetch(compile_cache.command_index(words))
-  except Exception:  # pylint: disable=broad-except  (it only saves time)
-    pass
-
-
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
   words = sys.argv[1:] if argv is None else list(argv)
   # `pachs plan`: the executables this command used last time load beside the imports and model
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
-  prefetching = None
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
-    from pachs_jax import compile_cache  # pylint: disable=unused-import  (imports jax here)
-    prefetching = threading.Thread(target=_prefetch, args=(words,), daemon=True)
-    prefetching.start()
-  try:
-    code = _main(words)
-  except BaseException:
-    if prefetching is not None:  # (an error exits without waiting for it)
-      from pachs_jax import compile_cache
-      compile_cache.finish_prefetch(write=False)
-    raise
-  if prefetching is not None:
     from pachs_jax import compile_cache
-    compile_cache.finish_prefetch()
-    prefetching.join()
-  return code
+    with compile_cache.prefetching(words):
+      return _main(words)
+  return _main(words)
 
 
 def run() -> None:
@@ -333,12 +302,12 @@ def _main(words) -> int:
                     help="the share of the K lanes that extend chains of the actor's edges "
                     "(default: the task's; 0: none)")
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
-  plan.add_argument('--lattice-resolution', type=lambda s: _numbers(s, 'cell sizes'),
+  plan.add_argument('--lattice-resolution', type=lambda s: argtypes.numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')
   plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
   plan.add_argument('--compact-fractions', default=None,
-                    type=lambda s: _numbers(s, 'fractions'),
+                    type=lambda s: argtypes.numbers(s, 'fractions'),
                     help='smaller physics batches as fractions of the I x K lanes, comma '
                     "separated ('' simulates every lane; default on a GPU: "
                     'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625; on a CPU none)')

@@ -323,6 +323,29 @@ def prefetch(index: Optional[str]) -> None:
       future.cancel()
 
 
+@contextlib.contextmanager
+def prefetching(words) -> Iterator[None]:
+  """Runs the block with `prefetch` of the command line's words in a thread (jax is imported
+  before it starts, so the two threads never import one module at once); afterwards writes the
+  index and waits for the thread, or after an error only cancels what it has not begun."""
+
+  def load():
+    try:
+      prefetch(command_index(words))
+    except Exception:  # pylint: disable=broad-except  (it only saves time)
+      pass
+
+  thread = threading.Thread(target=load, name='prefetch', daemon=True)
+  thread.start()
+  try:
+    yield
+  except BaseException:
+    finish_prefetch(write=False)  # (an error exits without waiting for the thread)
+    raise
+  finish_prefetch()
+  thread.join()
+
+
 def finish_prefetch(write: bool = True) -> None:
   """Cancels the loads `prefetch` has not begun and, with write, lists the executables this
   process asked for, in that order, in its command line's index (when they changed)."""
