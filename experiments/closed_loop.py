@@ -20,9 +20,12 @@ import stats
 from pachs_jax import argtypes, planner
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import anytime, pachs
+from pachs_jax.search import anytime, compact, pachs
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
+# physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
+# gathered, once they fit one of these fractions of the full batch
+COMPACT_FRACTIONS = (0.75, 0.5, 0.25, 0.125)
 
 
 def parse_perturbation(text: str) -> mujoco_c.Perturbation:
@@ -82,7 +85,7 @@ def policy_actions(env, model):
 
 def make_query(name: str, task: str, env, model, args, num: int):
   """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E], edge
-  evaluations [E]) numpy.
+  evaluations [E], found [E]: the path ends at a goal) numpy.
 
   Every planner's clock covers the whole query, its result included (`anytime.timed_result`).
   parallel: steps in chunks, then its best rollout; pachs: real-time mode
@@ -90,30 +93,39 @@ def make_query(name: str, task: str, env, model, args, num: int):
   by the executed actions."""
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
-    config = dataclasses.replace(
-        planner.default_config(task, algorithm, max_evaluations=args.budget),
-        realtime_answer=args.realtime_answer, compact_fractions=args.compact_fractions)
+    config = planner.default_config(task, algorithm, max_evaluations=args.budget,
+                                    realtime_answer=args.realtime_answer,
+                                    compact_fractions=args.compact_fractions)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):
       out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
                        chunk_iterations=args.chunk_iterations, search=search)
-      return np.asarray(out.path_actions), np.asarray(out.path_length), np.asarray(out.evaluated)
+      return (np.asarray(out.path_actions), np.asarray(out.path_length),
+              np.asarray(out.evaluated), np.asarray(out.found))
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
     rollout = bl.make_parallel_rollout(env, model, config)
-    compiled, timing = {}, {}
+    # physics batches as PACHS's: the copies of the episodes still running, gathered
+    sizes = compact.batch_sizes(num * args.copies, args.compact_fractions, minimum=args.copies)
+    compiled, steps, timing = {}, {}, {}
+    episodes_at_goal = jax.jit(env.is_goal)
 
     def query(nodes, keys, executed):
-      if not compiled:  # compile before the clock, as PACHS and MPPI do
+      if not compiled:  # compiled in the first query, before its clock, as PACHS and MPPI are
         shape = jax.eval_shape(rollout.init, nodes, keys)
         compiled.update(init=rollout.init.lower(nodes, keys).compile(),
                         **{f: getattr(rollout, f).lower(shape).compile()
-                           for f in ('step', 'stop', 'result')})
+                           for f in ('stop', 'result')})
+        steps.update({s: rollout.step.lower(shape, size=s).compile() for s in (None,) + sizes})
+      # the smallest batch that holds the running episodes' copies (instances only stop)
+      live = int(np.sum(~np.asarray(episodes_at_goal(nodes)))) * args.copies
+      size = next((s for s in sizes if s >= live), None)
+
       def chunk(state):
         for _ in range(args.chunk_iterations):
-          state = compiled['step'](state)
+          state = steps[size](state)
         return state
 
       # the clock covers init, the steps, and the stop and result (timed as their last runs),
@@ -122,7 +134,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
       out = anytime.timed_result(chunk, compiled['init'](nodes, keys),
                                  lambda state: compiled['result'](compiled['stop'](state)),
                                  args.query_time, start, timing)
-      return np.asarray(out.path_actions), np.asarray(out.path_length), np.asarray(out.evaluated)
+      return (np.asarray(out.path_actions), np.asarray(out.path_length),
+              np.asarray(out.evaluated), np.asarray(out.found))
     return query, config
   if name == 'mppi':
     config = bl.MppiConfig(max_evaluations=args.budget)
@@ -143,7 +156,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
       out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
-      return previous['actions'], previous['length'], np.asarray(out.evaluated)
+      return (previous['actions'], previous['length'], np.asarray(out.evaluated),
+              np.asarray(out.found))
     return query, config
   raise ValueError(f'unknown planner {name!r}')
 
@@ -171,7 +185,8 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   fallback = policy_actions(env, model)
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
-  empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
+  empty_answers, goal_answers, actions_per_query, evaluations_per_query = 0, 0, [], []
+  policy_steps = 0
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -179,7 +194,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
     start = time.perf_counter()
-    actions, lengths, evaluated = query(nodes, keys, executed)
+    actions, lengths, evaluated, found = query(nodes, keys, executed)
     elapsed = time.perf_counter() - start
     if q == 0:
       compile_s = elapsed  # the first query includes compilation
@@ -189,6 +204,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     actions = actions[:, :args.execute]
     empty = lengths == 0
     empty_answers += int(np.sum(empty & episodes.active))
+    goal_answers += int(np.sum(found & episodes.active))
     actions_per_query += lengths[episodes.active].tolist()
     evaluations_per_query += evaluated[episodes.active].tolist()
     if empty.any():
@@ -211,6 +227,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
+          'goal_answers': goal_answers,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}
@@ -231,13 +248,15 @@ def main():
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
-  parser.add_argument('--realtime-answer', default='best_f', choices=['best_f', 'min_h'],
-                      help="PACHS's answer without a goal (SearchConfig.realtime_answer)")
-  parser.add_argument('--compact-fractions', default=(),
+  parser.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h'],
+                      help="PACHS's answer without a goal (SearchConfig.realtime_answer; "
+                      "default: the algorithm's)")
+  parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,
                       type=lambda text: argtypes.numbers(text, 'fractions'),
-                      help="PACHS's smaller physics batches, as fractions of the padded I x K "
-                      "lanes, comma separated (SearchConfig.compact_fractions; default none, "
-                      "as recorded)")
+                      help="PACHS's and the parallel rollout's smaller physics batches, as "
+                      "fractions of the I x K (I x copies) lanes, comma separated "
+                      "(SearchConfig.compact_fractions; '' for none, as recorded before "
+                      "session 12)")
   parser.add_argument('--chunk-iterations', type=int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
@@ -293,7 +312,7 @@ def write_markdown(payload: Dict, path: str) -> None:
             f'World perturbation: {payload["perturbation"]}\n\n')
     f.write(common.markdown_table(rows, [
         'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
-        'queries_per_episode_mean', 'empty_answers', 'actions_per_query_mean',
+        'queries_per_episode_mean', 'empty_answers', 'goal_answers', 'actions_per_query_mean',
         'evaluations_per_query_mean', 'policy_fill_steps',
         'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
     f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '

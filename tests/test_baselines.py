@@ -110,6 +110,19 @@ def test_parallel_rollout_budget_and_restarts(env, start):
   assert bool(valid[0]) and np.isclose(float(cost[0]), float(result.cost[0]))
 
 
+def test_parallel_rollout_compacted_steps_match_full_steps(env, start):
+  # instance 3 starts at its goal: its copies leave the physics batch, and the 3 running
+  # instances' 9 copies fit a batch of 9 lanes; every step matches the full batch's
+  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  rollout = bl.make_parallel_rollout(env, gridworld.GridActorCritic(env), config)
+  full = small = rollout.init(start, jax.random.PRNGKey(0))
+  assert not bool(full.active[3])
+  for _ in range(7):
+    full, small = rollout.step(full), rollout.step(small, size=9)
+  assert_results_equal(rollout.result(small), rollout.result(full))
+  np.testing.assert_array_equal(np.asarray(small.node.qpos), np.asarray(full.node.qpos))
+
+
 def test_parallel_rollout_stop_returns_an_unfinished_copy(env, start):
   # episodes of 5 steps; stopped after 3 steps no copy has finished, yet a 3-step rollout is
   # returned (TIME_LIMIT), and an instance that already stopped keeps its result

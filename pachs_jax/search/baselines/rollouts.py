@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pachs_jax.envs import base
-from pachs_jax.search import types
+from pachs_jax.search import compact, types
 from pachs_jax.search.baselines import common
 from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
 
@@ -177,8 +177,10 @@ class RolloutState(common.SamplingState):
 
 @dataclasses.dataclass(frozen=True)
 class ParallelRollout:
-  """Jitted functions: init(start_nodes [I], key) -> RolloutState; step(state) -> state after
-  one loop step; run(state) -> state when all instances stopped; stop(state) -> state with the
+  """Jitted functions: init(start_nodes [I], key) -> RolloutState; step(state, size=None) ->
+  state after one loop step (size, static: simulate only the active instances' copies gathered
+  into that many lanes, at least their count, `compact.evaluate_live`; None: all I * M);
+  run(state) -> state when all instances stopped; stop(state) -> state with the
   active instances ended now (TIME_LIMIT; for a caller's wall-clock limit between steps);
   result(state) -> SearchResult; plan(start_nodes, key) = result(run(init(...)))."""
 
@@ -230,7 +232,7 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
             jnp.where(take, score[rows, j], state.best_score),
             jnp.where(take, cost[rows, j], state.best_cost))
 
-  def step(state: RolloutState) -> RolloutState:
+  def step(state: RolloutState, size: Optional[int] = None) -> RolloutState:
     num = state.active.shape[0]
     left = budget - state.evaluated
     lane = state.active[:, None] & (jnp.arange(m)[None, :] < left[:, None])
@@ -239,7 +241,9 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
     keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
     action = jax.vmap(lambda k, o: actor_critic.sample_actions(k, o, 1)[:, 0])(keys, obs)
     action = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32)), -1.0, 1.0)
-    out = _unflat(env.evaluate(flat_node, action.reshape(num * m, action_size)), num)
+    out = _unflat(compact.evaluate_live(env.evaluate, flat_node,
+                                        action.reshape(num * m, action_size),
+                                        lane.reshape(num * m), size), num)
     ok = lane & out.is_valid & jnp.isfinite(out.cost)
     bad = lane & ~ok
     rows = jnp.arange(num)[:, None]
@@ -311,6 +315,7 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
   def plan(start_nodes: base.NodeState, key: jax.Array) -> SearchResult:
     return result(run(init(start_nodes, key)))
 
-  return ParallelRollout(init=jax.jit(init), step=jax.jit(step), run=jax.jit(run),
+  return ParallelRollout(init=jax.jit(init), step=jax.jit(step, static_argnames='size'),
+                         run=jax.jit(run),
                          stop=jax.jit(stop), result=jax.jit(result), plan=jax.jit(plan),
                          config=config)
