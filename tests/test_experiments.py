@@ -14,8 +14,7 @@ import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
 import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
 import stats  # noqa: E402  pylint: disable=wrong-import-position
-from pachs_jax import envs
-from pachs_jax.envs import gridworld  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
 
 
@@ -71,29 +70,6 @@ def test_episodes_judge_success_in_the_world_and_stop_finished_ones():
   assert episodes.steps.tolist() == [0, 2]
   assert episodes.success.tolist() == [True, False]
   assert int(np.asarray(episodes.nodes[1].t)) == 2
-
-
-def test_kept_plans_keep_a_goal_plan_while_its_replay_still_reaches_the_goal():
-  env = gridworld.GridWorld(np.zeros((6, 6), bool), connectivity=8)
-  goals = np.array([[0, 4], [0, 4]], np.float32)
-  right = np.tile(np.array([[0.0, 1.0]], np.float32), (2, 6, 1))  # [E, T, A] moves along a row
-  kept = closed_loop.KeptPlans(env, 2)
-  kept.compile(env.node(np.zeros((2, 2), np.float32), goals), 6, 2)
-  # episode 0's plan reached its goal (4 moves), episode 1's did not: only the first is kept
-  kept.answer(np.zeros(2, bool), right, np.array([4, 4]), np.array([True, False]))
-  kept.executed(np.array([1, 1]))
-  assert kept.left.tolist() == [3, 0]
-  # from (0, 1) the 3 moves left still end at the goal: kept, and the planner sees a solved episode
-  nodes, hold, replayed = kept.check(env.node(np.array([[0, 1], [0, 1]], np.float32), goals))
-  assert hold.tolist() == [True, False] and replayed.tolist() == [3, 0]
-  assert np.asarray(nodes.qpos)[:, :2].tolist() == [[0, 4], [0, 1]]
-  actions, lengths = kept.answer(hold, np.zeros_like(right), np.array([0, 2]),
-                                 np.array([False, False]))
-  assert lengths.tolist() == [3, 2] and np.array_equal(actions[0, :3], right[0, :3])
-  # the world drifted to row 2: the same 3 moves end elsewhere, so the episode plans again
-  kept.executed(np.array([0, 0]))
-  _, hold, _ = kept.check(env.node(np.array([[2, 1], [0, 1]], np.float32), goals))
-  assert hold.tolist() == [False, False]
 
 
 def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
