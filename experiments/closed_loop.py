@@ -26,8 +26,6 @@ PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
 # gathered, once they fit one of these fractions of the full batch
 COMPACT_FRACTIONS = (0.75, 0.5, 0.25, 0.125)
-# the planners whose goal plans `--keep-plans` keeps (MPPI warm-starts from its last plan)
-KEEPING = ('parallel', 'pachs', 'pachs-original')
 
 
 def parse_perturbation(text: str) -> mujoco_c.Perturbation:
@@ -86,8 +84,8 @@ def policy_actions(env, model):
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
-  """query(nodes [E], keys [E, 2], executed, time_limit_s) -> (actions [E, T, A], lengths [E],
-  edge evaluations [E], found [E]: the path ends at a goal) numpy.
+  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E], edge
+  evaluations [E], found [E]: the path ends at a goal) numpy.
 
   Every planner's clock covers the whole query, its result included (`anytime.timed_result`).
   parallel: steps in chunks, then its best rollout; pachs: real-time mode
@@ -100,8 +98,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
                                     compact_fractions=args.compact_fractions)
     search = pachs.make_search(env, model, config)
 
-    def query(nodes, keys, executed, time_limit_s):
-      out = pachs.plan(env, model, nodes, config, keys, time_limit_s=time_limit_s,
+    def query(nodes, keys, executed):
+      out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
                        chunk_iterations=args.chunk_iterations, search=search)
       return (np.asarray(out.path_actions), np.asarray(out.path_length),
               np.asarray(out.evaluated), np.asarray(out.found))
@@ -114,7 +112,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     compiled, steps, timing = {}, {}, {}
     episodes_at_goal = jax.jit(env.is_goal)
 
-    def query(nodes, keys, executed, time_limit_s):
+    def query(nodes, keys, executed):
       if not compiled:  # compiled in the first query, before its clock, as PACHS and MPPI are
         shape = jax.eval_shape(rollout.init, nodes, keys)
         compiled.update(init=rollout.init.lower(nodes, keys).compile(),
@@ -135,7 +133,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
       start = time.perf_counter()
       out = anytime.timed_result(chunk, compiled['init'](nodes, keys),
                                  lambda state: compiled['result'](compiled['stop'](state)),
-                                 time_limit_s, start, timing)
+                                 args.query_time, start, timing)
       return (np.asarray(out.path_actions), np.asarray(out.path_length),
               np.asarray(out.evaluated), np.asarray(out.found))
     return query, config
@@ -146,7 +144,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     mppi = bl.make_mppi(env, model, config)
     previous = {}
 
-    def query(nodes, keys, executed, time_limit_s):
+    def query(nodes, keys, executed):
       # warm start: the last plan without its executed actions (its last action repeated),
       # or the policy's rollout from the current state where nothing of it is left
       nominal = np.asarray(mppi.init(nodes, keys).nominal)
@@ -156,83 +154,12 @@ def make_query(name: str, task: str, env, model, args, num: int):
         idx = np.minimum(np.arange(config.horizon)[None] + executed[:, None], last[:, None])
         shifted = np.take_along_axis(previous['actions'], idx[:, :, None], axis=1)
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
-      out = mppi.plan(nodes, keys, time_limit_s=time_limit_s, nominal=jnp.asarray(nominal))
+      out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return (previous['actions'], previous['length'], np.asarray(out.evaluated),
               np.asarray(out.found))
     return query, config
   raise ValueError(f'unknown planner {name!r}')
-
-
-class KeptPlans:
-  """Each episode's last plan that ended at a goal, kept while it still does.
-
-  Before a query, the plan's unexecuted actions are replayed (in the planner's physics) from the
-  episode's state in the world; where every one is valid and the last state is a goal, the
-  episode executes them instead of a new plan, and the planner sees it as solved (its replayed
-  goal state), so that it spends no lanes on it. The replay's time and transitions count
-  against the query.
-  """
-
-  def __init__(self, env, num: int):
-    self.actions = None  # [E, T, A] the kept plans
-    self.left = np.zeros(num, np.int64)  # actions of each not yet executed (0: none kept)
-
-    def replay(nodes, actions, length):
-      """(last states [E], every action valid and the last state a goal [E]) of actions
-      [E, T, A] applied for length [E] steps from nodes [E]."""
-      def body(carry):
-        t, node, valid = carry
-        out = env.evaluate(node, actions[:, t])
-        apply = t < length
-        node = jax.tree.map(lambda new, old: jnp.where(
-            apply.reshape((-1,) + (1,) * (new.ndim - 1)), new, old), out.next_node, node)
-        return t + 1, node, valid & (out.is_valid | ~apply)
-
-      _, last, valid = jax.lax.while_loop(
-          lambda carry: carry[0] < jnp.max(length), body,
-          (jnp.zeros((), jnp.int32), nodes, jnp.ones(length.shape, bool)))
-      return last, valid & env.is_goal(last)
-
-    self.replay = jax.jit(replay)
-
-  def compile(self, nodes, width: int, action_size: int) -> None:
-    """Compiles the replay of plans [E, width, A] (in the first query, outside the clock)."""
-    zeros = jnp.zeros((self.left.shape[0], width, action_size), jnp.float32)
-    jax.block_until_ready(self.replay(nodes, zeros, jnp.zeros(self.left.shape, jnp.int32)))
-
-  def check(self, nodes):
-    """(nodes for the planner [E], kept [E] bool, transitions replayed [E])."""
-    if not self.left.any():
-      return nodes, np.zeros_like(self.left, bool), np.zeros_like(self.left)
-    last, ok = self.replay(nodes, jnp.asarray(self.actions), jnp.asarray(self.left, jnp.int32))
-    kept = np.asarray(ok) & (self.left > 0)
-    mask = jnp.asarray(kept)
-    nodes = jax.tree.map(lambda new, old: jnp.where(
-        mask.reshape((-1,) + (1,) * (new.ndim - 1)), new, old), last, nodes)
-    return nodes, kept, self.left.copy()
-
-  def answer(self, kept, actions, lengths, found):
-    """The answers [E, T, A], [E] with the kept plans in place; the planner's goal plans
-    (found [E]) are kept from now on."""
-    if kept.any():
-      width = max(actions.shape[1], self.actions.shape[1])
-      pad = lambda a: np.pad(a, ((0, 0), (0, width - a.shape[1]), (0, 0)))
-      actions = np.where(kept[:, None, None], pad(self.actions), pad(actions))
-      lengths = np.where(kept, self.left, lengths)
-    keep = kept | found
-    self.actions = np.where(keep[:, None, None], actions, 0.0) if keep.any() else None
-    self.left = np.where(keep, lengths, 0)
-    return actions, lengths
-
-  def executed(self, steps):
-    """Drops the first steps [E] actions of each kept plan (executed in the world)."""
-    if self.actions is None:
-      return
-    t = self.actions.shape[1]
-    idx = np.minimum(np.arange(t)[None] + steps[:, None], t - 1)
-    self.actions = np.take_along_axis(self.actions, idx[:, :, None], axis=1)
-    self.left = np.maximum(self.left - steps, 0)
 
 
 def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
@@ -259,8 +186,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
   empty_answers, goal_answers, actions_per_query, evaluations_per_query = 0, 0, [], []
-  policy_steps, kept_answers = 0, 0
-  kept_plans = KeptPlans(env, num) if args.keep_plans and name in KEEPING else None
+  policy_steps = 0
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -268,16 +194,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
     start = time.perf_counter()
-    plan_nodes, kept, replayed = kept_plans.check(nodes) if kept_plans else (nodes, 0, 0)
-    actions, lengths, evaluated, found = query(
-        plan_nodes, keys, executed, max(args.query_time - (time.perf_counter() - start), 1e-3))
-    if kept_plans and q == 0:  # compiled within the first query, as the planners are
-      kept_plans.compile(nodes, actions.shape[1], actions.shape[2])
-    evaluated = evaluated + replayed
-    if kept_plans:
-      actions, lengths = kept_plans.answer(kept, actions, lengths, found)
-      kept_answers += int(np.sum(kept & episodes.active))
-      found = found | kept
+    actions, lengths, evaluated, found = query(nodes, keys, executed)
     elapsed = time.perf_counter() - start
     if q == 0:
       compile_s = elapsed  # the first query includes compilation
@@ -299,8 +216,6 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     short = lengths < args.execute
     executed = np.where(short & args.fill_with_policy, np.iinfo(np.int32).max, lengths)
     episodes.execute(actions, lengths)
-    if kept_plans:
-      kept_plans.executed(lengths)
     if args.fill_with_policy:  # the policy acts on up to `execute` world steps per query
       for j in range(1, args.execute):
         need = episodes.active & (lengths <= j)
@@ -312,7 +227,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
-          'goal_answers': goal_answers, 'kept_answers': kept_answers,
+          'goal_answers': goal_answers,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}
@@ -342,10 +257,6 @@ def main():
                       "fractions of the I x K (I x copies) lanes, comma separated "
                       "(SearchConfig.compact_fractions; '' for none, as recorded before "
                       "session 12)")
-  parser.add_argument('--keep-plans', type=int, default=1, choices=[0, 1],
-                      help='1: an episode whose last plan reached a goal executes the rest of '
-                      'it while its replay from the current state still does (KeptPlans; '
-                      'PACHS and the parallel rollout; 0 as recorded before session 12)')
   parser.add_argument('--chunk-iterations', type=int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
@@ -401,8 +312,7 @@ def write_markdown(payload: Dict, path: str) -> None:
             f'World perturbation: {payload["perturbation"]}\n\n')
     f.write(common.markdown_table(rows, [
         'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
-        'queries_per_episode_mean', 'empty_answers', 'goal_answers', 'kept_answers',
-        'actions_per_query_mean',
+        'queries_per_episode_mean', 'empty_answers', 'goal_answers', 'actions_per_query_mean',
         'evaluations_per_query_mean', 'policy_fill_steps',
         'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
     f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '
