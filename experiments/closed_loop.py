@@ -21,6 +21,7 @@ from pachs_jax import argtypes, planner
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import anytime, compact, pachs
+from pachs_jax.search import types as search_types
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
@@ -186,7 +187,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
   empty_answers, goal_answers, actions_per_query, evaluations_per_query = 0, 0, [], []
-  policy_steps = 0
+  policy_steps, by_query = 0, []  # [running episodes, goal answers] per query
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -205,6 +206,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     empty = lengths == 0
     empty_answers += int(np.sum(empty & episodes.active))
     goal_answers += int(np.sum(found & episodes.active))
+    by_query.append([int(episodes.active.sum()), int(np.sum(found & episodes.active))])
     actions_per_query += lengths[episodes.active].tolist()
     evaluations_per_query += evaluated[episodes.active].tolist()
     if empty.any():
@@ -227,7 +229,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
-          'goal_answers': goal_answers,
+          'goal_answers': goal_answers, 'goal_answers_by_query': by_query,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}
@@ -248,7 +250,7 @@ def main():
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
-  parser.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h'],
+  parser.add_argument('--realtime-answer', default=None, choices=search_types.REALTIME_ANSWERS,
                       help="PACHS's answer without a goal (SearchConfig.realtime_answer; "
                       "default: the algorithm's)")
   parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,

@@ -405,6 +405,50 @@ def test_min_h_realtime_answer(problem, config):
     dataclasses.replace(config, weight=0.0, realtime_answer='min_h')
 
 
+def test_min_cost_realtime_answer(problem, config):
+  """'min_cost' returns the path to the non-start node whose incoming edge costs least per
+  transition (ties to the smaller g); the search itself is unchanged."""
+  stop_early = dataclasses.replace(config, max_iterations=4, realtime_answer='min_cost')
+  search = make_search(problem.env, problem.actor_critic, stop_early)
+  state = search.run(search.init(problem.nodes, problem.keys))
+  res = _np(search.result(state))
+  pool = jax.tree.map(np.asarray, state.pool)
+  running = res.stop_reason == StopReason.ITERATIONS
+  assert running.sum() >= 2
+  for i in np.flatnonzero(running):
+    size = pool.size[i]
+    parent = pool.parent[i, 1:size]
+    per_step = ((pool.g[i, 1:size] - pool.g[i, parent])
+                / (pool.depth[i, 1:size] - pool.depth[i, parent]))
+    ties = np.flatnonzero(per_step == per_step.min()) + 1
+    end = int(ties[np.argmin(pool.g[i, ties])])
+    cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
+    np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
+    np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
+    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
+      np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])
+
+
+def test_min_cost_answer_takes_the_cheapest_edge_per_transition():
+  # a hand-made pool: the 8-transition edges into nodes 4 and 5 cost 0.375 per transition, the
+  # least, and node 5 has the smaller g (11 against 15); node 3's one-step edge costs 0.5, as
+  # do node 2's 8 transitions; node 1's cost 1.0
+  from pachs_jax.search import path as path_lib
+  from pachs_jax.search import pool as pool_lib
+  env = gridworld.GridWorld(np.zeros((3, 3), bool))
+  pool = pool_lib.init(env.node(np.zeros((1, 2)), np.ones((1, 2))), jnp.zeros(1, bool), 8, 2, 2)
+  pool = pool.replace(
+      g=jnp.array([[0.0, 8.0, 12.0, 0.5, 15.0, 11.0, 0.0, 0.0]]),
+      parent=jnp.array([[-1, 0, 1, 0, 2, 1, -1, -1]], jnp.int32),
+      depth=jnp.array([[0, 8, 16, 1, 24, 16, 0, 0]], jnp.int32),
+      size=jnp.array([6], jnp.int32))
+  value, has = path_lib.min_cost_answer(pool, slots=3)
+  assert bool(has[0]) and int(value[0]) == 5 * 3
+  # only the start: no answer
+  _, has = path_lib.min_cost_answer(pool.replace(size=jnp.array([1], jnp.int32)), slots=3)
+  assert not bool(has[0])
+
+
 def test_plans_of_one_bucket_share_compiled_programs(problem):
   # 3 and 4 instances pad to one bucket of 4 (and 3 to 8 with min_bucket 8): one compilation
   # each, and padding changes no instance's result.

@@ -248,9 +248,10 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     dummy_key, dummy_value, in_dummy = heap_lib.peek(state.dummy_heap)
     use_dummy = in_dummy & (~in_open | (dummy_key <= key))
     value, in_open = jnp.where(use_dummy, dummy_value, value), in_open | in_dummy
-    if config.realtime_answer == 'min_h':
-      h_value, has = path_lib.min_h_answer(state.pool, slots)
-      value, in_open = jnp.where(has, h_value, value), has | in_open
+    if config.realtime_answer != 'best_f':
+      answer = {'min_h': path_lib.min_h_answer, 'min_cost': path_lib.min_cost_answer}
+      chosen, has = answer[config.realtime_answer](state.pool, slots)
+      value, in_open = jnp.where(has, chosen, value), has | in_open
     return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
                                   config.max_path_length)

@@ -82,14 +82,30 @@ def min_h_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax.Ar
   return node * slots, jnp.any(usable, axis=1)
 
 
+def min_cost_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax.Array]:
+  """(value [I], has [I]): the generated node, the start excluded, whose incoming edge has the
+  least cost per transition ((g - parent's g) / transitions, the env's cost units; ties go to
+  the smaller g), as an entry value node * slots; has is False while the start is the only
+  node. With one-step edges this is the cost of the last transition, the parallel rollout's
+  rule (`ParallelRolloutConfig.fallback='last_cost'`)."""
+  index = jnp.arange(pool.capacity)[None, :]
+  usable = (index < pool.size[:, None]) & (index != pool_lib.ROOT_INDEX)
+  parent = jnp.maximum(pool.parent, 0)
+  steps = jnp.maximum(pool.depth - pool_lib.gather(pool.depth, parent), 1)
+  per_step = jnp.where(usable, (pool.g - pool_lib.gather(pool.g, parent)) / steps, jnp.inf)
+  best = usable & (per_step == jnp.min(per_step, axis=1, keepdims=True))
+  node = jnp.argmin(jnp.where(best, pool.g, jnp.inf), axis=1).astype(jnp.int32)
+  return node * slots, jnp.any(usable, axis=1)
+
+
 def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,
                   heap_overflow: jax.Array, max_len: int) -> SearchResult:
   """The SearchResult [I] of an edge search whose state has pool, table, stop_reason,
   goal_node, expanded, evaluated, invalid and iterations ([I] each).
 
   The path ends at the goal node when one was found, else at the real-time answer: the node of
-  an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's
-  or `min_h_answer`'s),
+  an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's,
+  `min_h_answer`'s or `min_cost_answer`'s),
   or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
   pop_size evaluations per iteration (K edges times their transitions).
   """

@@ -18,7 +18,7 @@ from flax import struct
 from pachs_jax import compile_cache
 from pachs_jax.envs import base
 
-REALTIME_ANSWERS = ('best_f', 'min_h')
+REALTIME_ANSWERS = ('best_f', 'min_h', 'min_cost')
 
 
 class StopReason:
@@ -418,8 +418,9 @@ class SearchConfig(EdgeSearchConfig):
 
   num_actions: N actions sampled per expansion.
   realtime_answer: the path returned when no goal was found: 'best_f' (to the state of the
-    best OPEN entry, the original's) or 'min_h' (to the generated state, the start excluded,
-    of least estimated cost-to-go; needs w > 0).
+    best OPEN entry, the original's), 'min_h' (to the generated state, the start excluded,
+    of least estimated cost-to-go; needs w > 0) or 'min_cost' (to the generated state whose
+    incoming edge has the least cost per transition, `path.min_cost_answer`).
   compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
     (`compact.evaluate_live`); () always simulates all lanes.
   edge_steps: H, the transitions of one edge: its sampled action, then H - 1 actions that the
