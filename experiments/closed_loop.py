@@ -186,8 +186,8 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   fallback = policy_actions(env, model)
   query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
   executed = np.zeros(num, np.int64)
-  empty_answers, goal_answers, actions_per_query, evaluations_per_query = 0, 0, [], []
-  policy_steps, by_query = 0, []  # [running episodes, goal answers] per query
+  empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
+  by_query = []  # [running episodes, goal answers] per query
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -205,7 +205,6 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     actions = actions[:, :args.execute]
     empty = lengths == 0
     empty_answers += int(np.sum(empty & episodes.active))
-    goal_answers += int(np.sum(found & episodes.active))
     by_query.append([int(episodes.active.sum()), int(np.sum(found & episodes.active))])
     actions_per_query += lengths[episodes.active].tolist()
     evaluations_per_query += evaluated[episodes.active].tolist()
@@ -229,7 +228,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
-          'goal_answers': goal_answers, 'goal_answers_by_query': by_query,
+          'goal_answers': sum(goals for _, goals in by_query), 'goal_answers_by_query': by_query,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}

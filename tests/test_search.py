@@ -371,31 +371,41 @@ def test_coarse_lattice_merges_states_and_paths_replay(problem):
     assert bool(problem.env.is_goal(node)[0]) == out.found[i]
 
 
+def _stopped_early(problem, config, realtime_answer):
+  """(result, pool, running) of the search stopped after 4 iterations with that answer rule;
+  running [I]: the instances the iteration limit stopped (at least 2)."""
+  stop_early = dataclasses.replace(config, max_iterations=4, realtime_answer=realtime_answer)
+  search = make_search(problem.env, problem.actor_critic, stop_early)
+  state = search.run(search.init(problem.nodes, problem.keys))
+  res = _np(search.result(state))
+  running = res.stop_reason == StopReason.ITERATIONS
+  assert running.sum() >= 2
+  return res, jax.tree.map(np.asarray, state.pool), running
+
+
+def _assert_path_ends_at(problem, res, pool, i, end):
+  """Instance i's returned path replays to its cost and ends in pool node end's state."""
+  cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
+  np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
+  np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
+  for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
+    np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])
+
+
 def test_min_h_realtime_answer(problem, config):
   """'min_h' returns the path to the non-start node with the least (dummy key - g), the
   answer that 'best_f' often leaves at the start early in a search."""
-  stop_early = dataclasses.replace(config, max_iterations=4)
-  best_f = _np(plan(problem.env, problem.actor_critic, problem.nodes, stop_early, problem.keys))
-  min_h_config = dataclasses.replace(stop_early, realtime_answer='min_h')
-  search = make_search(problem.env, problem.actor_critic, min_h_config)
-  state = search.run(search.init(problem.nodes, problem.keys))
-  res = _np(search.result(state))
-  pool = jax.tree.map(np.asarray, state.pool)
-  running = res.stop_reason == StopReason.ITERATIONS
-  assert running.sum() >= 2
+  best_f = _np(plan(problem.env, problem.actor_critic, problem.nodes,
+                    dataclasses.replace(config, max_iterations=4), problem.keys))
+  res, pool, running = _stopped_early(problem, config, 'min_h')
   # the search itself is the same; only the answer differs
   np.testing.assert_array_equal(res.evaluated, best_f.evaluated)
   for i in np.flatnonzero(running):
     size = pool.size[i]
     weighted_h = (pool.open_key[i] - pool.g[i])[1:size]
     assert size > 1 and res.path_length[i] >= 1
-    cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
-    np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
     ties = np.flatnonzero(weighted_h == weighted_h.min()) + 1  # ties go to the smaller g
-    end = int(ties[np.argmin(pool.g[i, ties])])  # the replayed path ends in that node's state
-    np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
-    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
-      np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])
+    _assert_path_ends_at(problem, res, pool, i, int(ties[np.argmin(pool.g[i, ties])]))
   # a different answer from 'best_f' for at least one instance
   assert (res.path_length[running] != best_f.path_length[running]).any() or \
       (res.cost[running] != best_f.cost[running]).any()
@@ -407,26 +417,15 @@ def test_min_h_realtime_answer(problem, config):
 
 def test_min_cost_realtime_answer(problem, config):
   """'min_cost' returns the path to the non-start node whose incoming edge costs least per
-  transition (ties to the smaller g); the search itself is unchanged."""
-  stop_early = dataclasses.replace(config, max_iterations=4, realtime_answer='min_cost')
-  search = make_search(problem.env, problem.actor_critic, stop_early)
-  state = search.run(search.init(problem.nodes, problem.keys))
-  res = _np(search.result(state))
-  pool = jax.tree.map(np.asarray, state.pool)
-  running = res.stop_reason == StopReason.ITERATIONS
-  assert running.sum() >= 2
+  transition (ties to the smaller g)."""
+  res, pool, running = _stopped_early(problem, config, 'min_cost')
   for i in np.flatnonzero(running):
     size = pool.size[i]
     parent = pool.parent[i, 1:size]
     per_step = ((pool.g[i, 1:size] - pool.g[i, parent])
                 / (pool.depth[i, 1:size] - pool.depth[i, parent]))
     ties = np.flatnonzero(per_step == per_step.min()) + 1
-    end = int(ties[np.argmin(pool.g[i, ties])])
-    cost, node = _replay(problem.env, jax.tree.map(jnp.asarray, res), i)
-    np.testing.assert_allclose(cost, res.cost[i], rtol=1e-6)
-    np.testing.assert_allclose(res.cost[i], pool.g[i, end], rtol=1e-6)
-    for got, want in zip(jax.tree.leaves(node), jax.tree.leaves(pool.nodes)):
-      np.testing.assert_array_equal(np.asarray(got)[0], want[i, end])
+    _assert_path_ends_at(problem, res, pool, i, int(ties[np.argmin(pool.g[i, ties])]))
 
 
 def test_min_cost_answer_takes_the_cheapest_edge_per_transition():
