@@ -1,7 +1,9 @@
 """Closed loop, PushT: plans made with MJX (float32) executed in MuJoCo C worlds (float64).
 
 The protocol is the original's (README, 'Closed loop'); all episodes of a planner share each
-query's wall clock; `--perturb` scales the worlds' parameters (`mujoco_c.Perturbation`)."""
+query's wall clock; `--perturb` scales the worlds' parameters (`mujoco_c.Perturbation`);
+`--world planner` executes the plans in the planners' own edge physics instead, so that they
+transfer (up to the numerics of another batch size)."""
 
 from __future__ import annotations
 
@@ -42,12 +44,15 @@ def parse_perturbation(text: str) -> mujoco_c.Perturbation:
   return mujoco_c.Perturbation(**values)
 
 
+WORLDS = ('mujoco-c', 'planner')
+
+
 class Episodes:
   """E worlds in MuJoCo C with their success bookkeeping."""
 
   def __init__(self, env, starts, perturbation):
     self.env = env
-    num = jax.tree.leaves(starts)[0].shape[0]
+    self.num = num = jax.tree.leaves(starts)[0].shape[0]
     self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
     self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
                   for i, w in enumerate(self.worlds)]
@@ -74,9 +79,45 @@ class Episodes:
       for e in np.flatnonzero(moving):
         self.nodes[e] = self.worlds[e].execute(actions[e, j:j + 1])[-1]
         self.steps[e] += 1
-      reached = np.asarray(self.is_goal(self.batch())) & moving
-      self.success_step[reached] = self.steps[reached]
-      self.success |= reached
+      self._judge(moving)
+
+  def _judge(self, moving: np.ndarray) -> None:
+    reached = np.asarray(self.is_goal(self.batch())) & moving
+    self.success_step[reached] = self.steps[reached]
+    self.success |= reached
+
+
+class PlannerWorldEpisodes(Episodes):
+  """E episodes whose world is the planners' own edge physics (`env.evaluate`, one batched
+  call per step), so that a plan replays as it was planned."""
+
+  def __init__(self, env, starts):
+    self.env = env
+    self.num = jax.tree.leaves(starts)[0].shape[0]
+    self.nodes = jax.tree.map(jnp.asarray, starts)
+    self.is_goal = jax.jit(env.is_goal)
+
+    def step(nodes, actions, moving):
+      moved = env.evaluate(nodes, actions).next_node
+      return jax.tree.map(lambda new, old: jnp.where(
+          moving.reshape(moving.shape + (1,) * (new.ndim - 1)), new, old), moved, nodes)
+    self._step = jax.jit(step)
+    self.success = np.array(self.is_goal(self.nodes))
+    self.steps = np.zeros(self.num, np.int64)
+    self.success_step = np.full(self.num, -1, np.int64)
+
+  def batch(self):
+    return self.nodes
+
+  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
+    for j in range(actions.shape[1]):
+      moving = self.active & (lengths > j)
+      if not moving.any():
+        break
+      self.nodes = self._step(self.nodes, jnp.asarray(actions[:, j], jnp.float32),
+                              jnp.asarray(moving))
+      self.steps[moving] += 1
+      self._judge(moving)
 
 
 def policy_actions(env, model):
@@ -178,7 +219,7 @@ def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
 
 
 def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
-  num = len(episodes.worlds)
+  num = episodes.num
   if name == 'single':
     times = run_single(env, model, episodes, args.max_queries * args.execute)
     return {'queries_per_episode_mean': None, 'step_time_s_mean': float(np.mean(times))}
@@ -262,8 +303,13 @@ def main():
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
+  parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
+                      help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
+                      "planners' own edge physics (--backend), so that plans transfer")
   common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True)
   args = parser.parse_args()
+  if args.world == 'planner' and args.perturb:
+    parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   common.check_layout(parser, args.task, args.layout)
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
@@ -277,12 +323,13 @@ def main():
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
   for name in args.planners.split(','):
-    episodes = Episodes(env, starts, perturbation)
+    episodes = (Episodes(env, starts, perturbation) if args.world == 'mujoco-c'
+                else PlannerWorldEpisodes(env, starts))
     start = time.perf_counter()
     info = run_planner(name, args.task, env, model, episodes, args,
                        jax.random.PRNGKey(args.seed))
     total = time.perf_counter() - start
-    k, n = int(episodes.success.sum()), len(episodes.worlds)
+    k, n = int(episodes.success.sum()), episodes.num
     low, high = stats.instance_bootstrap_interval(episodes.success, np.arange(n) % args.instances)
     wilson = stats.wilson_interval(k, n)
     won = episodes.success_step[episodes.success]
@@ -308,7 +355,9 @@ def write_markdown(payload: Dict, path: str) -> None:
                      f'{100 * s["success_rate"]:.0f}% [{100 * s["ci95_low"]:.0f}, '
                      f'{100 * s["ci95_high"]:.0f}]'))
   with open(path, 'w') as f:
-    f.write(f'# Closed loop in a MuJoCo C world, {payload["task"]}\n\n'
+    world = ('MuJoCo C worlds' if payload['settings'].get('world', 'mujoco-c') == 'mujoco-c'
+             else "the planners' own physics")
+    f.write(f'# Closed loop in {world}, {payload["task"]}\n\n'
             f'{payload["provenance"]}\n\nSettings: {payload["settings"]}\n\n'
             f'World perturbation: {payload["perturbation"]}\n\n')
     f.write(common.markdown_table(rows, [

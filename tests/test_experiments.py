@@ -5,6 +5,7 @@ import os
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -15,7 +16,7 @@ import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
 import stats  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
-from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax.envs import point_mass, pusht  # noqa: E402  pylint: disable=wrong-import-position
 
 
 def test_wilson_interval_known_values_and_edges():
@@ -70,6 +71,27 @@ def test_episodes_judge_success_in_the_world_and_stop_finished_ones():
   assert episodes.steps.tolist() == [0, 2]
   assert episodes.success.tolist() == [True, False]
   assert int(np.asarray(episodes.nodes[1].t)) == 2
+
+
+def test_planner_world_replays_a_plan_in_the_planners_physics_and_stops_finished_ones():
+  env = point_mass.PointMassEnv()
+  starts = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), 2))
+  actions = np.array(jax.random.uniform(jax.random.PRNGKey(1), (2, 3, 2), minval=-1.0))
+  actions[1, 2] = (0.8, 0.0)
+  reference = jax.tree.map(lambda x: x[1:], starts)  # the edges one at a time
+  for j in range(2):
+    reference = env.evaluate(reference, jnp.asarray(actions[1:, j])).next_node
+  # the first episode starts at its goal; the second's goal is 0.08 beyond its second step
+  goal = starts.goal.at[0].set(starts.qpos[0]).at[1].set(reference.qpos[0] + jnp.array([0.08, 0]))
+  episodes = closed_loop.PlannerWorldEpisodes(env, starts.replace(goal=goal))
+  assert episodes.success.tolist() == [True, False]
+  episodes.execute(actions, np.array([3, 2]))
+  # the finished episode does not move; the other runs its 2 actions as the planner would
+  assert episodes.steps.tolist() == [0, 2] and episodes.success.tolist() == [True, False]
+  np.testing.assert_array_equal(np.asarray(episodes.nodes.qpos[0]), np.asarray(starts.qpos[0]))
+  np.testing.assert_array_equal(np.asarray(episodes.nodes.qpos[1]), np.asarray(reference.qpos[0]))
+  episodes.execute(actions[:, 2:], np.array([1, 1]))  # the third action reaches the goal
+  assert episodes.success.tolist() == [True, True] and episodes.success_step.tolist() == [-1, 3]
 
 
 def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
