@@ -314,8 +314,8 @@ def _main(words) -> int:
   plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h', 'min_cost'],
                     help='the state an unfinished search answers with: best_f (the best OPEN '
                     "entry's; the original algorithm's and a user's task's default), min_h "
-                    "(least estimated cost-to-go; PushT's default) or min_cost (least cost per "
-                    "transition of the edge into the state)")
+                    "(least estimated cost-to-go) or min_cost (least cost per transition of the "
+                    "edge into the state; PushT's default)")
   plan.add_argument('--devices', type=_devices_arg, default=1,
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "

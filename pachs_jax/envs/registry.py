@@ -72,7 +72,7 @@ _SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'max_evaluations': 1
 # PushT: edges of 8 transitions, and without a goal in time the path to the state of least
 # estimated cost-to-go; PushT-Obs also extends chains of the actor's edges in 56 of its K = 64
 # lanes (docs/task_defaults.md).
-_PUSHT = dict(_SEARCH, edge_steps=8, realtime_answer='min_h')
+_PUSHT = dict(_SEARCH, edge_steps=8, realtime_answer='min_cost')
 _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
