@@ -137,7 +137,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = planner.default_config(task, algorithm, max_evaluations=args.budget,
                                     realtime_answer=args.realtime_answer,
-                                    compact_fractions=args.compact_fractions)
+                                    compact_fractions=args.compact_fractions,
+                                    pop_size=args.pop_size)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):
@@ -293,6 +294,8 @@ def main():
   parser.add_argument('--realtime-answer', default=None, choices=search_types.REALTIME_ANSWERS,
                       help="PACHS's answer without a goal (SearchConfig.realtime_answer; "
                       "default: the algorithm's)")
+  parser.add_argument('--pop-size', type=int, default=None,
+                      help="PACHS's edges per instance and iteration, K (default: the task's)")
   parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,
                       type=lambda text: argtypes.numbers(text, 'fractions'),
                       help="PACHS's and the parallel rollout's smaller physics batches, as "
