@@ -17,7 +17,7 @@ import numpy as np
 from mujoco import rollout
 
 import common
-from pachs_jax import envs
+from pachs_jax import envs, trees
 from pachs_jax.envs import panda, pusht
 
 
@@ -32,9 +32,7 @@ def mjx_throughput(env, worlds: int, steps: int, repeats: int) -> dict:
       actions = jax.random.uniform(k, (worlds, env.action_size), minval=-1.0, maxval=1.0)
       out = env.evaluate(nodes, actions)
       valid = out.is_valid
-      nodes = jax.tree.map(
-          lambda new, old: jnp.where(valid.reshape((-1,) + (1,) * (new.ndim - 1)), new, old),
-          out.next_node, nodes)
+      nodes = trees.where(valid, out.next_node, nodes)
       return nodes, out.cost.sum()
     return jax.lax.scan(body, nodes, jax.random.split(key, steps))
 

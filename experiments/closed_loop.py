@@ -19,7 +19,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import argtypes, planner
+from pachs_jax import argtypes, planner, trees
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import anytime, compact, pachs
@@ -56,10 +56,14 @@ class Episodes:
     self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
     self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
                   for i, w in enumerate(self.worlds)]
-    self.is_goal = jax.jit(env.is_goal)
+    self._start_bookkeeping()
+
+  def _start_bookkeeping(self) -> None:
+    """Success (episodes that start at a goal count), steps and success steps."""
+    self.is_goal = jax.jit(self.env.is_goal)
     self.success = np.array(self.is_goal(self.batch()))
-    self.steps = np.zeros(num, np.int64)
-    self.success_step = np.full(num, -1, np.int64)
+    self.steps = np.zeros(self.num, np.int64)
+    self.success_step = np.full(self.num, -1, np.int64)
 
   @property
   def active(self) -> np.ndarray:
@@ -95,16 +99,9 @@ class PlannerWorldEpisodes(Episodes):
     self.env = env
     self.num = jax.tree.leaves(starts)[0].shape[0]
     self.nodes = jax.tree.map(jnp.asarray, starts)
-    self.is_goal = jax.jit(env.is_goal)
-
-    def step(nodes, actions, moving):
-      moved = env.evaluate(nodes, actions).next_node
-      return jax.tree.map(lambda new, old: jnp.where(
-          moving.reshape(moving.shape + (1,) * (new.ndim - 1)), new, old), moved, nodes)
-    self._step = jax.jit(step)
-    self.success = np.array(self.is_goal(self.nodes))
-    self.steps = np.zeros(self.num, np.int64)
-    self.success_step = np.full(self.num, -1, np.int64)
+    self._step = jax.jit(lambda nodes, actions, moving: trees.where(
+        moving, env.evaluate(nodes, actions).next_node, nodes))
+    self._start_bookkeeping()
 
   def batch(self):
     return self.nodes

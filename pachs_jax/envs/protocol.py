@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 
 
@@ -105,12 +106,6 @@ def _check_static(env: base.Env) -> None:
                 f'[{resolution.shape[0]}] int32, got {coords.shape} {coords.dtype}')
 
 
-def _where_valid(valid: jax.Array, new: Any, old: Any) -> Any:
-  def pick(a, b):
-    return jnp.where(jnp.reshape(valid, valid.shape + (1,) * (a.ndim - 1)), a, b)
-  return jax.tree.map(pick, new, old)
-
-
 def _rollout_problems(env: base.Env, config: CheckConfig) -> List[str]:
   """The rules broken on a few random edges (values checked on the host)."""
   k_nodes, k_actions = jax.random.split(jax.random.PRNGKey(config.seed))
@@ -125,7 +120,7 @@ def _rollout_problems(env: base.Env, config: CheckConfig) -> List[str]:
       out = env.evaluate(nodes, action)
       seen = (nodes.t, out, env.observe(out.next_node), env.lattice_key(out.next_node),
               env.is_goal(out.next_node))
-      return _where_valid(out.is_valid, out.next_node, nodes), seen
+      return trees.where(out.is_valid, out.next_node, nodes), seen
 
     last, seen = jax.lax.scan(body, starts, actions)
     stepped = None

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.sac.actor_critic import SacActorCritic
 
@@ -58,10 +59,7 @@ def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Option
         action = actor_critic.sample_actions(step_key, obs, 1)[:, 0]
       out = env.evaluate(node, action)
       take = active & out.is_valid
-      node = jax.tree.map(
-          lambda new, old: jnp.where(
-              jnp.reshape(take, take.shape + (1,) * (new.ndim - 1)), new, old),
-          out.next_node, node)
+      node = trees.where(take, out.next_node, node)
       cost = cost + jnp.where(take, out.cost, 0.0)
       steps = steps + active.astype(jnp.int32)
       success = success | (active & out.is_goal)

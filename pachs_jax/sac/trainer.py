@@ -13,6 +13,7 @@ from brax.training import replay_buffers
 from brax.training.acme import running_statistics
 from flax import struct
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.sac import losses as sac_losses
 from pachs_jax.sac import networks as sac_networks
@@ -81,16 +82,6 @@ class Trainer:
 def _strong_types(tree: Any) -> Any:
   """The tree with weakly typed arrays made strong, so restored checkpoints match exactly."""
   return jax.tree.map(lambda x: jnp.asarray(x).astype(jnp.asarray(x).dtype), tree)
-
-
-def _where_done(done: jax.Array, fresh: Any, stepped: Any) -> Any:
-  """Per-environment select of the fresh (reset) state where done [N] > 0."""
-
-  def select(f, s):
-    mask = jnp.reshape(done > 0, done.shape + (1,) * (s.ndim - done.ndim))
-    return jnp.where(mask, f, s)
-
-  return jax.tree.map(select, fresh, stepped)
 
 
 def _check_env(env: base.Env) -> None:
@@ -170,7 +161,7 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
         'reward_mean': jnp.mean(stepped.reward),
     }
     ts = ts.replace(
-        env_state=_where_done(done, fresh, stepped),
+        env_state=trees.where(done > 0, fresh, stepped),
         episode_return=ret * (1.0 - done),
         normalizer=sac_networks.update_normalizer(ts.normalizer, obs),
         buffer_state=buffer.insert(ts.buffer_state, transitions))

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.search import types
 
@@ -31,12 +32,6 @@ class SegmentOutcome(base.EdgeOutcome):
   nodes: base.NodeState
   length: jax.Array
   h: jax.Array
-
-
-def _select(take: jax.Array, new, old):
-  """new where take [B] else old, on every leaf [B, ...]."""
-  return jax.tree.map(
-      lambda n, o: jnp.where(take.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new, old)
 
 
 def actor_samples(actor_critic: types.ActorCritic, keys: jax.Array, obs: jax.Array) -> jax.Array:
@@ -64,7 +59,7 @@ def make_segment_fn(env: base.Env, actor_critic: types.ActorCritic, edge_steps: 
       node, action, _, cost, length, is_goal, done = carry
       out = env.evaluate(node, action)
       take = ~done & out.is_valid & jnp.isfinite(out.cost)
-      node = _select(take, out.next_node, node)
+      node = trees.where(take, out.next_node, node)
       cost = cost + jnp.where(take, out.cost, 0.0)
       is_goal = jnp.where(take, out.is_goal, is_goal)
       done = done | ~take | is_goal

@@ -9,6 +9,7 @@ from typing import Callable, Optional, Tuple
 import jax
 import jax.numpy as jnp
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import types
@@ -181,8 +182,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
                          StopReason.ITERATIONS], c['stop'])
       adv = advance[:, None]
       return dict(
-          beam=jax.tree.map(lambda new, old: jnp.where(
-              adv.reshape(adv.shape + (1,) * (new.ndim - 2)), new, old), new_beam, c['beam']),
+          beam=trees.where(adv, new_beam, c['beam']),
           g=jnp.where(adv, take(g_next), c['g']),
           key=jnp.where(adv, -neg, c['key']),
           valid=jnp.where(adv, new_valid, c['valid']),

@@ -7,11 +7,10 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
-
-from pachs_jax.envs import base
-from pachs_jax.search import types
 from flax import struct
 
+from pachs_jax import trees
+from pachs_jax.envs import base
 from pachs_jax.search.types import SearchResult, StopReason
 
 
@@ -57,8 +56,7 @@ def replay(env: base.Env, start: base.NodeState, actions: jax.Array, length: jax
     action, t = xs
     out = edge_fn(node, action)
     apply = t < length
-    node = jax.tree.map(lambda new, old: jnp.where(
-        apply.reshape((-1,) + (1,) * (new.ndim - 1)), new, old), out.next_node, node)
+    node = trees.where(apply, out.next_node, node)
     cost = cost + jnp.where(apply, out.cost, 0.0)
     valid = valid & (out.is_valid | ~apply)
     return (node, cost, valid), node

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.search import anytime, types
 from pachs_jax.search.baselines import common
@@ -139,12 +140,6 @@ def _clean(action: jax.Array) -> jax.Array:
   return jnp.clip(jnp.nan_to_num(action.astype(jnp.float32)), -1.0, 1.0)
 
 
-def _where(mask, new, old):
-  """Tree select with mask [B] broadcast over trailing axes."""
-  return jax.tree.map(lambda a, b: jnp.where(
-      mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b), new, old)
-
-
 def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = MppiConfig()
               ) -> Mppi:
   """Builds the jitted MPPI planner for env, actor_critic and config.
@@ -173,7 +168,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
       action = _clean(actor_critic.deterministic_action(env.observe(node)))
       out = env.evaluate(node, action)
       ok = out.is_valid & jnp.isfinite(out.cost)
-      return _where(ok, out.next_node, node), action
+      return trees.where(ok, out.next_node, node), action
 
     _, actions = jax.lax.scan(body, start_nodes, None, length=steps)
     return jnp.swapaxes(actions, 0, 1)
@@ -226,7 +221,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
       applied = alive & ok
       reached = applied & out.is_goal
       extra = extra + jnp.where(alive & ~ok, penalty * (h - t), 0.0)
-      c = (_where(applied, out.next_node, node), applied & ~out.is_goal,
+      c = (trees.where(applied, out.next_node, node), applied & ~out.is_goal,
            cost + jnp.where(applied, out.cost, 0.0), extra,
            jnp.where(reached, t + 1, goal_length), t + 1)
       counts = tuple(jnp.sum(x.reshape(num, s), axis=1, dtype=jnp.int32)
@@ -293,7 +288,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
         stop_reason=stop.astype(jnp.int32), evaluated=evaluated,
         invalid=state.invalid + invalid, live=state.live + live,
         applied=state.applied + applied, iterations=iterations)
-    return _where(active, new, state)
+    return trees.where(active, new, state)
 
   def run(state: MppiState) -> MppiState:
     return jax.lax.while_loop(lambda st: jnp.any(st.active), step, state)
@@ -305,7 +300,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
       node, length, going = c
       out = env.evaluate(node, action)
       ok = going & out.is_valid & jnp.isfinite(out.cost)
-      return (_where(ok, out.next_node, node), length + ok, ok & ~out.is_goal), None
+      return (trees.where(ok, out.next_node, node), length + ok, ok & ~out.is_goal), None
 
     num = actions.shape[0]
     carry = (start, jnp.zeros((num,), jnp.int32), ~env.is_goal(start))

@@ -10,18 +10,13 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.search import compact, types
 from pachs_jax.search.baselines import common
 from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
 
 FALLBACKS = ('last_cost', 'total_cost')
-
-
-def _where(mask, new, old):
-  """Tree select with mask [I] or [I, M] broadcast over trailing axes."""
-  return jax.tree.map(lambda a, b: jnp.where(
-      mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b), new, old)
 
 
 def _flat(tree, num):
@@ -103,7 +98,7 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
       pos = jnp.where(ok, t, steps)  # out of bounds: dropped
       node_pos = jnp.where(ok, t + 1, steps + 1)
       return dict(
-          node=_where(ok, out.next_node, c['node']), t=t + 1,
+          node=trees.where(ok, out.next_node, c['node']), t=t + 1,
           active=ok & ~goal & ~time_up, found=c['found'] | goal, stop=stop.astype(jnp.int32),
           actions=c['actions'].at[rows, pos].set(action, mode='drop'),
           nodes=jax.tree.map(lambda buf, x: buf.at[rows, node_pos].set(x, mode='drop'),
@@ -115,9 +110,7 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
     # rows after the path's end repeat its last state
     after = jnp.arange(steps + 1)[None, :] > c['length'][:, None]
     last = jax.tree.map(lambda buf: buf[rows, c['length']], c['nodes'])
-    path_nodes = jax.tree.map(
-        lambda buf, x: jnp.where(after.reshape(after.shape + (1,) * (buf.ndim - 2)),
-                                 x[:, None], buf), c['nodes'], last)
+    path_nodes = trees.where(after, jax.tree.map(lambda x: x[:, None], last), c['nodes'])
     return _result(c['found'], c['stop'], c['actions'], c['length'], path_nodes,
                    env.is_goal(last), c['cost'], c['evaluated'], c['invalid'],
                    c['length'] + 1, c['evaluated'], c['evaluated'])
@@ -274,8 +267,8 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
     # restart the finished copies from the start state
     restart = finished & ~found_now[:, None]
     start = jax.tree.map(lambda x: jnp.repeat(x[:, None], m, axis=1), state.start)
-    node = _where(ok, out.next_node, state.node)
-    node = _where(restart, start, node)
+    node = trees.where(ok, out.next_node, state.node)
+    node = trees.where(restart, start, node)
     stop = jnp.select([state.active & found_now, out_of_budget],
                       [StopReason.GOAL, StopReason.BUDGET], state.stop_reason)
     return state.replace(
