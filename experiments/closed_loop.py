@@ -135,7 +135,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = planner.default_config(task, algorithm, max_evaluations=args.budget,
                                     realtime_answer=args.realtime_answer,
                                     compact_fractions=args.compact_fractions,
-                                    pop_size=args.pop_size)
+                                    pop_size=args.pop_size,
+                                    chain_restart=args.chain_restart)
     search = pachs.make_search(env, model, config)
 
     def query(nodes, keys, executed):
@@ -293,6 +294,8 @@ def main():
                       "default: the algorithm's)")
   parser.add_argument('--pop-size', type=int, default=None,
                       help="PACHS's edges per instance and iteration, K (default: the task's)")
+  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
+                      help="where PACHS's actor chains restart (default: the task's)")
   parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,
                       type=lambda text: argtypes.numbers(text, 'fractions'),
                       help="PACHS's and the parallel rollout's smaller physics batches, as "

@@ -20,6 +20,7 @@ import stats
 from pachs_jax import envs, planner
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs, sharding
+from pachs_jax.search import types as search_types
 from pachs_jax.search.types import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
@@ -52,7 +53,8 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
                                     max_evaluations=budget, pop_size=args.pop_size,
                                     weight=args.weight, num_actions=args.num_actions,
                                     edge_steps=args.edge_steps,
-                                    rollout_share=args.rollout_share)
+                                    rollout_share=args.rollout_share,
+                                    chain_restart=args.chain_restart)
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
@@ -219,6 +221,8 @@ def main():
                       help="PACHS's transitions per edge (default: the task's)")
   parser.add_argument('--rollout-share', type=float, default=None,
                       help="share of PACHS's lanes that extend actor chains (default: the task's)")
+  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
+                      help="where PACHS's actor chains restart (default: the task's)")
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')

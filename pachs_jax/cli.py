@@ -171,6 +171,7 @@ def _plan(args: argparse.Namespace) -> int:
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
       algorithm=args.algorithm, edge_steps=args.edge_steps, rollout_share=args.rollout_share,
+      chain_restart=args.chain_restart,
       weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
       lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
       compact_fractions=args.compact_fractions)
@@ -301,6 +302,9 @@ def _main(words) -> int:
   plan.add_argument('--rollout-share', type=float, default=None,
                     help="the share of the K lanes that extend chains of the actor's edges "
                     "(default: the task's; 0: none)")
+  plan.add_argument('--chain-restart', default=None, choices=['start', 'novel'],
+                    help="where a chain of the actor's edges restarts: the start, or a node of "
+                    "a rarely visited coarse cell (default: the task's)")
   plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
   plan.add_argument('--lattice-resolution', type=lambda s: argtypes.numbers(s, 'cell sizes'),
                     default=None, help='lattice cell sizes, comma separated')

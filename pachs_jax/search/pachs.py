@@ -19,6 +19,7 @@ from pachs_jax.search import anytime
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import memory
+from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
@@ -35,12 +36,15 @@ class SearchState(phases.EdgeSearchState):
   dummy_heap: OPEN's dummy edges (s, DUMMY), key g(s) + w h(s).
   rng: [I, 2] uint32 per-instance PRNG keys (folded with the iteration count).
   chain: [I, R] int32 the node each rollout lane extends next (config.rollout_lanes R).
+  visits: the nodes per coarse cell, where chains restart with chain_restart 'novel' (a pool
+    of one node otherwise).
   """
 
   edge_heap: heap_lib.Heap
   dummy_heap: heap_lib.Heap
   rng: jax.Array
   chain: jax.Array
+  visits: novelty.Visits
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,6 +115,9 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = config.edge_steps, config.rollout_lanes
+  novel = config.chain_restart == 'novel'
+  coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
+                                              config.novelty_cells)
   edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
@@ -154,15 +161,22 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     q = types.cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
-  def next_chains(pool, tip, written, is_goal, found, goal):
+  def next_chains(pool, visits, keys, tip, written, is_goal, found, goal):
     """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
-    of their own, not merged in the lattice): a chain goes on from its successor and restarts at
-    the start after an unusable edge or where its next edge would pass an episode's length; a
-    chain's goal (the cheapest, when several) ends the instance at once, as a rollout's does."""
+    of their own, not merged in the lattice): a chain goes on from its successor and restarts
+    (config.chain_restart) after an unusable edge or where its next edge would pass an
+    episode's length; a chain's goal (the cheapest, when several) ends the instance at once, as
+    a rollout's does."""
     if not r:
       return tip, found, goal
-    go_on = written & (pool_lib.gather(pool.depth, tip) + steps <= env.episode_length)
-    chain = jnp.where(go_on, tip, pool_lib.ROOT_INDEX).astype(jnp.int32)
+    fits = lambda depth: depth + steps <= env.episode_length
+    go_on = written & fits(pool_lib.gather(pool.depth, tip))
+    restart = pool_lib.ROOT_INDEX
+    if novel:
+      index = jnp.arange(pool.capacity)[None, :]
+      eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits(pool.depth)
+      restart = novelty.sample(visits, keys, eligible, r)
+    chain = jnp.where(go_on, tip, restart).astype(jnp.int32)
     at_goal = written & is_goal
     cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
     return (chain, found | jnp.any(at_goal, axis=1),
@@ -195,10 +209,13 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
+    cells = lattice_cells(outcome.next_node)
     pool, table, dummy_key, node, write = phases.insert(
-        pool, state.table, lattice_cells(outcome.next_node), parent, outcome, usable,
-        action, h, w, unmerged=chain_lane if r else None)
-    chain, found, goal = next_chains(pool, node[:, k - r:], write[:, k - r:],
+        pool, state.table, cells, parent, outcome, usable, action, h, w,
+        unmerged=chain_lane if r else None)
+    visits = novelty.add(state.visits, node, write, coarse(cells)) if novel else state.visits
+    chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
+                                     node[:, k - r:], write[:, k - r:],
                                      outcome.is_goal[:, k - r:], found, goal)
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
@@ -206,18 +223,22 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
                          config.iteration_limit, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
-                         chain=chain)
+                         chain=chain, visits=visits)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = types.check_start_nodes(start_nodes, env)
-    pool, table = phases.start(start_nodes, env.is_goal(start_nodes),
-                               env.lattice_key(start_nodes, resolution), config.pool_size,
-                               config.table_size, n, env.action_size, steps)
+    start_cells = env.lattice_key(start_nodes, resolution)
+    pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
+                               config.pool_size, config.table_size, n, env.action_size, steps)
     dummy_heap = heap_lib.init(num_instances, config.dummy_heap_size, k)
     return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=types.instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
+                       visits=novelty.init(coarse(start_cells) if novel
+                                           else jnp.zeros(num_instances, jnp.int32),
+                                           config.pool_size if novel else 1,
+                                           config.novelty_cells),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None,

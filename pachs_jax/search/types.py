@@ -19,6 +19,7 @@ from pachs_jax import compile_cache
 from pachs_jax.envs import base
 
 REALTIME_ANSWERS = ('best_f', 'min_h', 'min_cost')
+CHAIN_RESTARTS = ('start', 'novel')
 
 
 class StopReason:
@@ -430,6 +431,10 @@ class SearchConfig(EdgeSearchConfig):
     extend chains of the actor's edges (each from its chain's last successor, restarting at the
     start after an unusable edge or an episode's length) instead of popping OPEN's best edges;
     their successors join the search, and a chain's goal ends the instance at once.
+  chain_restart: where a chain restarts: 'start' (the start state, so that chains are rollouts
+    of the actor) or 'novel' (a generated node drawn with weight 1 / the nodes in its coarse
+    cell, `novelty`; nodes whose next edge would pass an episode's length are left out).
+  novelty_coarsening: the coarse cells of 'novel': lattice cells merged this many to a side.
   heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
   (None: pool). pool_capacity None: budget // H + 1.
   """
@@ -439,10 +444,16 @@ class SearchConfig(EdgeSearchConfig):
   compact_fractions: Tuple[float, ...] = ()
   edge_steps: int = 1
   rollout_share: float = 0.0
+  chain_restart: str = 'start'
+  novelty_coarsening: int = 4
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
+    positive_int('SearchConfig', 'novelty_coarsening', self.novelty_coarsening)
+    if self.chain_restart not in CHAIN_RESTARTS:
+      raise ValueError(f'SearchConfig.chain_restart must be one of {CHAIN_RESTARTS}, got '
+                       f'{self.chain_restart!r}')
     positive_int('SearchConfig', 'edge_steps', self.edge_steps)
     share = self.rollout_share
     if (isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share < 1):
@@ -478,6 +489,11 @@ class SearchConfig(EdgeSearchConfig):
   def pool_size(self) -> int:
     """Nodes per instance (one per edge the budget pays for, and the start)."""
     return self.pool_capacity or self.max_evaluations // self.edge_steps + 1
+
+  @property
+  def novelty_cells(self) -> int:
+    """Hashed coarse cells per instance of chain_restart 'novel' (1 otherwise)."""
+    return next_pow2(2 * self.pool_size) if self.chain_restart == 'novel' else 1
 
   @property
   def edge_heap_size(self) -> int:

@@ -1,0 +1,115 @@
+"""Chains that restart at rarely visited coarse cells (SearchConfig.chain_restart='novel',
+search/novelty.py): the visit counts, the draw's weights, and the search on the grid world."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import gridworld
+from pachs_jax.search import SearchConfig, make_search, novelty
+
+from test_segment import GOALS, OBSTACLES, STARTS, NoisyGridActor, _replay
+
+
+def test_add_counts_written_nodes_in_their_cells():
+  visits = novelty.init(jnp.array([5, 2]), pool_size=6, num_cells=8)
+  node = jnp.array([[1, 2, 3], [1, 2, 3]])
+  written = jnp.array([[True, True, False], [True, False, False]])
+  cell = jnp.array([[5, 7, 7], [0, 0, 1]])
+  visits = jax.tree.map(np.asarray, novelty.add(visits, node, written, cell))
+  np.testing.assert_array_equal(visits.counts, [[0, 0, 0, 0, 0, 2, 0, 1],
+                                                [1, 0, 1, 0, 0, 0, 0, 0]])
+  np.testing.assert_array_equal(visits.node_cell, [[5, 5, 7, -1, -1, -1],
+                                                   [2, 0, -1, -1, -1, -1]])
+
+
+def test_sample_weighs_each_node_by_one_over_its_cells_count():
+  # instance 0: nodes 0-2 share cell 4 (3 nodes), node 3 alone in cell 1, node 4 not eligible,
+  # node 5 unused; instance 1: nothing eligible
+  visits = novelty.Visits(counts=jnp.zeros((2, 8), jnp.int32).at[0, 4].set(3).at[0, 1].set(1)
+                          .at[0, 6].set(1),
+                          node_cell=jnp.array([[4, 4, 4, 1, 6, -1], [0, 0, 0, 0, 0, 0]]))
+  eligible = jnp.array([[True, True, True, True, False, True], [False] * 6])
+  keys = jax.random.split(jax.random.PRNGKey(0), 2)
+  drawn = np.asarray(novelty.sample(visits, keys, eligible, 40_000))
+  share = np.bincount(drawn[0], minlength=6) / drawn.shape[1]
+  # the cells are equally likely: cell 4's three nodes 1/6 each, node 3 1/2
+  np.testing.assert_allclose(share, [1 / 6, 1 / 6, 1 / 6, 1 / 2, 0, 0], atol=0.01)
+  assert (drawn[1] == 0).all()
+
+
+@pytest.fixture(scope='module')
+def novel_search():
+  env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=24)
+  ac = NoisyGridActor(env)
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
+                        edge_steps=3, rollout_share=0.5, chain_restart='novel',
+                        novelty_coarsening=2)
+  search = make_search(env, ac, config)
+  nodes = env.node(STARTS, GOALS)
+  state = search.run(search.init(nodes, jax.random.split(jax.random.PRNGKey(3), len(STARTS))))
+  return env, config, search, state
+
+
+def test_novel_restarts_find_goals_on_paths_that_replay(novel_search):
+  env, _, search, state = novel_search
+  result = search.result(state)
+  assert np.asarray(result.found).all(), result.stop_reason
+  for i in range(len(STARTS)):
+    cost, node = _replay(env, result, i)
+    np.testing.assert_allclose(cost, np.asarray(result.cost)[i], rtol=1e-6)
+    assert bool(env.is_goal(node)[0])
+
+
+def test_every_node_is_counted_in_its_coarse_cell(novel_search):
+  env, config, _, state = novel_search
+  pool = state.pool
+  cells = novelty.coarse_cells(env.lattice_key(jax.tree.map(lambda x: x.reshape(
+      (-1,) + x.shape[2:]), pool.nodes)), 2, config.novelty_cells).reshape(pool.g.shape)
+  used = np.arange(pool.capacity)[None, :] < np.asarray(pool.size)[:, None]
+  node_cell = np.asarray(state.visits.node_cell)
+  np.testing.assert_array_equal(node_cell[used], np.asarray(cells)[used])
+  assert (node_cell[~used] == novelty.NO_CELL).all()
+  counts = np.asarray(state.visits.counts)
+  for i in range(len(STARTS)):
+    nodes_per_cell = np.bincount(node_cell[i][used[i]], minlength=counts.shape[1])
+    assert (counts[i] >= nodes_per_cell).all()
+
+
+@pytest.mark.parametrize('restart', ['start', 'novel'])
+def test_chains_restart_at_the_start_or_at_earlier_nodes_that_fit_an_episode(restart):
+  # episodes of 12 transitions (4 edges of 3): chains restart every few iterations. After an
+  # iteration a chain holds its new successor (a node added in it) or its restart node.
+  env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=12)
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
+                        edge_steps=3, rollout_share=0.5, chain_restart=restart)
+  search = make_search(env, NoisyGridActor(env), config)
+  starts, goals = np.array([[5, 1], [0, 0]]), np.array([[11, 11], [11, 0]])
+  state = search.init(env.node(starts, goals), jax.random.split(jax.random.PRNGKey(1), 2))
+  restarts = []
+  for _ in range(12):
+    size = np.asarray(state.pool.size)
+    state = search.loop(state, 1)
+    chain = np.asarray(state.chain)
+    restarts.append(chain[chain < size[:, None]])
+    rows = np.nonzero(chain < size[:, None])[0]
+    depth = np.asarray(state.pool.depth)[rows, chain[chain < size[:, None]]]
+    assert (depth + 3 <= 12).all()
+  restarts = np.concatenate(restarts)
+  assert len(restarts) >= 4
+  if restart == 'start':
+    assert (restarts == 0).all()
+  else:
+    assert (restarts > 0).sum() >= len(restarts) // 2, restarts
+
+
+@pytest.mark.parametrize('changes, match', [
+    (dict(chain_restart='random'), 'chain_restart'),
+    (dict(novelty_coarsening=0), 'novelty_coarsening'),
+])
+def test_chain_restart_validation(changes, match):
+  with pytest.raises(ValueError, match=match):
+    SearchConfig(**changes)
