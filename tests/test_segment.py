@@ -146,6 +146,7 @@ def test_algorithms_are_named():
   original = planner.default_config('pusht-obs', 'original')
   assert (default.edge_steps, default.rollout_lanes) == (8, 56)
   assert (original.edge_steps, original.rollout_lanes) == (1, 0)
+  assert (default.chain_restart, original.chain_restart) == ('novel', 'start')
   assert planner.default_config('pusht-obs', pop_size=4).rollout_lanes == 3
   assert planner.default_config('pusht-fixed').rollout_lanes == 0
   assert original.pop_size == 256 and original.lattice_resolution == (0.005, 0.005, 0.05,
