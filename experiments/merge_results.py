@@ -51,7 +51,12 @@ def merge_closed(payloads: List[Dict]) -> Dict:
   return merged
 
 
-OPEN_PROTOCOL = ('instances', 'rounds', 'budget', 'time_limit_s')
+OPEN_PROTOCOL = ('instances', 'rounds', 'instance_seed', 'budget', 'time_limit_s')
+
+
+def _setting(payload: Dict, name: str):
+  """An open-loop protocol setting of payload; files from before --instance-seed used set 0."""
+  return payload['settings'].get(name, 0 if name == 'instance_seed' else None)
 
 
 def merge_open(payloads: List[Dict]) -> Dict:
@@ -62,11 +67,11 @@ def merge_open(payloads: List[Dict]) -> Dict:
     if p['task'] != first['task'] or p['curve_budgets'] != first['curve_budgets']:
       raise ValueError('the sources are of different tasks or success-curve budgets')
     for name in OPEN_PROTOCOL:
-      if p['settings'].get(name) != first['settings'].get(name):
-        raise ValueError(f'the sources disagree on {name}: {first["settings"].get(name)!r} '
-                         f'vs {p["settings"].get(name)!r}')
+      if _setting(p, name) != _setting(first, name):
+        raise ValueError(f'the sources disagree on {name}: {_setting(first, name)!r} '
+                         f'vs {_setting(p, name)!r}')
   merged = {'provenance': {'merged_from': []}, 'task': first['task'], 'model': first['model'],
-            'settings': {name: first['settings'].get(name) for name in OPEN_PROTOCOL},
+            'settings': {name: _setting(first, name) for name in OPEN_PROTOCOL},
             'settings_per_planner': {}, 'configs': {}, 'summary': [], 'runs': {},
             'curve_budgets': first['curve_budgets'], 'success_curve': {}}
   summary = {}

@@ -226,6 +226,9 @@ def main():
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--instance-seed', type=int, default=0,
+                      help='the seed of the instance set (default 0: the canonical set; another '
+                      'seed draws a new set from the same start region, by the same rules)')
   parser.add_argument('--beam-width', type=int, default=64)
   parser.add_argument('--epase-weight', type=float, default=20.0,
                       help='w of ePA*SE (results/tune_epase.md)')
@@ -256,7 +259,7 @@ def main():
   out = args.out or f'experiments/results/open_loop_{label}.json'
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
-  starts = env.canonical_instances(args.instances)
+  starts = env.canonical_instances(args.instances, seed=args.instance_seed)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: x[index], starts)
   keys = run_keys(args.seed, args.instances, args.rounds)
@@ -265,7 +268,7 @@ def main():
   payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'model': envs.spec(args.task).model_task,
              'settings': {'instances': args.instances, 'rounds': args.rounds,
-                          'budget': args.budget, 'time_limit_s': args.time_limit,
+                          'instance_seed': args.instance_seed, 'budget': args.budget, 'time_limit_s': args.time_limit,
                           'devices': args.devices,
                           **({'epase_weight': args.epase_weight,
                               'epase_spread_cells': args.epase_spread}

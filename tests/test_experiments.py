@@ -146,6 +146,13 @@ def test_merge_open_replaces_a_planner_and_recomputes_cost_ratios():
   assert ratio['runs'] == 2 and ratio['mean_ratio'] == pytest.approx((0.5 + 0.25) / 2)
   with pytest.raises(ValueError, match='budget'):
     merge_results.merge_open([base, dict(rerun, settings=dict(rerun['settings'], budget=5))])
+  # runs on another instance set (open_loop.py --instance-seed) never merge with the canonical
+  # set; files from before the option count as set 0
+  other_set = dict(rerun, settings=dict(rerun['settings'], instance_seed=1))
+  with pytest.raises(ValueError, match='instance_seed: 0 vs 1'):
+    merge_results.merge_open([base, other_set])
+  same_set = dict(rerun, settings=dict(rerun['settings'], instance_seed=0))
+  assert merge_results.merge_open([base, same_set])['settings']['instance_seed'] == 0
 
 
 def test_merge_source_rename_keeps_an_earlier_variant_beside_a_new_default(tmp_path):
