@@ -110,11 +110,11 @@ def test_budget_counts_every_transition(grid):
   assert (r.stop_reason[:3][far] == StopReason.BUDGET).all()
 
 
-@pytest.mark.parametrize('share', [0.0, 0.5])
-def test_segments_with_compaction_equal_without(grid, share):
+@pytest.mark.parametrize('share, restart', [(0.0, 'start'), (0.5, 'start'), (0.5, 'novel')])
+def test_segments_with_compaction_equal_without(grid, share, restart):
   env, ac, nodes = grid
   key = jax.random.PRNGKey(2)
-  config = dataclasses.replace(CONFIG, rollout_share=share)
+  config = dataclasses.replace(CONFIG, rollout_share=share, chain_restart=restart)
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
   want = plan(env, ac, nodes, config, key)
   got = plan(env, ac, nodes, compacted, key)

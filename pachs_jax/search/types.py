@@ -428,12 +428,13 @@ class SearchConfig(EdgeSearchConfig):
     actor samples along the way (`segment`); an edge costs H evaluations, and a successor's h
     is the critic's at its state. 1: the original's one-step edges, h = q - c.
   rollout_share: the share of the K evaluation lanes, R = floor(share K) (`rollout_lanes`), that
-    extend chains of the actor's edges (each from its chain's last successor, restarting at the
-    start after an unusable edge or an episode's length) instead of popping OPEN's best edges;
-    their successors join the search, and a chain's goal ends the instance at once.
+    extend chains of the actor's edges (each from its chain's last successor, restarting as
+    chain_restart says after an unusable edge or an episode's length) instead of popping OPEN's
+    best edges; their successors join the search, and a chain's goal ends the instance at once.
   chain_restart: where a chain restarts: 'start' (the start state, so that chains are rollouts
     of the actor) or 'novel' (a generated node drawn with weight 1 / the nodes in its coarse
-    cell, `novelty`; nodes whose next edge would pass an episode's length are left out).
+    cell, `novelty`; nodes whose next edge would pass an episode's length are left out); no
+    effect without rollout lanes.
   novelty_coarsening: the coarse cells of 'novel': lattice cells merged this many to a side.
   heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
   (None: pool). pool_capacity None: budget // H + 1.
