@@ -14,24 +14,27 @@ from pachs_jax.search import SearchConfig, make_search, novelty
 from test_segment import GOALS, OBSTACLES, STARTS, NoisyGridActor, _replay
 
 
-def test_add_counts_written_nodes_in_their_cells():
+def test_add_counts_new_nodes_in_their_cells():
   visits = novelty.init(jnp.array([5, 2]), pool_size=6, num_cells=8)
   node = jnp.array([[1, 2, 3], [1, 2, 3]])
-  written = jnp.array([[True, True, False], [True, False, False]])
+  new = jnp.array([[True, True, False], [True, False, False]])
   cell = jnp.array([[5, 7, 7], [0, 0, 1]])
-  visits = jax.tree.map(np.asarray, novelty.add(visits, node, written, cell))
-  np.testing.assert_array_equal(visits.counts, [[0, 0, 0, 0, 0, 2, 0, 1],
-                                                [1, 0, 1, 0, 0, 0, 0, 0]])
+  visits = jax.tree.map(np.asarray, novelty.add(visits, node, new, cell))
+  np.testing.assert_array_equal(visits.nodes_per_cell, [[0, 0, 0, 0, 0, 2, 0, 1],
+                                                        [1, 0, 1, 0, 0, 0, 0, 0]])
   np.testing.assert_array_equal(visits.node_cell, [[5, 5, 7, -1, -1, -1],
                                                    [2, 0, -1, -1, -1, -1]])
+  with pytest.raises(ValueError, match='power of two'):
+    novelty.init(jnp.array([0]), pool_size=6, num_cells=12)
 
 
 def test_sample_weighs_each_node_by_one_over_its_cells_count():
   # instance 0: nodes 0-2 share cell 4 (3 nodes), node 3 alone in cell 1, node 4 not eligible,
   # node 5 unused; instance 1: nothing eligible
-  visits = novelty.Visits(counts=jnp.zeros((2, 8), jnp.int32).at[0, 4].set(3).at[0, 1].set(1)
-                          .at[0, 6].set(1),
-                          node_cell=jnp.array([[4, 4, 4, 1, 6, -1], [0, 0, 0, 0, 0, 0]]))
+  visits = novelty.Visits(
+      nodes_per_cell=jnp.zeros((2, 8), jnp.int32).at[0, 4].set(3).at[0, 1].set(1)
+      .at[0, 6].set(1),
+      node_cell=jnp.array([[4, 4, 4, 1, 6, -1], [0, 0, 0, 0, 0, 0]]))
   eligible = jnp.array([[True, True, True, True, False, True], [False] * 6])
   keys = jax.random.split(jax.random.PRNGKey(0), 2)
   drawn = np.asarray(novelty.sample(visits, keys, eligible, 40_000))
@@ -39,6 +42,24 @@ def test_sample_weighs_each_node_by_one_over_its_cells_count():
   # the cells are equally likely: cell 4's three nodes 1/6 each, node 3 1/2
   np.testing.assert_allclose(share, [1 / 6, 1 / 6, 1 / 6, 1 / 2, 0, 0], atol=0.01)
   assert (drawn[1] == 0).all()
+
+
+def test_sample_never_draws_a_node_of_weight_zero_in_a_large_pool():
+  # 12,500 nodes, most in crowded cells, one in five eligible: every draw is eligible
+  pool_size, num_cells = 12_500, 2**15
+  rng = np.random.default_rng(0)
+  node_cell = rng.integers(0, 64, pool_size).astype(np.int32)
+  node_cell[6_000:] = novelty.NO_CELL
+  visits = novelty.Visits(
+      nodes_per_cell=jnp.asarray(np.bincount(node_cell[:6_000], minlength=num_cells)[None]
+                                 .astype(np.int32)),
+      node_cell=jnp.asarray(node_cell[None]))
+  eligible = jnp.asarray((rng.random(pool_size) < 0.2)[None])
+  keys = jax.random.PRNGKey(1)[None]
+  drawn = np.asarray(novelty.sample(visits, keys, eligible, 200_000))[0]
+  ok = np.asarray(eligible)[0] & (node_cell != novelty.NO_CELL)
+  assert ok[drawn].all()
+  assert len(np.unique(drawn)) > 0.9 * ok.sum()
 
 
 @pytest.fixture(scope='module')
@@ -68,15 +89,16 @@ def test_every_node_is_counted_in_its_coarse_cell(novel_search):
   env, config, _, state = novel_search
   pool = state.pool
   cells = novelty.coarse_cells(env.lattice_key(jax.tree.map(lambda x: x.reshape(
-      (-1,) + x.shape[2:]), pool.nodes)), 2, config.novelty_cells).reshape(pool.g.shape)
+      (-1,) + x.shape[2:]), pool.nodes)), config.novelty_coarsening,
+      config.novelty_cells).reshape(pool.g.shape)
   used = np.arange(pool.capacity)[None, :] < np.asarray(pool.size)[:, None]
   node_cell = np.asarray(state.visits.node_cell)
   np.testing.assert_array_equal(node_cell[used], np.asarray(cells)[used])
   assert (node_cell[~used] == novelty.NO_CELL).all()
-  counts = np.asarray(state.visits.counts)
+  counts = np.asarray(state.visits.nodes_per_cell)
   for i in range(len(STARTS)):
-    nodes_per_cell = np.bincount(node_cell[i][used[i]], minlength=counts.shape[1])
-    assert (counts[i] >= nodes_per_cell).all()
+    np.testing.assert_array_equal(
+        counts[i], np.bincount(node_cell[i][used[i]], minlength=counts.shape[1]))
 
 
 @pytest.mark.parametrize('restart', ['start', 'novel'])
@@ -94,10 +116,13 @@ def test_chains_restart_at_the_start_or_at_earlier_nodes_that_fit_an_episode(res
     size = np.asarray(state.pool.size)
     state = search.loop(state, 1)
     chain = np.asarray(state.chain)
-    restarts.append(chain[chain < size[:, None]])
-    rows = np.nonzero(chain < size[:, None])[0]
-    depth = np.asarray(state.pool.depth)[rows, chain[chain < size[:, None]]]
+    assert (chain < np.asarray(state.pool.size)[:, None]).all()  # nodes in use
+    restarted = chain < size[:, None]
+    restarts.append(chain[restarted])
+    rows = np.nonzero(restarted)[0]
+    depth = np.asarray(state.pool.depth)[rows, chain[restarted]]
     assert (depth + 3 <= 12).all()
+    assert not np.asarray(state.pool.is_goal)[rows, chain[restarted]].any()
   restarts = np.concatenate(restarts)
   assert len(restarts) >= 4
   if restart == 'start':

@@ -15,10 +15,11 @@ NO_CELL = -1  # node_cell of a pool entry that holds no node
 
 @struct.dataclass
 class Visits:
-  """Per instance [I]: counts [I, C] int32 nodes generated in each of C hashed coarse cells;
-  node_cell [I, P] int32 the hashed cell of each pool node (NO_CELL: unused)."""
+  """Per instance [I]: nodes_per_cell [I, C] int32 the nodes generated (new pool entries) in
+  each of C hashed coarse cells; node_cell [I, P] int32 the hashed cell of each pool node
+  (NO_CELL: unused)."""
 
-  counts: jax.Array
+  nodes_per_cell: jax.Array
   node_cell: jax.Array
 
 
@@ -30,32 +31,41 @@ def coarse_cells(cells: jax.Array, coarsening: int, num_cells: int) -> jax.Array
 
 
 def init(start_cell: jax.Array, pool_size: int, num_cells: int) -> Visits:
-  """Visits with each instance's start node (pool index 0) in its cell start_cell [I]."""
+  """Visits of pools of pool_size nodes and num_cells (a power of two) hashed cells, holding
+  each instance's start node (pool index 0) in its cell start_cell [I]."""
+  if num_cells < 1 or num_cells & (num_cells - 1):
+    raise ValueError(f'num_cells must be a power of two, got {num_cells}')
   num_instances = start_cell.shape[0]
   rows = jnp.arange(num_instances)
-  counts = jnp.zeros((num_instances, num_cells), jnp.int32).at[rows, start_cell].add(1)
+  nodes_per_cell = jnp.zeros((num_instances, num_cells), jnp.int32).at[rows, start_cell].add(1)
   node_cell = jnp.full((num_instances, pool_size), NO_CELL, jnp.int32).at[:, 0].set(start_cell)
-  return Visits(counts=counts, node_cell=node_cell)
+  return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 
 
-def add(visits: Visits, node: jax.Array, written: jax.Array, cell: jax.Array) -> Visits:
-  """Visits after the nodes node [I, K] (where written [I, K]) were set in cells cell [I, K]."""
+def add(visits: Visits, node: jax.Array, new: jax.Array, cell: jax.Array) -> Visits:
+  """Visits after the new pool nodes node [I, K] (where new [I, K]) in cells cell [I, K]."""
   rows = jnp.arange(node.shape[0])[:, None]
-  counts = visits.counts.at[rows, cell].add(written.astype(jnp.int32))
+  nodes_per_cell = visits.nodes_per_cell.at[rows, cell].add(new.astype(jnp.int32))
   pool_size = visits.node_cell.shape[1]
-  node_cell = visits.node_cell.at[rows, jnp.where(written, node, pool_size)].set(
+  node_cell = visits.node_cell.at[rows, jnp.where(new, node, pool_size)].set(
       cell, mode='drop')
-  return Visits(counts=counts, node_cell=node_cell)
+  return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 
 
 def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> jax.Array:
   """[I, num] int32 pool nodes drawn with replacement among eligible [I, P] nodes, each with
-  weight 1 / counts[its cell]; keys [I, 2]. An instance with no eligible node draws node 0."""
-  count = jnp.take_along_axis(visits.counts, jnp.maximum(visits.node_cell, 0), axis=1)
-  weight = jnp.where(eligible & (visits.node_cell >= 0),
-                     1.0 / jnp.maximum(count, 1).astype(jnp.float32), 0.0)
-  cdf = jnp.cumsum(weight, axis=1)
-  u = jax.vmap(lambda key: jax.random.uniform(key, (num,)))(keys) * cdf[:, -1:]
+  weight about 1 / nodes_per_cell[its cell] (integer weights, so that the draw is exact and
+  never picks a node of weight 0); keys [I, 2]. An instance with no eligible node draws node
+  0."""
+  pool_size = eligible.shape[1]
+  scale = (2**31 - 1) // pool_size  # the weights of a pool sum below 2**31
+  in_cell = jnp.take_along_axis(visits.nodes_per_cell, jnp.maximum(visits.node_cell, 0), axis=1)
+  weight = jnp.where(eligible & (visits.node_cell != NO_CELL),
+                     scale // jnp.maximum(in_cell, 1), 0)
+  cdf = jnp.cumsum(weight, axis=1, dtype=jnp.int32)
+  total = cdf[:, -1]
+  u = jax.vmap(lambda key, t: jax.random.randint(key, (num,), 0, jnp.maximum(t, 1)))(keys, total)
   index = jax.vmap(lambda c, x: jnp.searchsorted(c, x, side='right'))(cdf, u)
-  index = jnp.minimum(index, eligible.shape[1] - 1)
-  return jnp.where(cdf[:, -1:] > 0, index, 0).astype(jnp.int32)
+  index = jnp.minimum(index, pool_size - 1)
+  drawn = jnp.take_along_axis(eligible, index, axis=1) & (total[:, None] > 0)
+  return jnp.where(drawn, index, 0).astype(jnp.int32)

@@ -115,7 +115,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = config.edge_steps, config.rollout_lanes
-  novel = config.chain_restart == 'novel'
+  novel = config.chain_restart == 'novel' and r > 0
   coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
                                               config.novelty_cells)
   edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
@@ -147,7 +147,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
 
   def lane_keys(state, stream: int, count: int):
     """[I, count, 2] per-lane keys of this iteration's samples of one stream (1: inside the
-    segments, 2: the chains), apart from expand's."""
+    segments, 2: the chains, 3: the chains' restarts), apart from expand's."""
     keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
     keys = jax.vmap(jax.random.fold_in, (0, None))(keys, stream)
     return jax.vmap(lambda key: jax.random.split(key, count))(keys)
@@ -209,11 +209,12 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
-    cells = lattice_cells(outcome.next_node)
+    cells, size = lattice_cells(outcome.next_node), pool.size[:, None]
     pool, table, dummy_key, node, write = phases.insert(
         pool, state.table, cells, parent, outcome, usable, action, h, w,
         unmerged=chain_lane if r else None)
-    visits = novelty.add(state.visits, node, write, coarse(cells)) if novel else state.visits
+    new = write & (node >= size)  # not an open node whose g improved
+    visits = novelty.add(state.visits, node, new, coarse(cells)) if novel else state.visits
     chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
                                      node[:, k - r:], write[:, k - r:],
                                      outcome.is_goal[:, k - r:], found, goal)

@@ -494,7 +494,8 @@ class SearchConfig(EdgeSearchConfig):
   @property
   def novelty_cells(self) -> int:
     """Hashed coarse cells per instance of chain_restart 'novel' (1 otherwise)."""
-    return next_pow2(2 * self.pool_size) if self.chain_restart == 'novel' else 1
+    return (next_pow2(2 * self.pool_size) if self.chain_restart == 'novel' and self.rollout_lanes
+            else 1)
 
   @property
   def edge_heap_size(self) -> int:
