@@ -268,8 +268,8 @@ def main():
   payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'model': envs.spec(args.task).model_task,
              'settings': {'instances': args.instances, 'rounds': args.rounds,
-                          'instance_seed': args.instance_seed, 'budget': args.budget, 'time_limit_s': args.time_limit,
-                          'devices': args.devices,
+                          'instance_seed': args.instance_seed, 'budget': args.budget,
+                          'time_limit_s': args.time_limit, 'devices': args.devices,
                           **({'epase_weight': args.epase_weight,
                               'epase_spread_cells': args.epase_spread}
                              if 'epase' in names else {})},
