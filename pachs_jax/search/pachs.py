@@ -236,9 +236,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=types.instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
-                       visits=novelty.init(coarse(start_cells) if novel
-                                           else jnp.zeros(num_instances, jnp.int32),
-                                           config.pool_size if novel else 1,
+                       visits=novelty.init(coarse(start_cells), config.pool_size if novel else 1,
                                            config.novelty_cells),
                        **phases.start_state(pool, table, live))
 
