@@ -1,0 +1,81 @@
+"""SIGINT and SIGTERM during a command: stop at the next safe point and keep what is done."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from typing import Callable, Optional
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(Exception):
+  """A signal arrived before there was anything to keep (raised in the main thread)."""
+
+  def __init__(self, signum: int):
+    super().__init__(f'interrupted by {signal.Signals(signum).name}')
+    self.signum = signum
+
+  @property
+  def exit_code(self) -> int:
+    """128 + the signal number (130 for SIGINT, 143 for SIGTERM), as a shell reports it."""
+    return 128 + self.signum
+
+
+class SignalGuard:
+  """Routes SIGINT and SIGTERM for one command, as a context manager (main thread only; in
+  another thread it installs nothing and `requested` stays None).
+
+  Until `keep()`, a signal raises `Interrupted` in the main thread (nothing to keep yet). From
+  then on, the first signal only records itself in `requested` (the work checks `stop()` at its
+  next chunk and returns what it has, which is then written) and prints `notice`; a second one
+  ends the process at once.
+  """
+
+  def __init__(self, prog: str, notice: str = 'stopping after the current chunk; '
+               'a second signal exits at once'):
+    self.prog = prog
+    self.notice = notice
+    self.requested: Optional[int] = None
+    self._keeping = False
+    self._previous = {}
+
+  def __enter__(self) -> 'SignalGuard':
+    if threading.current_thread() is threading.main_thread():
+      for signum in SIGNALS:
+        self._previous[signum] = signal.signal(signum, self._handle)
+    return self
+
+  def __exit__(self, *exc) -> None:
+    for signum, handler in self._previous.items():
+      signal.signal(signum, handler)
+    self._previous.clear()
+
+  def _handle(self, signum, frame) -> None:
+    del frame
+    if not self._keeping:
+      raise Interrupted(signum)
+    if self.requested is not None:  # the second signal: no waiting
+      sys.stdout.flush()
+      print(f'{self.prog}: {signal.Signals(signum).name} again: exiting now', file=sys.stderr,
+            flush=True)
+      os._exit(128 + signum)
+    self.requested = signum
+    print(f'{self.prog}: {signal.Signals(signum).name}: {self.notice}', file=sys.stderr,
+          flush=True)
+
+  def keep(self) -> Callable[[], bool]:
+    """From now on, signals ask the work to stop instead of raising; returns `stop`."""
+    self._keeping = True
+    return self.stop
+
+  def stop(self) -> bool:
+    """Whether a signal asked the work to stop (a `stop` callable for `plan`)."""
+    return self.requested is not None
+
+  @property
+  def exit_code(self) -> int:
+    """0 without a signal, else 128 + its number."""
+    return 0 if self.requested is None else 128 + self.requested
