@@ -1,0 +1,67 @@
+"""SignalGuard in real processes: a signal before `keep()` raises, after it the first one is
+recorded and the second one ends the process with 128 + its number."""
+
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+SCRIPT = textwrap.dedent('''
+    import os, signal, sys, time
+    from pachs_jax.signals import Interrupted, SignalGuard
+    mode, signame = sys.argv[1], sys.argv[2]
+    signum = getattr(signal, signame)
+    with SignalGuard('prog') as guard:
+      if mode == 'before':
+        try:
+          os.kill(os.getpid(), signum)
+          time.sleep(5)
+          print('not raised')
+        except Interrupted as err:
+          print('raised', err.exit_code)
+        sys.exit(0)
+      stop = guard.keep()
+      os.kill(os.getpid(), signum)
+      for _ in range(100):  # a chunked loop that checks stop()
+        if stop():
+          break
+        time.sleep(0.01)
+      print('stopped', stop(), guard.exit_code, flush=True)
+      if mode == 'twice':
+        os.kill(os.getpid(), signum)
+        time.sleep(5)
+        print('still running')
+    print('restored', signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+''')
+
+
+def _run(mode, signame):
+  return subprocess.run([sys.executable, '-c', SCRIPT, mode, signame], capture_output=True,
+                        text=True, timeout=60)
+
+
+@pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])
+def test_signal_before_keep_raises_interrupted_with_the_shell_code(signame, code):
+  out = _run('before', signame)
+  assert out.returncode == 0, out.stderr
+  assert out.stdout.split() == ['raised', str(code)]
+
+
+@pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])
+def test_first_signal_after_keep_asks_to_stop_and_the_guard_restores_handlers(signame, code):
+  out = _run('once', signame)
+  assert out.returncode == 0, out.stderr
+  assert out.stdout.splitlines() == [f'stopped True {code}', 'restored True']
+  assert f'prog: {signame}: stopping after the current chunk' in out.stderr
+  assert 'Traceback' not in out.stderr
+
+
+@pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])
+def test_second_signal_exits_at_once(signame, code):
+  out = _run('twice', signame)
+  assert out.returncode == code
+  assert 'still running' not in out.stdout
+  assert f'prog: {signame} again: exiting now' in out.stderr
+  assert 'Traceback' not in out.stderr
