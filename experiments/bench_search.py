@@ -22,9 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import bench_env
+import bench_engines
 import common
 from pachs_jax import planner
+from pachs_jax.envs import mujoco_c
 from pachs_jax.search import pachs, types
 from pachs_jax.sac import actor_critic as ac_lib
 
@@ -80,8 +81,9 @@ def main():
   parser.add_argument('--num-actions', type=int, default=8)
   parser.add_argument('--budget', type=int, default=100_000)
   parser.add_argument('--weight', type=float, default=2.0)
-  parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
-                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads)')
+  parser.add_argument('--backend', default='mjx', choices=mujoco_c.BACKENDS,
+                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads; warp: '
+                      'MuJoCo Warp)')
   parser.add_argument('--raw-steps', type=int, default=20,
                       help='evaluate calls per raw-throughput measurement')
   parser.add_argument('--cpu-threads', type=int, default=None,
@@ -117,7 +119,7 @@ def main():
     wall = float(out.wall_time_s)
     evaluated = int(np.sum(out.evaluated))
     iterations = int(np.max(out.iterations))
-    raw = bench_env.mjx_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
+    raw = bench_engines.jax_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
     state_shape = jax.eval_shape(search.init, starts, types.instance_keys(
         jax.random.PRNGKey(0), num_instances))
     row = {

@@ -1,12 +1,14 @@
 """How far the planners' physics drifts from the closed-loop world: action sequences run in the
 MuJoCo C world (float64) are replayed from the same states in MJX (float32, the GPU planners'
-physics) and in the MuJoCo C edge backend (float32 states between steps, the CPU planners').
+physics), in the MuJoCo C edge backend (float32 states between steps, the CPU planners') and,
+where installed, in MuJoCo Warp (float32, MJX impl='warp'), which is also compared with MJX.
 
   python experiments/physics_mismatch.py --layout wall --instances 8
 
 The actions are the stochastic policy's in the world (pushing contact included). Reported: the T's
-position (mm) and angle (degrees) error against the world after `--horizons` steps, from the
-start and from world states every 10 steps along the way (the closed loop replans every 10)."""
+position (mm) and angle (degrees) error percentiles against the world after `--horizons` steps,
+from the start and from world states every 10 steps along the way (the closed loop replans
+every 10)."""
 
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import numpy as np
 
 import common
 from pachs_jax import planner
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import mujoco_c, warp_import
 from pachs_jax.search.baselines import common as replay_lib
 
 
@@ -54,7 +56,7 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--task', default='pusht-obs', choices=['pusht-fixed', 'pusht-obs'])
   parser.add_argument('--steps', type=int, default=80, help='world steps per instance')
-  parser.add_argument('--horizons', default='10,30,80', help='replay lengths, comma separated')
+  parser.add_argument('--horizons', default='1,10,30', help='replay lengths, comma separated')
   common.add_common_args(parser, out=None, instances=8, seed=True, layout=True)
   args = parser.parse_args()
   common.check_layout(parser, args.task, args.layout)
@@ -63,34 +65,41 @@ def main():
   horizons = [int(h) for h in args.horizons.split(',') if int(h) <= args.steps]
 
   env, model = planner.load_model(args.task, backend='mjx', layout=args.layout)
-  c_env = mujoco_c.make_backend(env, 'mujoco-c', None)
+  physics = {'mjx': env, 'mujoco-c backend': mujoco_c.make_backend(env, 'mujoco-c', None)}
+  if warp_import.available():
+    physics['warp'] = mujoco_c.make_backend(env, 'warp')
+  else:
+    print(f'no warp row: {warp_import.INSTALL_HINT}', flush=True)
   starts = env.canonical_instances(args.instances)
   actions, world = world_trajectories(env, model, starts, args.steps, args.seed)
-  rows = []
-  for name, physics in (('mjx', env), ('mujoco-c backend', c_env)):
-    replay = jax.jit(lambda s, a, n, physics=physics: replay_lib.replay(physics, s, a, n)[0])
-    for h in horizons:
-      # from every world state at a multiple of 10 steps whose next h actions exist
-      begins = [t for t in range(0, args.steps - h + 1, 10)]
-      pos, ang, goal_agree = [], [], []
+  rows, ends = [], {}
+  for h in horizons:
+    # from every world state at a multiple of 10 steps whose next h actions exist
+    begins = [t for t in range(0, args.steps - h + 1, 10)]
+    truth = jax.tree.map(lambda x: np.concatenate([x[:, t0 + h] for t0 in begins]), world)
+    for name, sim in physics.items():
+      replay = jax.jit(lambda s, a, n, sim=sim: replay_lib.replay(sim, s, a, n)[0])
+      end = []
       for t0 in begins:
         start = jax.tree.map(lambda x: jnp.asarray(x[:, t0]), world)
         nodes = replay(start, jnp.asarray(actions[:, t0:t0 + h]),
                        jnp.full((args.instances,), h, jnp.int32))
-        end = jax.tree.map(lambda x: np.asarray(x[:, h]), nodes)
-        truth = jax.tree.map(lambda x: x[:, t0 + h], world)
-        p, a = pose_error(end.qpos, truth.qpos)
-        pos.append(p)
-        ang.append(a)
-        goal_agree.append(np.asarray(env.is_goal(jax.tree.map(jnp.asarray, end)))
-                          == np.asarray(env.is_goal(jax.tree.map(jnp.asarray, truth))))
-      pos, ang = np.concatenate(pos), np.concatenate(ang)
-      rows.append({'physics': name, 'horizon': h, 'replays': int(pos.size),
-                   'position_error_mm_median': float(np.median(pos)),
-                   'position_error_mm_p90': float(np.percentile(pos, 90)),
-                   'angle_error_deg_median': float(np.median(ang)),
-                   'angle_error_deg_p90': float(np.percentile(ang, 90)),
-                   'goal_agreement': float(np.mean(np.concatenate(goal_agree)))})
+        end.append(jax.tree.map(lambda x: np.asarray(x[:, h]), nodes))
+      ends[name, h] = jax.tree.map(lambda *x: np.concatenate(x), *end)
+    pairs = [(name, 'world', truth) for name in physics]
+    if 'warp' in physics:
+      pairs.append(('warp', 'mjx', ends['mjx', h]))
+    for name, against, other in pairs:
+      end = ends[name, h]
+      pos, ang = pose_error(end.qpos, other.qpos)
+      agree = (np.asarray(env.is_goal(jax.tree.map(jnp.asarray, end)))
+               == np.asarray(env.is_goal(jax.tree.map(jnp.asarray, other))))
+      rows.append({'physics': name, 'against': against, 'horizon': h, 'replays': int(pos.size),
+                   **{f'position_error_mm_p{q}': float(np.percentile(pos, q))
+                      for q in (50, 90, 99)},
+                   **{f'angle_error_deg_p{q}': float(np.percentile(ang, q))
+                      for q in (50, 90, 99)},
+                   'goal_agreement': float(np.mean(agree))})
       print(rows[-1], flush=True)
   payload = {'provenance': common.provenance(), 'settings': vars(args), 'rows': rows}
   common.write_json(out, payload)

@@ -16,10 +16,10 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from pachs_jax.envs import base, pusht
+from pachs_jax.envs import base, pusht, warp_import, warp_physics
 
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-BACKENDS = ('auto', 'mjx', 'mujoco-c')
+BACKENDS = ('auto', 'mjx', 'mujoco-c', 'warp')
 
 
 # ---- one node <-> one MjData ----
@@ -343,20 +343,32 @@ class MujocoCEnv(base.Env):
 def make_backend(env: base.Env, backend: str = 'auto', nthread: Optional[int] = None) -> base.Env:
   """env with the chosen physics backend.
 
-  'mjx': env unchanged; 'mujoco-c': `MujocoCEnv(env)` (PushT only); 'auto': MuJoCo C when JAX
-  runs on the CPU and env is a PushTEnv, else env unchanged (e.g. the kinematic shelf env).
+  'mjx': MJX's JAX implementation (env as built); 'mujoco-c': `MujocoCEnv` (PushT only);
+  'warp': `warp_physics.WarpPushTEnv` (PushT only; needs the 'cuda' extra); 'auto': for PushT,
+  Warp when JAX runs on an accelerator and Warp is installed, MuJoCo C when JAX runs on the
+  CPU, else MJX; other envs unchanged (e.g. the kinematic shelf env).
   """
   if backend not in BACKENDS:
     raise ValueError(f'backend must be one of {BACKENDS}, got {backend!r}')
   if isinstance(env, MujocoCEnv):
     env = env.env
-  if backend == 'mjx':
-    return env
+  is_pusht = isinstance(env, pusht.PushTEnv)
+  if backend in ('mujoco-c', 'warp') and not is_pusht:
+    raise ValueError(f'backend {backend!r} needs a PushT env, got {type(env).__name__}')
+  if backend == 'auto':
+    if not is_pusht:
+      return env
+    if jax.default_backend() == 'cpu':
+      backend = 'mujoco-c'
+    else:
+      backend = 'warp' if warp_import.available() else 'mjx'
+  if backend == 'warp':
+    warp_import.require()
+    return (env if isinstance(env, warp_physics.WarpPushTEnv)
+            else warp_physics.WarpPushTEnv(env.config))
+  if isinstance(env, warp_physics.WarpPushTEnv):
+    env = pusht.PushTEnv(env.config)
   if backend == 'mujoco-c':
-    if not isinstance(env, pusht.PushTEnv):
-      raise ValueError(f"backend 'mujoco-c' needs a PushT env, got {type(env).__name__}")
-    return MujocoCEnv(env, nthread)
-  if jax.default_backend() == 'cpu' and isinstance(env, pusht.PushTEnv):
     return MujocoCEnv(env, nthread)
   return env
 

@@ -397,9 +397,11 @@ class PushTEnv(base.Env):
 
   # ---- physics: the only place where it happens ----
 
-  def restore(self, node: base.NodeState) -> mjx.Data:
-    """An mjx.Data holding exactly the node's simulation state (derived fields recomputed)."""
-    return self._data_template.replace(qpos=node.qpos, qvel=node.qvel, ctrl=node.ctrl,
+  def restore(self, node: base.NodeState, template: mjx.Data | None = None) -> mjx.Data:
+    """An mjx.Data holding exactly the node's simulation state (derived fields recomputed):
+    template (None: this env's MJX-JAX Data) with the node's qpos, qvel, ctrl, qacc_warmstart."""
+    template = self._data_template if template is None else template
+    return template.replace(qpos=node.qpos, qvel=node.qvel, ctrl=node.ctrl,
                                        qacc_warmstart=node.qacc_warmstart)
 
   def transition(self, node: base.NodeState, action: jax.Array) -> base.EdgeOutcome:
@@ -417,12 +419,14 @@ class PushTEnv(base.Env):
     data = jax.lax.fori_loop(0, self.config.substeps, lambda _, d: step(d), data)
     return jax.vmap(self._outcome)(nodes, data, action_ok)
 
-  def _actuated(self, node: base.NodeState, action: jax.Array):
-    """(mjx.Data of node with the action's joint targets as ctrl, [] bool action usable)."""
+  def _actuated(self, node: base.NodeState, action: jax.Array,
+                template: mjx.Data | None = None):
+    """(mjx.Data of node, from template as in `restore`, with the action's joint targets as
+    ctrl, [] bool action usable)."""
     action, action_ok = base.sanitize_actions(action)
     target = jnp.clip(node.qpos[:7] + ARM_ACTION_SCALE * action, self._arm_lower,
                       self._arm_upper)
-    return self.restore(node).replace(ctrl=target), action_ok
+    return self.restore(node, template).replace(ctrl=target), action_ok
 
   def _outcome(self, node: base.NodeState, data: mjx.Data, action_ok: jax.Array
                ) -> base.EdgeOutcome:

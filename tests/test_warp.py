@@ -1,0 +1,114 @@
+"""The MuJoCo Warp PushT backend: restore-then-step is the search's own transition bit for bit,
+agreement with MuJoCo C without contact, overflow reported per edge, backend selection and the
+quiet import (these two also where Warp is not installed)."""
+
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pachs_jax.envs import mujoco_c, point_mass, pusht, warp_import
+
+needs_warp = pytest.mark.skipif(not warp_import.available(),
+                                reason=f'MuJoCo Warp is not installed ({warp_import.INSTALL_HINT})')
+
+
+@pytest.fixture(scope='module')
+def warp_env():
+  from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
+  return warp_physics.WarpPushTEnv(pusht.PushTConfig(variant='obs', layout='two-gaps'))
+
+
+def _edges(env, num=4):
+  nodes = env.canonical_instances(num)
+  actions = jax.random.uniform(jax.random.PRNGKey(3), (num, env.action_size), minval=-1,
+                               maxval=1)
+  return nodes, actions
+
+
+@needs_warp
+def test_restore_then_step_reproduces_the_transition(warp_env):
+  nodes, actions = _edges(warp_env)
+  evaluate = jax.jit(warp_env.evaluate)
+  first = evaluate(nodes, actions)
+  # the next edge from the stored node state, in a batch of another size (another contact
+  # buffer), equals the same edge in the first batch's size, and a single transition
+  again = evaluate(first.next_node, actions)
+  part = jax.jit(warp_env.evaluate)(jax.tree.map(lambda x: x[:2], first.next_node), actions[:2])
+  one = jax.jit(warp_env.transition)(jax.tree.map(lambda x: x[1], first.next_node), actions[1])
+  for got, want in ((part, jax.tree.map(lambda x: x[:2], again)),
+                    (one, jax.tree.map(lambda x: x[1], again))):
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+  assert bool(np.all(np.asarray(first.is_valid)))
+
+
+@needs_warp
+def test_agrees_with_mujoco_c_without_contact(warp_env):
+  # the stick starts away from the T: one edge moves the arm only; float32 Warp against MuJoCo
+  # C (float64) on the same model, and the T does not move in either
+  nodes, actions = _edges(warp_env)
+  got = jax.jit(warp_env.evaluate)(nodes, actions)
+  c_env = mujoco_c.MujocoCEnv(pusht.PushTEnv(warp_env.config), nthread=1)
+  want = c_env.evaluate(nodes, actions)
+  np.testing.assert_allclose(np.asarray(got.next_node.qpos), np.asarray(want.next_node.qpos),
+                             atol=2e-4)
+  np.testing.assert_array_equal(np.asarray(got.next_node.qpos)[:, 7:],
+                                np.asarray(nodes.qpos)[:, 7:])
+  assert np.abs(np.asarray(got.next_node.qpos - nodes.qpos)[:, :7]).max() > 1e-3
+
+
+@needs_warp
+def test_overflow_is_reported_per_edge():
+  from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
+  config = pusht.PushTConfig(variant='obs', layout='two-gaps')
+  env = warp_physics.WarpPushTEnv(config, contacts_per_world=1, constraints_per_world=1)
+  nodes, actions = _edges(env, 2)
+  # edge 0 starts with the T against block 0 (contacts and constraints), edge 1 free
+  block = env.obstacles[0]
+  pose = jnp.array([block[0] + block[2] + 0.02, block[1], 0.0])
+  qpos = nodes.qpos.at[0, 7:10].set(pose)
+  nodes = nodes.replace(qpos=qpos)
+  over = np.asarray(jax.jit(env.overflowed)(nodes, actions))
+  out = jax.jit(env.evaluate)(nodes, actions)
+  assert over.tolist() == [True, False]
+  assert np.asarray(out.is_valid).tolist() == [False, True]
+
+
+def test_make_backend_warp_choices(monkeypatch):
+  env = pusht.PushTEnv()
+  with pytest.raises(ValueError, match="backend 'warp' needs a PushT env"):
+    mujoco_c.make_backend(point_mass.PointMassEnv(), 'warp')
+  monkeypatch.setattr(warp_import, 'available', lambda: False)
+  with pytest.raises(ImportError, match=r"pip install -e '\.\[cuda\]'"):
+    mujoco_c.make_backend(env, 'warp')
+  # auto never picks Warp where it is missing, and on the CPU picks MuJoCo C for PushT
+  if jax.default_backend() == 'cpu':
+    assert isinstance(mujoco_c.make_backend(env, 'auto', 1), mujoco_c.MujocoCEnv)
+
+
+@needs_warp
+def test_make_backend_builds_and_unwraps_warp():
+  from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
+  env = pusht.PushTEnv(pusht.PushTConfig(variant='obs'))
+  warp_env = mujoco_c.make_backend(env, 'warp')
+  assert isinstance(warp_env, warp_physics.WarpPushTEnv) and warp_env.config == env.config
+  assert warp_env.fingerprint != env.fingerprint
+  back = mujoco_c.make_backend(warp_env, 'mjx')
+  assert type(back) is pusht.PushTEnv and back.config == env.config
+
+
+def test_import_without_warp_prints_nothing():
+  # warp-lang made unimportable: importing the envs (and MJX) writes nothing to stdout
+  code = ('import sys; sys.modules["warp"] = None\n'
+          'import pachs_jax.envs, pachs_jax.envs.pusht\n'
+          'from pachs_jax.envs import warp_import\n'
+          'assert not warp_import.available()\n')
+  done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                        check=False)
+  assert done.returncode == 0, done.stderr
+  assert done.stdout == ''
+  assert 'Failed to import warp' not in done.stderr
