@@ -1,7 +1,7 @@
 """PACHS over several devices of one host: the 150-run PushT-Obs benchmark on 1, 2 and 4 devices.
 
 Per device count: wall time, edges/s, speed-up and whether the results equal the first count's
-(README, 'Several GPUs and hosts'); CPU: XLA_FLAGS=--xla_force_host_platform_device_count=4."""
+(docs/sharding.md); CPU: XLA_FLAGS=--xla_force_host_platform_device_count=4."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """Where a `pachs plan` process spends its time: imports, model load, instance generation,
 checks + tracing + compilation, search and output, and the XLA programs compiled, cold and
-with a warm persistent compilation cache, for one instance and for the 30-instance main job."""
+with a warm persistent compilation cache, for one instance and for the 30-instance main job.
+`--commands 30` times the real command; `--test-suite` times `python -m pytest` instead."""
 
 from __future__ import annotations
 
@@ -116,6 +117,8 @@ def main():
                       'without prefetch, with the teardown)')
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
+  parser.add_argument('--test-suite', action='store_true',
+                      help='time the test suite (`python -m pytest`, one process) instead')
   parser.add_argument('--merge', default='',
                       help='comma-separated result files of earlier runs to merge into --out '
                       '(runs nothing)')
@@ -127,6 +130,9 @@ def main():
     print(json.dumps(child(args.task, int(args.instances), args.budget, args.backend)))
     return
   import common
+  if args.test_suite:
+    common.write_json(args.out, dict(provenance=common.provenance(), **test_suite()))
+    return
   rows = []
   budget = ['--budget', str(args.budget)] if args.budget else []
   for count in map(int, filter(None, args.instances.split(','))):
@@ -160,6 +166,18 @@ def main():
              'commands': commands}
   common.write_json(args.out, result)
   write_markdown(result, os.path.splitext(args.out)[0] + '.md')
+
+
+def test_suite() -> dict:
+  """Process wall (s), pytest's summary line and exit status of `python -m pytest` run from the
+  repository root."""
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  began = time.perf_counter()
+  done = subprocess.run([sys.executable, '-m', 'pytest'], cwd=root, capture_output=True, text=True)
+  wall = time.perf_counter() - began
+  lines = [l.strip(' =') for l in done.stdout.splitlines() if l.strip()]
+  return {'command': 'python -m pytest', 'process_wall_s': wall,
+          'summary': lines[-1] if lines else '', 'returncode': done.returncode}
 
 
 def merge(paths: list, out: str):

@@ -197,7 +197,7 @@ def _plan(args: argparse.Namespace) -> int:
   key = jax.random.PRNGKey(args.seed)
   if devices is None:
     # one-shot: the whole search in the loop of the live instances' physics size (no further
-    # loop to compile or load; experiments/results/bench_startup_gpu_s11_*.md)
+    # loop to compile or load; docs/startup_and_caching.md)
     result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
                         shrink=False)
   else:

@@ -18,7 +18,7 @@ CHECKPOINT_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'check
 # instance) by physics backend, MuJoCo C ('mujoco-c') or MJX on the CPU ('other').
 CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 
-# `pachs plan` on a GPU: SearchConfig.compact_fractions (experiments/results/bench_compact.md):
+# `pachs plan` on a GPU: SearchConfig.compact_fractions (docs/results.md, compaction):
 # the command's one physics batch is the smallest of these that holds the live instances' lanes.
 COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
 

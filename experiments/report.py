@@ -1,0 +1,519 @@
+"""Writes docs/results.md and the README's headline table from the committed result files.
+
+  python experiments/report.py            # rewrite both
+  python experiments/report.py --check    # exit 1 where either differs from the files
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RESULTS = 'experiments/results'
+README = 'README.md'
+RESULTS_MD = 'docs/results.md'
+BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
+LAYOUTS = ('gate', 'slot', 'wall', 'detour', 'two-gaps')
+CURVE_POINTS = (1000, 3000, 10000, 30000, 100000)  # evaluations; the nearest budget of a curve
+PLACEHOLDER_NOTE = 'not measured yet; the maintainer runs `{command}`'
+
+
+class Sources:
+  """Reads result files under ROOT and remembers which ones a report cites (in order)."""
+
+  def __init__(self, root: str = ROOT):
+    self.root = root
+    self.cited: List[str] = []
+
+  def load(self, name: str) -> Dict:
+    """The payload of experiments/results/NAME, recorded as cited."""
+    path = f'{RESULTS}/{name}'
+    if path not in self.cited:
+      self.cited.append(path)
+    with open(os.path.join(self.root, path)) as f:
+      return json.load(f)
+
+
+# formatting -------------------------------------------------------------------------------------
+
+def pct(rate: Optional[float]) -> str:
+  """A rate in [0, 1] as a percentage with at most one decimal ('96.7%', '100%')."""
+  if rate is None:
+    return '-'
+  text = f'{100 * rate:.1f}'
+  return (text[:-2] if text.endswith('.0') else text) + '%'
+
+
+def ci(low: Optional[float], high: Optional[float]) -> str:
+  """A 95% interval of rates as ' [a, b]' in percent, '' where it is a point."""
+  if low is None or high is None or abs(high - low) < 1e-9:
+    return ''
+  return f' [{100 * low:.0f}, {100 * high:.0f}]'
+
+
+def num(value: Optional[float], digits: int = 3) -> str:
+  """A number with `digits` significant digits and thousands separators; '-' for None."""
+  if value is None:
+    return '-'
+  if abs(value) >= 10 ** digits:
+    return f'{value:,.0f}'
+  return f'{value:,.{digits}g}'
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+  """A markdown table."""
+  lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+  lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
+  return '\n'.join(lines)
+
+
+def link(path: str, from_dir: str) -> str:
+  """A markdown link to repository path `path` from a document in `from_dir`."""
+  return f'[`{os.path.basename(path)}`]({os.path.relpath(path, from_dir)})'
+
+
+def short_revision(revision: str) -> str:
+  """A git revision cut to 7 hex digits, keeping a '+dirty' mark."""
+  base, plus, rest = revision.partition('+')
+  return (base[:7] if re.fullmatch(r'[0-9a-f]{8,40}', base) else base) + plus + rest
+
+
+def runs_of(payload: Dict) -> List[Dict]:
+  """The provenance records of a result file: its own, or each merged source's."""
+  prov = payload.get('provenance', {})
+  return prov.get('merged_from') or [prov]
+
+
+def provenance_lines(path: str, payload: Dict, from_dir: str) -> List[str]:
+  """Markdown bullet lines naming a cited file and the device, revision and command of each run
+  in it."""
+  lines = [f'- {link(path, from_dir)}']
+  seen = set()
+  for run in runs_of(payload):
+    key = (run.get('device'), run.get('git_revision'), run.get('command'))
+    if key in seen:
+      continue
+    seen.add(key)
+    lines.append(f'  - {run.get("device", "?")}; revision {short_revision(run.get("git_revision", "?"))}'
+                 f'; `{run.get("command", "?")}`')
+  return lines
+
+
+# sections ---------------------------------------------------------------------------------------
+
+def summary_of(payload: Dict, planner: str) -> Optional[Dict]:
+  """The summary row of a planner in an open- or closed-loop result, None where absent."""
+  return next((row for row in payload['summary'] if row['planner'] == planner), None)
+
+
+def solved(row: Optional[Dict]) -> str:
+  """'n/N (x%)' of an open-loop summary row."""
+  if row is None:
+    return '-'
+  return f'{row["successes"]}/{row["runs"]} ({pct(row["success_rate"])})'
+
+
+def curve_at(payload: Dict, planner: str, budget: int) -> Tuple[int, Optional[float]]:
+  """(the curve budget nearest `budget`, the planner's share of runs solved within it)."""
+  budgets = payload['curve_budgets']
+  index = min(range(len(budgets)), key=lambda i: abs(budgets[i] - budget))
+  curve = payload['success_curve'].get(planner)
+  return budgets[index], (curve[index] if curve else None)
+
+
+def cost_ratio(payload: Dict, a: str, b: str) -> str:
+  """Mean cost of planner a over b on the runs both solved."""
+  ratio = payload.get('cost_ratios', {}).get(a, {}).get(b, {}).get('mean_ratio')
+  return '-' if ratio is None else f'{ratio:.2f}'
+
+
+OPEN_PLANNERS = (('pachs', 'PACHS'), ('parallel', 'parallel rollout (256)'),
+                 ('single', 'policy alone'), ('beam', 'beam search (64 x 16)'),
+                 ('pachs-original', 'original PACHS'))
+VARIANTS = (('pachs', 'default'), ('pachs-start', 'chains restart at the start'),
+            ('pachs-share0.5', 'rollout share 0.5'), ('pachs-h8', 'edges of 8, no chains'),
+            ('pachs-original', 'original (one-step edges)'))
+
+
+def open_loop_layouts(src: Sources) -> str:
+  """PushT-Obs, the five layouts: success, curves, costs and times, and the PACHS variants."""
+  payloads = {layout: src.load(f'open_loop_pusht-obs_{layout}.json') for layout in LAYOUTS}
+  first = payloads['gate']['settings']
+  success = [[layout] + [solved(summary_of(p, name)) for name, _ in OPEN_PLANNERS]
+             + [cost_ratio(p, 'pachs', 'parallel')] for layout, p in payloads.items()]
+  budgets = [curve_at(payloads['gate'], 'pachs', b)[0] for b in CURVE_POINTS]
+  curves = [[layout] + [f'{pct(curve_at(p, "pachs", b)[1])} / {pct(curve_at(p, "parallel", b)[1])}'
+                        for b in CURVE_POINTS] for layout, p in payloads.items()]
+  effort = []
+  for layout, p in payloads.items():
+    for name, label in OPEN_PLANNERS[:2]:
+      row = summary_of(p, name)
+      effort.append([layout, label, num(row['cost_success_mean']), num(row['evaluated_mean']),
+                     num(row['batch_wall_s'])])
+  variants = [[layout] + [solved(summary_of(p, name)) for name, _ in VARIANTS]
+              for layout, p in payloads.items()]
+  return '\n\n'.join([
+      f'{first["instances"]} canonical instances x {first["rounds"]} seeds = '
+      f'{first["instances"] * first["rounds"]} runs per planner and layout, '
+      f'{first["budget"]:,} edge evaluations per run, each planner\'s runs in one batched call. '
+      'Success with the 95% interval from resampling the instances in the files; cost ratio '
+      'over the runs both solved.',
+      table(['layout'] + [label for _, label in OPEN_PLANNERS] + ['PACHS / parallel cost'],
+            success),
+      'Share of runs solved within a number of edge evaluations, PACHS / parallel rollout:',
+      table(['layout'] + [f'{b:,}' for b in budgets], curves),
+      'Path cost, effort and time (runs of one command shared the GPU as concurrent processes, '
+      'so the wall times are upper bounds):',
+      table(['layout', 'planner', 'mean cost (solved)', 'mean evaluations', 'wall of the call (s)'],
+            effort),
+      'The PACHS variants behind the PushT-Obs defaults (docs/task_defaults.md), same runs:',
+      table(['layout'] + [label for _, label in VARIANTS], variants)])
+
+
+def open_loop_beyond(src: Sources) -> str:
+  """PACHS and the parallel rollout on a second instance set and on two held-out layouts."""
+  files = [(f'{layout}, instance set 1', f'instance_set1/open_loop_pusht-obs_{layout}_set1.json')
+           for layout in LAYOUTS]
+  files += [(f'{layout} (held out)', f'heldout_gpu/open_loop_pusht-obs_{layout}.json')
+            for layout in ('gate-mirror', 'wall-right')]
+  rows = []
+  for label, name in files:
+    p = src.load(name)
+    curve = ', '.join(f'{pct(curve_at(p, "pachs", b)[1])} / {pct(curve_at(p, "parallel", b)[1])}'
+                      for b in CURVE_POINTS[1:4])
+    rows.append([label, solved(summary_of(p, 'pachs')), solved(summary_of(p, 'parallel')), curve,
+                 cost_ratio(p, 'pachs', 'parallel')])
+  budgets = ' / '.join(f'{curve_at(p, "pachs", b)[0]:,}' for b in CURVE_POINTS[1:4])
+  return '\n\n'.join([
+      'The same protocol on instances drawn by the same rules with another seed, and on two '
+      'layouts held out from every choice of defaults (the gate mirrored, the wall moved right).',
+      table(['layout', 'PACHS', 'parallel rollout', f'solved within {budgets} (PACHS / parallel)',
+             'PACHS / parallel cost'], rows)])
+
+
+def policy_per_layout(src: Sources) -> str:
+  """What the policy alone solves on each layout (the layouts are built so that it fails)."""
+  p = src.load('eval_layouts_cpu.json')
+  rows = [[r['layout'], r['kind'], r['start_region'], f'{r["policy_solved"]}/{r["instances"]}']
+          for r in p['rows']]
+  return '\n\n'.join([
+      'One deterministic rollout of the PushT-Fixed policy per canonical instance, MuJoCo C physics:',
+      table(['layout', 'the T must', 'start region', 'policy alone'], rows)])
+
+
+def open_loop_tasks(src: Sources) -> str:
+  """PushT-Fixed, PushT-Rand and Panda-Shelf: every planner's success, cost, effort and time."""
+  rows = []
+  notes = []
+  for task, name in (('PushT-Fixed', 'open_loop_pusht-fixed.json'),
+                     ('PushT-Rand', 'open_loop_pusht-rand.json'),
+                     ('Panda-Shelf', 'open_loop_shelf.json')):
+    p = src.load(name)
+    s = p['settings']
+    notes.append(f'{task}: {s["instances"]} instances x {s["rounds"]} '
+                 f'seed{"s" * (s["rounds"] > 1)}, {s["budget"]:,} '
+                 'evaluations per run' + (f', {s["time_limit_s"]:g} s limit per call'
+                                          if s.get('time_limit_s') else ''))
+    for row in p['summary']:
+      rows.append([task, row['planner'], solved(row) + ci(row.get('instance_ci95_low'),
+                                                           row.get('instance_ci95_high')),
+                   num(row['cost_success_mean']), num(row['evaluated_mean']),
+                   num(row.get('evaluated_per_expanded')), num(row['batch_wall_s'])])
+  return '\n\n'.join([
+      '; '.join(notes) + '. ePA*SE on the shelf runs its own budget (its config in the file).',
+      table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
+             'evaluations per expansion', 'wall of the call (s)'], rows)])
+
+
+def closed_row(label: str, p: Dict, planner: str) -> List[str]:
+  """A closed-loop table row: success with its interval, edges and goal answers per query."""
+  row = summary_of(p, planner)
+  goal = row.get('goal_answers')
+  queries = (row['queries_per_episode_mean'] * row['episodes']
+             if row.get('queries_per_episode_mean') else None)
+  return [label, f'{pct(row["success_rate"])}{ci(row["ci95_low"], row["ci95_high"])}',
+          num(row.get('evaluations_per_query_mean')),
+          f'{goal:,} / {queries:,.0f}' if goal is not None and queries else '-']
+
+
+def closed_loop(src: Sources) -> str:
+  """Plans executed in a simulated world: PushT-Fixed/-Rand, the PushT-Obs layouts, the answer
+  rule of an unfinished query."""
+  header = ['', 'success', 'edges per query and episode', 'goal answers / queries']
+  easy = []
+  for task, name in (('PushT-Fixed', 'closed_loop_pusht-fixed.json'),
+                     ('PushT-Rand', 'closed_loop_pusht-rand.json')):
+    p = src.load(name)
+    easy += [closed_row(f'{task}, {row["planner"]}', p, row['planner']) for row in p['summary']]
+  obs = []
+  for layout in LAYOUTS:
+    obs.append(closed_row(f'{layout}, PACHS', src.load(f'closed_loop_pusht-obs_{layout}_pachs.json'),
+                          'pachs'))
+    if layout in ('gate', 'wall', 'detour'):
+      obs.append(closed_row(f'{layout}, parallel rollout',
+                            src.load(f'closed_loop_pusht-obs_{layout}_parallel.json'), 'parallel'))
+  world = [closed_row(f'wall, {label}', src.load(f'closed_loop_pusht-obs_wall_planner-world_{name}.json'),
+                      name) for name, label in (('pachs', 'PACHS'), ('parallel', 'parallel rollout'))]
+  answers = [closed_row(f'{layout}, {rule}',
+                        src.load(f'closed_loop_pusht-obs_{layout}_answer-{rule}.json'), 'pachs')
+             for layout, rules in (('gate', ('best_f', 'min_h', 'min_cost')),
+                                   ('wall', ('min_h', 'min_cost')))
+             for rule in rules]
+  s = src.load('closed_loop_pusht-obs_wall_pachs.json')['settings']
+  return '\n\n'.join([
+      f'{s["instances"]} instances x {s["rounds"]} rounds = {s["instances"] * s["rounds"]} '
+      f'episodes per planner; each query gets {s["query_time"]:g} s of wall clock for all '
+      f'episodes together, {s["execute"]} actions of each plan are executed, at most '
+      f'{s["max_queries"]} queries; success is judged in the world (95% intervals over the '
+      'instances). The plans are made in MJX (float32) and executed in MuJoCo C (float64) '
+      'unless stated.',
+      table(header, easy),
+      'PushT-Obs layouts (parallel rollout runs exist for three of them):',
+      table(header, obs),
+      'Wall with the plans executed in the planners\' own physics (`closed_loop.py --world '
+      'planner`), which measures the search rather than the transfer of a float32 plan:',
+      table(header, world),
+      'The answer of an unfinished query (`realtime_answer`; chains restarting at the start, '
+      'the default when these ran):',
+      table(header, answers)])
+
+
+def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
+  """(cold wall, warm walls, search summary) of the real `pachs plan` command of `count`
+  instances in a bench_startup result."""
+  rows = [c for c in p['commands'] if c['instances'] == count]
+  cold = next((c['process_wall_s'] for c in rows if c['run'] == 'cold'), None)
+  warm = [c['process_wall_s'] for c in rows if c['run'] == 'warm']
+  return cold, warm, next((c['summary'] for c in rows if c['run'] == 'warm'), '')
+
+
+def span(values: Sequence[float]) -> str:
+  """'a-b s' of the values (or 'a s' for one)."""
+  if not values:
+    return '-'
+  low, high = min(values), max(values)
+  return f'{low:.1f} s' if f'{low:.1f}' == f'{high:.1f}' else f'{low:.1f}-{high:.1f} s'
+
+
+def placeholder(p: Dict) -> Optional[str]:
+  """The note of a placeholder result file, None for a measured one."""
+  return PLACEHOLDER_NOTE.format(command=p['measure_with']) if p.get('placeholder') else None
+
+
+def cpu_claims(src: Sources) -> Dict[str, str]:
+  """The CPU main job's and the test suite's wall time on 2 cores, as README phrases."""
+  job = src.load('cpu_main_job.json')
+  suite = src.load('test_suite_cpu.json')
+  out = {}
+  if placeholder(job):
+    out['job'] = placeholder(job)
+  else:
+    cold, warm, _ = command_walls(job, 30)
+    out['job'] = (f'{cold:.1f} s cold, {span(warm)} warm ({job["provenance"]["device"]}, '
+                  f'{job["provenance"]["host_cpus"]} CPUs)')
+  if placeholder(suite):
+    out['suite'] = placeholder(suite)
+  else:
+    out['suite'] = (f'{suite["process_wall_s"] / 60:.1f} min ({suite["summary"]}; '
+                    f'{suite["provenance"]["host_cpus"]} CPUs)')
+  return out
+
+
+def speed(src: Sources) -> str:
+  """Start-up of `pachs plan`, search throughput, CPU against GPU edges, compaction, devices."""
+  start = src.load('bench_startup_gpu.json')
+  rows = []
+  for count in (30, 1):
+    cold, warm, summary = command_walls(start, count)
+    rows.append([f'`pachs plan --task {start["task"]}`, {count} instance{"s" * (count > 1)}',
+                 f'{cold:.1f} s', span(warm), summary.split(';')[1].strip() if ';' in summary
+                 else summary])
+  claims = cpu_claims(src)
+  search = []
+  for name in ('bench_search_budget_i1_150.json', 'bench_search_budget_i30.json'):
+    for r in src.load(name)['rows']:
+      search.append([r['instances'], r['K'], num(r['evaluated']), num(r['wall_s']),
+                     num(r['edges_per_s']), f'{r["search_over_raw"]:.2f}',
+                     pct(r['lane_utilization_mean'])])
+  search.sort(key=lambda r: (r[0], r[1]))
+  backends = src.load('bench_backends.json')
+  engines = [[r['K'], num(r['gpu_mjx_edges_per_s']), num(r['cpu_mujoco_c_edges_per_s']),
+              f'{r["gpu_over_cpu"]:.1f}x', f'{r["cpu_search_over_raw"]:.2f}']
+             for r in backends['rows']]
+  cpu = src.load('bench_cpu_backend.json')['evaluate']
+  by_backend = {r['backend']: r for r in cpu}
+  compact = src.load('bench_compact.json')['rows'][0]
+  baseline = src.load('bench_compact_baseline.json')['rows'][0]
+  scale = []
+  for name in ('bench_scale.json', 'bench_scale_k1024_2048.json'):
+    for r in src.load(name)['rows']:
+      scale.append([r['K'], r['devices'], num(r['wall_s']), f'{r["speedup"]:.2f}x', r['found'],
+                    f'`{name}`'])
+  return '\n\n'.join([
+      'Process wall of the real command, cold (empty compilation cache) and warm, one GPU:',
+      table(['command', 'cold', 'warm', 'search'], rows),
+      f'On a CPU-only machine (MuJoCo C edges, 20,000 evaluations per instance), '
+      f'`pachs plan --task pusht-obs`: {claims["job"]}. The test suite '
+      f'(`python -m pytest`): {claims["suite"]}.',
+      'Search throughput when every instance spends its whole budget (goals never accepted), '
+      'against `env.evaluate` alone at the same batch:',
+      table(['instances', 'K', 'edges evaluated', 'wall (s)', 'edges/s', 'search / raw',
+             'lanes used'], search),
+      f'GPU edges (MJX) against CPU edges (MuJoCo C on {backends["cpu_threads"]} threads of the '
+      f'same host), PushT-Obs, {backends["rows"][0]["instances"]} instances at '
+      f'{backends["rows"][0]["budget"]:,} evaluations:',
+      table(['K', 'GPU edges/s', 'CPU edges/s', 'GPU / CPU', 'CPU search / raw'], engines),
+      f'On a 2-core CPU, MuJoCo C evaluates a batch of {by_backend["mujoco-c"]["batch"]} PushT '
+      f'edges in {1000 * by_backend["mujoco-c"]["median_s"]:.1f} ms, MJX on the CPU in '
+      f'{by_backend["mjx (cpu)"]["median_s"]:.1f} s ({by_backend["speed-up"]["edges_per_s"]:,.0f}x).',
+      f'Compaction (simulating only the live instances\' edges), {compact["runs_per_device"]} '
+      f'PushT-Obs runs, K {compact["K"]}: {num(compact["wall_s"])} s against '
+      f'{num(baseline["wall_s"])} s without ({compact["found"]} and {baseline["found"]} found).',
+      'The instance axis over several GPUs of one host (150 PushT-Obs runs, K as given):',
+      table(['K', 'GPUs', 'wall (s)', 'speed-up', 'found', 'file'], scale)])
+
+
+def playground(src: Sources) -> str:
+  """MuJoCo Playground's reacher tasks: the policy, the parallel rollout and PACHS."""
+  rows = []
+  for name in ('playground_reachereasy.json', 'playground_reacherhard.json'):
+    p = src.load(name)
+    for s in p['summaries']:
+      rows.append([p['task'].split(':')[-1], s['planner'], f'{s["solved"]}/{s["instances"]}',
+                   num(s['mean_cost_solved']), num(s['mean_evaluated']), num(s['wall_s'])])
+  return '\n\n'.join([
+      'The shipped Playground models on their 30 canonical instances (budgets in the planner '
+      'names):',
+      table(['task', 'planner', 'solved', 'mean cost (solved)', 'mean evaluations', 'wall (s)'],
+            rows)])
+
+
+SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
+    ('Open loop: PushT-Obs layouts', open_loop_layouts),
+    ('Open loop: other instances and held-out layouts', open_loop_beyond),
+    ('The layouts: the policy alone', policy_per_layout),
+    ('Open loop: PushT-Fixed, PushT-Rand, Panda-Shelf', open_loop_tasks),
+    ('Closed loop', closed_loop),
+    ('Speed and start-up', speed),
+    ('MuJoCo Playground', playground),
+)
+
+
+def anchor(title: str) -> str:
+  """GitHub's anchor of a markdown heading."""
+  return re.sub(r'[^a-z0-9 -]', '', title.lower()).replace(' ', '-')
+
+
+def results_markdown(root: str = ROOT) -> Tuple[str, List[str]]:
+  """docs/results.md and the result files it cites."""
+  parts = ['# Results', '',
+           'Generated by `python experiments/report.py` from the result files in '
+           '`experiments/results/`; do not edit by hand. Each section lists its files with the '
+           'device, revision and command of every run in them. The protocol is in '
+           '[experiments.md](experiments.md).', '']
+  cited = []
+  for title, section in SECTIONS:
+    src = Sources(root)
+    body = section(src)
+    parts += [f'## {title}', '', body, '', '**Sources**', '']
+    for path in src.cited:
+      with open(os.path.join(root, path)) as f:
+        parts += provenance_lines(path, json.load(f), 'docs')
+      cited.append(path)
+    parts.append('')
+  return '\n'.join(parts).rstrip() + '\n', cited
+
+
+def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
+  """The README's headline block (between the markers) and the files it cites."""
+  src = Sources(root)
+  rows = []
+  for task, name in (('PushT-Fixed', 'open_loop_pusht-fixed.json'),
+                     ('PushT-Rand', 'open_loop_pusht-rand.json')):
+    p = src.load(name)
+    rows.append((task, p))
+  for layout in LAYOUTS:
+    rows.append((f'PushT-Obs, {layout}', src.load(f'open_loop_pusht-obs_{layout}.json')))
+  rows.append(('Panda-Shelf', src.load('open_loop_shelf.json')))
+  body = []
+  for task, p in rows:
+    pachs, parallel = summary_of(p, 'pachs'), summary_of(p, 'parallel')
+    single = summary_of(p, 'single')
+    at_10k = (f'{pct(curve_at(p, "pachs", 10000)[1])} / {pct(curve_at(p, "parallel", 10000)[1])}')
+    shared = '<= ' if task.startswith('PushT-Obs') else ''
+    body.append([task, pct(pachs['success_rate']), pct(parallel['success_rate']),
+                 pct(single['success_rate']) if single else '-', at_10k,
+                 num(pachs['evaluated_mean']), f'{shared}{num(pachs["batch_wall_s"], 2)} s'])
+  budgets = sorted({p['settings']['budget'] for _, p in rows}, reverse=True)
+  start = src.load('bench_startup_gpu.json')
+  cold, warm, _ = command_walls(start, 30)
+  claims = cpu_claims(src)
+  devices = sorted({run['device'].split(': ')[-1].replace(' x1', '')
+                    for _, p in rows for run in runs_of(p)})
+  lines = [
+      table(['task', 'PACHS', 'parallel rollout (256 copies)', 'policy alone',
+             'solved within 10,000 evaluations (PACHS / rollout)', 'PACHS evaluations per run',
+             'PACHS wall, all runs in one call'], body),
+      '',
+      f'Open loop: share of runs solved (30 instances x 5 seeds; shelf: 100 targets) within '
+      f'{" (shelf: ".join(f"{b:,}" for b in budgets)}) edge evaluations per run, on one '
+      f'{" or one ".join(devices)}; the PushT-Obs calls shared their GPU with other runs, so '
+      f'their times are upper bounds. Start-up of `pachs plan --task pusht-obs` (30 instances, '
+      f'one GPU): {cold:.0f} s cold, {span(warm)} warm. On a 2-core CPU: {claims["job"]}. '
+      f'Tests: {claims["suite"]}. Every table, its device, command and revision: '
+      f'[docs/results.md](docs/results.md).',
+  ]
+  return '\n'.join(lines), src.cited
+
+
+def readme_with_table(readme: str, block: str) -> str:
+  """The README text with the block between the markers replaced."""
+  begin, end = readme.find(BEGIN), readme.find(END)
+  if begin < 0 or end < begin:
+    raise ValueError(f'{README} lacks the markers {BEGIN} ... {END}')
+  return readme[:begin + len(BEGIN)] + '\n' + block + '\n' + readme[end:]
+
+
+def generate(root: str = ROOT) -> Dict[str, str]:
+  """{repository path: the text the report writes there}."""
+  results, _ = results_markdown(root)
+  block, _ = headline_table(root)
+  with open(os.path.join(root, README)) as f:
+    readme = readme_with_table(f.read(), block)
+  return {RESULTS_MD: results, README: readme}
+
+
+def cited_files(root: str = ROOT) -> List[str]:
+  """Every result file the report reads."""
+  return sorted(set(results_markdown(root)[1]) | set(headline_table(root)[1]))
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--check', action='store_true',
+                      help='write nothing; exit 1 where a written file differs')
+  args = parser.parse_args(argv)
+  stale = []
+  for path, text in generate().items():
+    full = os.path.join(ROOT, path)
+    old = open(full).read() if os.path.exists(full) else None
+    if old == text:
+      continue
+    stale.append(path)
+    if not args.check:
+      with open(full, 'w') as f:
+        f.write(text)
+  if args.check and stale:
+    print(f'stale: {", ".join(stale)}; run python experiments/report.py', file=sys.stderr)
+    return 1
+  print(f'{"rewrote" if stale else "up to date:"} {", ".join(stale) or RESULTS_MD + ", " + README}')
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())

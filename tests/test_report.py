@@ -1,0 +1,109 @@
+"""experiments/report.py: the committed docs/results.md and README table match the result files,
+and every file they cite exists."""
+
+import json
+import os
+import re
+import shutil
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, 'experiments'))
+
+import report  # noqa: E402  pylint: disable=wrong-import-position
+
+
+def read(path):
+  with open(os.path.join(ROOT, path)) as f:
+    return f.read()
+
+
+def test_committed_report_is_current():
+  for path, text in report.generate().items():
+    assert read(path) == text, f'{path} is stale: run python experiments/report.py'
+
+
+def test_cited_result_files_exist():
+  cited = report.cited_files()
+  assert len(cited) > 30
+  missing = [p for p in cited if not os.path.isfile(os.path.join(ROOT, p))]
+  assert not missing
+
+
+def test_result_links_in_readme_and_docs_exist():
+  """Every experiments/results path named in the README or a doc exists."""
+  docs = ['README.md'] + [os.path.join('docs', n) for n in os.listdir(os.path.join(ROOT, 'docs'))
+                          if n.endswith('.md')]
+  pattern = re.compile(r'experiments/results/[\w./-]*\w')
+  named = {(doc, m) for doc in docs for m in pattern.findall(read(doc))}
+  assert named
+  missing = [(doc, p) for doc, p in named if not os.path.exists(os.path.join(ROOT, p))]
+  assert not missing
+
+
+def test_readme_table_sits_between_the_markers():
+  readme = read('README.md')
+  block, _ = report.headline_table()
+  assert f'{report.BEGIN}\n{block}\n{report.END}' in readme
+  with pytest.raises(ValueError, match='markers'):
+    report.readme_with_table('no markers here', block)
+
+
+@pytest.fixture
+def copy_root(tmp_path):
+  """A copy of the files the report reads and writes, to change."""
+  shutil.copytree(os.path.join(ROOT, 'experiments', 'results'),
+                  tmp_path / 'experiments' / 'results')
+  shutil.copy(os.path.join(ROOT, 'README.md'), tmp_path / 'README.md')
+  return tmp_path
+
+
+def rewrite(root, name, change):
+  path = root / 'experiments' / 'results' / name
+  payload = json.loads(path.read_text())
+  change(payload)
+  path.write_text(json.dumps(payload))
+
+
+def test_a_changed_result_makes_the_report_stale(copy_root):
+  """Fewer PACHS successes on the wall layout show in both outputs."""
+  def fewer(payload):
+    row = report.summary_of(payload, 'pachs')
+    row['successes'], row['success_rate'] = 75, 0.5
+
+  rewrite(copy_root, 'open_loop_pusht-obs_wall.json', fewer)
+  written = report.generate(str(copy_root))
+  assert written != report.generate()
+  assert '| PushT-Obs, wall | 50% |' in written['README.md']
+  assert '| wall | 75/150 (50%) |' in written['docs/results.md']
+
+
+def test_measured_cpu_timings_replace_the_placeholders(copy_root):
+  """Once the maintainer's commands have written them, the CPU main job's and the test suite's
+  times appear in the README."""
+  prov = {'device': 'cpu: cpu x1', 'host_cpus': 2, 'git_revision': 'abc', 'command': 'c'}
+  commands = [dict(instances=30, run='cold', process_wall_s=37.25, summary='found 30/30'),
+              dict(instances=30, run='warm', process_wall_s=21.0, summary='found 30/30'),
+              dict(instances=30, run='warm', process_wall_s=22.5, summary='found 30/30')]
+  (copy_root / 'experiments/results/cpu_main_job.json').write_text(json.dumps(
+      {'provenance': prov, 'task': 'pusht-obs', 'rows': [], 'commands': commands}))
+  (copy_root / 'experiments/results/test_suite_cpu.json').write_text(json.dumps(
+      {'provenance': prov, 'command': 'python -m pytest', 'process_wall_s': 540.0,
+       'summary': '300 passed in 540.00s', 'returncode': 0}))
+  block, _ = report.headline_table(str(copy_root))
+  assert '37.2 s cold, 21.0-22.5 s warm' in block
+  assert 'Tests: 9.0 min (300 passed in 540.00s; 2 CPUs)' in block
+  assert 'not measured yet' not in block
+
+
+def test_formats():
+  assert report.pct(1.0) == '100%'
+  assert report.pct(0.9666666) == '96.7%'
+  assert report.pct(None) == '-'
+  assert report.ci(0.9, 1.0) == ' [90, 100]'
+  assert report.ci(1.0, 1.0) == ''
+  assert report.num(3000000.0) == '3,000,000'
+  assert report.num(0.2482) == '0.248'
+  assert report.short_revision('e8963aa100994b440cc98c4af706a1c91c4d2450+dirty') == 'e8963aa+dirty'
