@@ -83,7 +83,8 @@ def _demo(args: argparse.Namespace) -> int:
   if args.gif:
     check_output_path('--gif', args.gif)
   from pachs_jax import demo
-  summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif)
+  summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif,
+                          progress=True)
   print(json.dumps(summary, indent=1))
   return 0
 
@@ -285,7 +286,8 @@ def _main(words) -> int:
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
-  demo.add_argument('--steps', type=_positive_int, default=60, help='control steps (20 Hz)')
+  demo.add_argument('--steps', type=_positive_int, default=300,
+                    help='control steps (20 Hz), at most 2000')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
