@@ -401,7 +401,7 @@ def plan_figure(env, states, title: str, size_px: int = 600) -> Figure:
 
 # A view of the scene for the MuJoCo renderer: (lookat xyz (m), distance (m), azimuth,
 # elevation (deg)); the PushT model has its own camera, 'overview'.
-SHELF_CAMERA = ((0.45, 0.0, 0.45), 2.0, -150.0, -20.0)
+SHELF_CAMERA = ((0.4, 0.0, 0.45), 2.0, 50.0, -20.0)
 
 
 def _scene_model(env, goal):
