@@ -273,7 +273,8 @@ def _one_line_error(argv, capsys):
     (['plan', '--json', '/proc/pachs_rows.json'], '--json /proc/pachs_rows.json: cannot write '
                                                   'there'),
     (['plan', '--render', '{tmp}/path.xyz'], 'cannot draw .xyz images'),
-    (['plan', '--task', 'shelf', '--render', '{tmp}/path.png'], '--render draws PushT paths'),
+    (['plan', '--task', 'playground:ReacherEasy', '--render', '{tmp}/path.png'],
+     "--render draws the PushT tasks and the shelf; task 'playground:ReacherEasy' has no"),
     (['plan', '--time-limit', '-1'], 'argument --time-limit: must be a positive number'),
     (['plan', '--lattice-resolution', '0.1,a'], 'argument --lattice-resolution: must be cell '
                                                 'sizes'),
