@@ -305,9 +305,10 @@ def test_overflowing_lattice_resolution_in_the_cli(capsys, monkeypatch):
 
 
 def test_the_json_is_written_when_drawing_fails(tmp_path, capsys, monkeypatch):
+  from pachs_jax import outputs
   def no_space(*args, **kwargs):
     raise OSError(28, 'No space left on device')
-  monkeypatch.setattr(planner, 'draw_result', no_space)
+  monkeypatch.setattr(outputs, 'write_still', no_space)
   rows, png = tmp_path / 'rows.json', tmp_path / 'path.png'
   code = cli.main(['plan', '--task', 'pusht-fixed', '--instances', '0', '--budget', '50',
                    '-K', '4', '-N', '4', '--no-cache', '--render', str(png), '--json', str(rows)])
