@@ -83,7 +83,8 @@ def _demo(args: argparse.Namespace) -> int:
   if args.gif:
     check_output_path('--gif', args.gif)
   from pachs_jax import demo
-  summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif)
+  summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif,
+                          progress=True)
   print(json.dumps(summary, indent=1))
   return 0
 
@@ -141,12 +142,15 @@ def _plan(args: argparse.Namespace) -> int:
   import time
 
   # every output path first: nothing is planned for results that could not be written
+  from pachs_jax import outputs
+  outputs.check_plan_outputs(args.task, {'--json': args.json, '--render': args.render,
+                                         '--animate': args.animate})
   if args.json:
     check_output_path('--json', args.json)
   if args.render:
-    if not args.task.startswith('pusht'):
-      raise ValueError(f'--render draws PushT paths; task {args.task!r} has no drawing')
     _check_image_path('--render', args.render)
+  if args.animate:
+    check_output_path('--animate', args.animate)
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
   import jax
@@ -168,6 +172,7 @@ def _plan(args: argparse.Namespace) -> int:
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
+  shown = outputs.check_show_instance(args.show_instance, instances)
   config = planner.command_config(
       args.task, on_cpu, mujoco_c, args.budget,
       algorithm=args.algorithm, edge_steps=args.edge_steps, rollout_share=args.rollout_share,
@@ -213,7 +218,7 @@ def _plan(args: argparse.Namespace) -> int:
   print(f'found {found}/{len(rows)}; search time {float(result.wall_time_s):.2f} s '
         f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
   # the JSON first (a failed drawing loses no result), each output on its own
-  outputs = []
+  writes = []
   if args.json:
     saved = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
              'config': repr(config), 'rows': rows,
@@ -221,16 +226,20 @@ def _plan(args: argparse.Namespace) -> int:
              'search_time_s': float(result.wall_time_s)}
 
     def write_json():
-      with open(args.json, 'w') as f:
-        json.dump(saved, f, indent=1)
-      print(f'wrote the rows to {args.json}')
-    outputs.append(('--json', args.json, write_json))
+      outputs.write_json(args.json, outputs.json_document(saved, result, instances))
+      print(f'wrote the rows and each instance\'s plan to {args.json}')
+    writes.append(('--json', args.json, write_json))
   if args.render:
     def draw():
-      path = planner.draw_result(env, result, instances, args.render)
-      print(f'drew instance {instances[0]} to {path}')
-    outputs.append(('--render', args.render, draw))
-  return _write_outputs('pachs plan', outputs)
+      path = outputs.write_still(args.render, env, result, instances, shown)
+      print(f'drew instance {shown} to {path}')
+    writes.append(('--render', args.render, draw))
+  if args.animate:
+    def animate():
+      path, note = outputs.write_animation(args.animate, env, result, instances, shown)
+      print(f'animated instance {shown} to {path}' + (f' ({note})' if note else ''))
+    writes.append(('--animate', args.animate, animate))
+  return _write_outputs('pachs plan', writes)
 
 
 def main(argv=None) -> int:
@@ -259,6 +268,11 @@ def run() -> None:
 
 
 def _main(words) -> int:
+  if any(w.startswith(('--animate', '--animate=')) and not w.startswith('--animate-instance')
+         for w in words) and words[:1] == ['plan']:
+    import ctypes.util
+    if ctypes.util.find_library('EGL'):  # the arm rendered by MuJoCo beside the drawing
+      os.environ.setdefault('MUJOCO_GL', 'egl')
   if any(w == '--gif' or w.startswith('--gif=') for w in words):
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
@@ -272,7 +286,8 @@ def _main(words) -> int:
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
-  demo.add_argument('--steps', type=_positive_int, default=60, help='control steps (20 Hz)')
+  demo.add_argument('--steps', type=_positive_int, default=300,
+                    help='control steps (20 Hz), at most 2000')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
@@ -328,8 +343,15 @@ def _main(words) -> int:
   plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
                     '(Playground tasks: MJX only)')
-  plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')
-  plan.add_argument('--json', default=None, help='write the result rows as JSON')
+  plan.add_argument('--render', default=None,
+                    help='draw one instance\'s plan (PNG; the extension names the format)')
+  plan.add_argument('--animate', default=None,
+                    help='write a GIF of one instance\'s plan executing (PushT, shelf)')
+  plan.add_argument('--show-instance', '--animate-instance', dest='show_instance', type=int,
+                    default=None, help='the instance --render and --animate show (default: '
+                    'the first planned)')
+  plan.add_argument('--json', default=None, help='write the result rows, each with its '
+                    'instance\'s plan (actions, states; pachs_jax.plans.from_json), as JSON')
   plan.add_argument('--no-cache', action='store_true',
                     help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
                          'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')

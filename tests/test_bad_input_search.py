@@ -273,7 +273,8 @@ def _one_line_error(argv, capsys):
     (['plan', '--json', '/proc/pachs_rows.json'], '--json /proc/pachs_rows.json: cannot write '
                                                   'there'),
     (['plan', '--render', '{tmp}/path.xyz'], 'cannot draw .xyz images'),
-    (['plan', '--task', 'shelf', '--render', '{tmp}/path.png'], '--render draws PushT paths'),
+    (['plan', '--task', 'playground:ReacherEasy', '--render', '{tmp}/path.png'],
+     "--render draws the PushT tasks and the shelf; task 'playground:ReacherEasy' has no"),
     (['plan', '--time-limit', '-1'], 'argument --time-limit: must be a positive number'),
     (['plan', '--lattice-resolution', '0.1,a'], 'argument --lattice-resolution: must be cell '
                                                 'sizes'),
@@ -304,9 +305,10 @@ def test_overflowing_lattice_resolution_in_the_cli(capsys, monkeypatch):
 
 
 def test_the_json_is_written_when_drawing_fails(tmp_path, capsys, monkeypatch):
+  from pachs_jax import outputs
   def no_space(*args, **kwargs):
     raise OSError(28, 'No space left on device')
-  monkeypatch.setattr(planner, 'draw_result', no_space)
+  monkeypatch.setattr(outputs, 'write_still', no_space)
   rows, png = tmp_path / 'rows.json', tmp_path / 'path.png'
   code = cli.main(['plan', '--task', 'pusht-fixed', '--instances', '0', '--budget', '50',
                    '-K', '4', '-N', '4', '--no-cache', '--render', str(png), '--json', str(rows)])

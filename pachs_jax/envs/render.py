@@ -153,8 +153,9 @@ def save_pusht_figure(
   return os.fspath(path)
 
 
-def save_gif(path: str | os.PathLike, frames, fps: float = 20.0) -> str:
-  """Writes frames [T, H, W, 3] uint8 as a looping GIF at fps frames per second; returns path."""
+def save_gif(path, frames, fps: float = 20.0):
+  """Writes frames [T, H, W, 3] uint8 as a looping GIF at fps frames per second to path (or a
+  binary file object); returns path."""
   from PIL import Image
 
   frames = np.asarray(frames)
@@ -166,15 +167,17 @@ def save_gif(path: str | os.PathLike, frames, fps: float = 20.0) -> str:
     raise ValueError(f'fps must be positive, got {fps}')
   images = [Image.fromarray(f) for f in frames]
   duration_ms = max(int(round(1000.0 / fps)), 1)
-  images[0].save(os.fspath(path), save_all=True, append_images=images[1:],
+  target = path if hasattr(path, 'write') else os.fspath(path)
+  images[0].save(target, format='GIF', save_all=True, append_images=images[1:],
                  duration=duration_ms, loop=0)
-  return os.fspath(path)
+  return path
 
 
 def render_mujoco_frames(mj_model, qpos_seq, width: int, height: int, camera=None) -> np.ndarray:
   """[T, height, width, 3] uint8 offscreen frames of a MuJoCo model at qpos_seq [T, nq].
 
-  camera: a camera name or id of the model, or None for the default free camera. Needs an
+  camera: a camera name or id of the model, a mujoco.MjvCamera, or None for the default free
+  camera. Needs an
   OpenGL backend chosen before `mujoco` is imported (MUJOCO_GL=egl or osmesa on a headless
   machine); raises RuntimeError saying so when no renderer can be created.
   """
@@ -209,3 +212,249 @@ def render_mujoco_frames(mj_model, qpos_seq, width: int, height: int, camera=Non
   finally:
     renderer.close()
   return frames
+
+
+# ---------------------------------------------------------------- plans: stills and animations
+
+ARM_COLOR = '0.35'
+TARGET_COLOR = 'tab:green'
+SHELF_COLOR = (0.6, 0.45, 0.3)
+MAX_FRAMES = 240  # longer plans are subsampled to this many frames
+
+
+def figure_pixels(fig: Figure) -> np.ndarray:
+  """[H, W, 3] uint8 pixels of a figure on an Agg canvas (drawn now)."""
+  canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+  canvas.draw()
+  return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
+def frame_steps(num_states: int, max_frames: int = MAX_FRAMES) -> np.ndarray:
+  """The state indices an animation shows: all of them, or `max_frames` evenly spaced (the
+  first and the last always)."""
+  if num_states <= max_frames:
+    return np.arange(num_states)
+  return np.unique(np.round(np.linspace(0, num_states - 1, max_frames)).astype(int))
+
+
+def arm_points(mj_model, qpos_seq) -> np.ndarray:
+  """[T, P, 3] world positions (m) of the arm's bodies from its base to the tip site, along
+  qpos_seq [T, nq] (forward kinematics of `kinematics.ChainKinematics`, hinge joints)."""
+  import jax
+
+  from pachs_jax.envs import kinematics
+  site = mj_model.site('tip').id
+  body = int(mj_model.site_bodyid[site])
+  chain = kinematics.ChainKinematics(mj_model, [body])
+  path = []
+  while body > 0:
+    path.append(body)
+    body = int(mj_model.body_parentid[body])
+  path = np.array(path[::-1])
+
+  def points(qpos):
+    xpos, xmat = chain.bodies(qpos)
+    return jax.numpy.concatenate([xpos[path], chain.site(xpos, xmat, site)[None]])
+
+  return np.asarray(jax.jit(jax.vmap(points))(np.asarray(qpos_seq, np.float32)))
+
+
+class _PushTScene:
+  """A top-down PushT picture whose T, arm and tip trail move from frame to frame."""
+
+  def __init__(self, t_poses, goal_pose, tips, arms, obstacles, title, size_px):
+    self.fig = Figure(figsize=(size_px / 100, size_px / 100), dpi=100)
+    FigureCanvasAgg(self.fig)
+    ax = self.fig.add_subplot(1, 1, 1)
+    self.tips, self.arms, self.t_poses, self.title = tips, arms, t_poses, title
+    # the fixed view: everything the plan visits, plus the goal and the obstacles
+    points = [t_polygon(p) for p in t_poses[::max(1, len(t_poses) // 30)]]
+    points += [t_polygon(goal_pose), tips]
+    for box in obstacles:
+      points.append(box_polygon(box))
+      ax.add_patch(patches.Polygon(box_polygon(box), closed=True, facecolor=OBSTACLE_COLOR,
+                                   edgecolor='0.3', zorder=1))
+    ax.add_patch(patches.Polygon(t_polygon(goal_pose), closed=True, fill=False, linewidth=2.0,
+                                 edgecolor=GOAL_COLOR, linestyle='--', label='goal', zorder=3))
+    ax.add_patch(patches.Polygon(t_polygon(t_poses[0]), closed=True, fill=False, linewidth=1.0,
+                                 edgecolor=T_START_COLOR, label='T start', zorder=2))
+    self.t_patch = patches.Polygon(t_polygon(t_poses[0]), closed=True, facecolor=T_COLOR,
+                                   alpha=0.7, label='T', zorder=2)
+    ax.add_patch(self.t_patch)
+    (self.arm_line,) = ax.plot([], [], color=ARM_COLOR, linewidth=3, alpha=0.6, zorder=4,
+                               solid_capstyle='round', label='arm (top view)')
+    (self.trail,) = ax.plot([], [], color=PUSHER_COLOR, linewidth=1.0, zorder=5)
+    (self.tip,) = ax.plot([], [], 'o', color=PUSHER_COLOR, markersize=5, zorder=6,
+                          label='stick tip')
+    allpts = np.concatenate(points)
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.05 * float(np.max(hi - lo)) + 0.02
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect('equal')
+    ax.tick_params(labelsize='x-small')
+    ax.legend(loc='upper right', fontsize='x-small', framealpha=0.7)
+    self.ax = ax
+
+  def show(self, i: int) -> np.ndarray:
+    self.t_patch.set_xy(t_polygon(self.t_poses[i]))
+    if self.arms is not None:
+      self.arm_line.set_data(self.arms[i, :, 0], self.arms[i, :, 1])
+    self.trail.set_data(self.tips[:i + 1, 0], self.tips[:i + 1, 1])
+    self.tip.set_data(self.tips[i:i + 1, 0], self.tips[i:i + 1, 1])
+    self.ax.set_title(f'{self.title}\nstep {i} of {len(self.t_poses) - 1}', fontsize='small')
+    return figure_pixels(self.fig)
+
+
+class _ShelfScene:
+  """Side (x-z) and top (x-y) views of the shelf, its target, the arm and the tip's path."""
+
+  def __init__(self, boxes, target, arms, title, size_px):
+    self.fig = Figure(figsize=(2 * size_px / 100, size_px / 100), dpi=100)
+    FigureCanvasAgg(self.fig)
+    self.arms, self.title = arms, title
+    tips = arms[:, -1]
+    self.views = []
+    for col, (a, b, name) in enumerate(((0, 2, 'side view (x, z)'), (0, 1, 'top view (x, y)'))):
+      ax = self.fig.add_subplot(1, 2, col + 1)
+      for box_name, (centre, half) in boxes.items():
+        if box_name == 'floor':
+          continue
+        ax.add_patch(patches.Rectangle((centre[a] - half[a], centre[b] - half[b]),
+                                       2 * half[a], 2 * half[b], facecolor=SHELF_COLOR,
+                                       alpha=0.35, edgecolor=SHELF_COLOR, zorder=1))
+      ax.plot(tips[:, a], tips[:, b], color='0.7', linewidth=1.0, linestyle=':', zorder=2,
+              label='tip path')
+      ax.plot(*np.asarray(target)[[a, b]], marker='*', color=TARGET_COLOR, markersize=14,
+              linestyle='none', zorder=5, label='target')
+      (arm,) = ax.plot([], [], '-o', color=ARM_COLOR, linewidth=3, markersize=3, zorder=3,
+                       label='arm')
+      (trail,) = ax.plot([], [], color=PUSHER_COLOR, linewidth=1.2, zorder=4)
+      (tip,) = ax.plot([], [], 'o', color=PUSHER_COLOR, markersize=5, zorder=6)
+      pts = np.concatenate([arms.reshape(-1, 3)[:, [a, b]],
+                            np.concatenate([[c - h, c + h] for n, (c, h) in boxes.items()
+                                            if n != 'floor'])[:, [a, b]]])
+      lo, hi = pts.min(axis=0), pts.max(axis=0)
+      pad = 0.05 * float(np.max(hi - lo)) + 0.02
+      ax.set_xlim(lo[0] - pad, hi[0] + pad)
+      ax.set_ylim(lo[1] - pad, hi[1] + pad)
+      ax.set_aspect('equal')
+      ax.set_xlabel('x (m)', fontsize='small')
+      ax.set_ylabel(('z (m)', 'y (m)')[col], fontsize='small')
+      ax.tick_params(labelsize='x-small')
+      ax.set_title(name, fontsize='small')
+      if col == 0:
+        ax.legend(loc='lower left', fontsize='x-small', framealpha=0.7)
+      self.views.append((a, b, arm, trail, tip))
+
+  def show(self, i: int) -> np.ndarray:
+    tips = self.arms[:, -1]
+    for a, b, arm, trail, tip in self.views:
+      arm.set_data(self.arms[i, :, a], self.arms[i, :, b])
+      trail.set_data(tips[:i + 1, a], tips[:i + 1, b])
+      tip.set_data(tips[i:i + 1, a], tips[i:i + 1, b])
+    self.fig.suptitle(f'{self.title}\nstep {i} of {len(self.arms) - 1}', fontsize='small')
+    return figure_pixels(self.fig)
+
+
+def _scene(env, states, title: str, size_px: int):
+  """The moving picture of a plan's states NodeState [T, ...] of a PushT or shelf env."""
+  qpos = np.asarray(states.qpos)
+  goal = np.asarray(states.goal)[0]
+  if env.name.startswith('pusht'):
+    arms = arm_points(env.mj_model, qpos)
+    return _PushTScene(qpos[:, 7:10], goal, arms[:, -1, :2], arms[..., :2],
+                       np.asarray(env.obstacles).reshape(-1, 5), title, size_px)
+  if env.name == 'shelf':
+    return _ShelfScene(env.boxes, goal, arm_points(env.mj_model, qpos), title, size_px)
+  raise ValueError(f'drawing a plan is implemented for the PushT tasks and the shelf, not '
+                   f'{env.name!r}')
+
+
+def can_draw(env) -> bool:
+  """Whether `plan_figure` and `animation_frames` draw this env's plans (PushT tasks, shelf)."""
+  return env.name.startswith('pusht') or env.name == 'shelf'
+
+
+def plan_figure(env, states, title: str, size_px: int = 600) -> Figure:
+  """A still figure (Agg canvas) of a plan's states NodeState [T, ...]. PushT: the T over time
+  (`draw_pusht`), goal, obstacles and the tip's path; shelf: side and top views of the shelf,
+  the target, the tip's path and the arm at its last state."""
+  qpos = np.asarray(states.qpos)
+  if env.name.startswith('pusht'):
+    fig = Figure(figsize=(size_px / 100, size_px / 100), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    tips = arm_points(env.mj_model, qpos)[:, -1, :2]
+    obstacles = np.asarray(env.obstacles).reshape(-1, 5)
+    draw_pusht(ax, qpos[:, 7:10], np.asarray(states.goal)[0], pusher_xy=tips,
+               obstacles=obstacles if len(obstacles) else None,
+               every=max(1, (len(qpos) - 1) // 12))
+    ax.set_title(title, fontsize='small')
+    fig.tight_layout()
+    return fig
+  scene = _scene(env, states, title, size_px // 2 + 100)
+  scene.show(len(qpos) - 1)
+  scene.fig.suptitle(title, fontsize='small')
+  return scene.fig
+
+
+# A view of the scene for the MuJoCo renderer: (lookat xyz (m), distance (m), azimuth,
+# elevation (deg)); the PushT model has its own camera, 'overview'.
+SHELF_CAMERA = ((0.4, 0.0, 0.45), 2.0, 50.0, -20.0)
+
+
+def _scene_model(env, goal):
+  """The env's MjModel, copied with its 'goal' body (PushT) moved to the instance's goal
+  [x, y, yaw]."""
+  import copy
+  model = env.mj_model
+  names = [model.body(i).name for i in range(model.nbody)]
+  if 'goal' not in names or len(goal) != 3:
+    return model
+  model = copy.copy(model)
+  body = names.index('goal')
+  model.body_pos[body, :2] = goal[:2]
+  model.body_quat[body] = [np.cos(goal[2] / 2), 0.0, 0.0, np.sin(goal[2] / 2)]
+  return model
+
+
+def _mujoco_camera(env):
+  """A camera name or a free mujoco.MjvCamera framing the env's scene."""
+  import mujoco
+  if env.mj_model.ncam:
+    return 0
+  lookat, distance, azimuth, elevation = SHELF_CAMERA
+  camera = mujoco.MjvCamera()
+  camera.lookat[:] = lookat
+  camera.distance, camera.azimuth, camera.elevation = distance, azimuth, elevation
+  return camera
+
+
+def animation_frames(env, states, title: str, arm: bool = True, size_px: int = 360,
+                     max_frames: int = MAX_FRAMES) -> tuple[np.ndarray, str | None]:
+  """(frames [F, H, W, 3] uint8, note) of a plan's states NodeState [T, ...] executing.
+
+  Each frame holds the drawing of `_scene`; with `arm`, the MuJoCo rendering of the arm beside
+  it where an OpenGL context can be made (else note says why it is left out; None: it is in).
+  """
+  steps = frame_steps(len(np.asarray(states.t)), max_frames)
+  scene = _scene(env, states, title, size_px)
+  drawn = np.stack([scene.show(i) for i in steps])
+  note = None
+  if arm:
+    qpos = np.asarray(states.qpos, np.float64)[steps]
+    height = drawn.shape[1]
+    width = min(int(round(height * 4 / 3)), env.mj_model.vis.global_.offwidth)
+    height = min(height, env.mj_model.vis.global_.offheight)
+    try:
+      model = _scene_model(env, np.asarray(states.goal)[0])
+      rendered = render_mujoco_frames(model, qpos, width, height,
+                                      camera=_mujoco_camera(env))
+    except RuntimeError as err:
+      note = f'the arm is drawn only: MuJoCo cannot render here ({str(err).split(":")[0]})'
+    else:
+      canvas = np.full((len(steps), drawn.shape[1], width, 3), 255, np.uint8)
+      canvas[:, :height] = rendered
+      drawn = np.concatenate([canvas, drawn], axis=2)
+  return drawn, note

@@ -1,0 +1,136 @@
+"""Each instance's plan of a `SearchResult` as actions, states and costs; its JSON form; and its
+replay through the env's own transition."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Dict, List
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pachs_jax.envs import base
+
+NODE_FIELDS = ('qpos', 'qvel', 'ctrl', 'qacc_warmstart', 't')  # the goal is stored once
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+  """The plan of one instance, trimmed to its length L (numpy arrays, no batch axis).
+
+  actions: [L, A] float32 env actions in [-1, 1]^A, one per transition (an edge of H
+    transitions contributes its H actions: its own, then the actor's).
+  states: NodeState [L + 1, ...] the states along the path, the start first.
+  cost: path cost (sum of the transitions' costs, the env's cost units).
+  found: the search reached a goal; ends_at_goal: the last state satisfies the goal rule.
+  truncated: the path was longer than the search kept (`SearchConfig.max_path_length`); the
+    plan holds its first L transitions.
+  """
+
+  actions: np.ndarray
+  states: base.NodeState
+  cost: float
+  found: bool
+  ends_at_goal: bool
+  truncated: bool
+
+  @property
+  def length(self) -> int:
+    """L, the transitions in the plan."""
+    return int(self.actions.shape[0])
+
+  @property
+  def start(self) -> base.NodeState:
+    """The start state (no batch axis)."""
+    return jax.tree.map(lambda x: x[0], self.states)
+
+
+def from_result(result) -> List[Plan]:
+  """The plan of each instance of a SearchResult [I], in order."""
+  r = jax.tree.map(np.asarray, result.replace(wall_time_s=None))
+  kept = r.path_actions.shape[1]
+  plans = []
+  for i in range(r.found.shape[0]):
+    length = int(min(r.path_length[i], kept))
+    plans.append(Plan(
+        actions=r.path_actions[i, :length], cost=float(r.cost[i]), found=bool(r.found[i]),
+        states=jax.tree.map(lambda x, i=i, n=length: x[i, :n + 1], r.path_nodes),
+        ends_at_goal=bool(r.path_is_goal[i]), truncated=bool(r.path_truncated[i])))
+  return plans
+
+
+def _floats(array: np.ndarray) -> list:
+  """Nested lists of Python numbers; float32 values convert exactly (and back, see `from_json`)."""
+  return np.asarray(array).tolist()
+
+
+def to_json(plan: Plan) -> Dict[str, Any]:
+  """A JSON-ready dict of a plan: length, cost, found, ends_at_goal, truncated, action_size A,
+  actions [L][A], goal [G] and states {qpos, qvel, ctrl, qacc_warmstart, t: [L + 1][...]}. Floats keep their
+  float32 values exactly (`from_json` restores them bit for bit)."""
+  return {'length': plan.length, 'cost': plan.cost, 'found': plan.found,
+          'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated,
+          'action_size': int(plan.actions.shape[1]), 'actions': _floats(plan.actions), 'goal': _floats(plan.states.goal[0]),
+          'states': {name: _floats(getattr(plan.states, name)) for name in NODE_FIELDS}}
+
+
+def from_json(data: Dict[str, Any]) -> Plan:
+  """The Plan of a `to_json` dict (for example a row's 'plan' in `pachs plan --json`);
+  ValueError naming what is missing or of the wrong shape."""
+  try:
+    fields = {name: np.asarray(data['states'][name], np.int32 if name == 't' else np.float32)
+              for name in NODE_FIELDS}
+    actions = np.asarray(data['actions'], np.float32)
+    if actions.size == 0:  # an empty plan: [0, A]
+      actions = actions.reshape(0, int(data['action_size']))
+    goal = np.asarray(data['goal'], np.float32)
+    flags = {k: bool(data[k]) for k in ('found', 'ends_at_goal', 'truncated')}
+    cost = float(data['cost'])
+  except (KeyError, TypeError) as err:
+    raise ValueError(f'not a plan: missing or malformed entry {err}') from None
+  count = actions.shape[0] + 1 if actions.ndim == 2 else None
+  wrong = [f'{k} {v.shape}' for k, v in fields.items() if v.shape[:1] != (count,)]
+  if count is None or wrong:
+    raise ValueError(f'a plan needs actions [L, A] and states of L + 1 rows, got actions '
+                     f'{actions.shape} and {", ".join(wrong) or "no states"}')
+  states = base.NodeState(goal=np.broadcast_to(goal, (count,) + goal.shape).copy(), **fields)
+  return Plan(actions=actions, states=states, cost=cost, **flags)
+
+
+@dataclasses.dataclass(frozen=True)
+class Replay:
+  """A plan replayed from its start (numpy arrays).
+
+  states: NodeState [L + 1, ...] the states the env's transition reaches, the start first.
+  step_costs: [L] float32 each transition's cost; cost: their sum (float32).
+  valid: every transition was valid; is_goal: the last state satisfies the goal rule.
+  """
+
+  states: base.NodeState
+  step_costs: np.ndarray
+  cost: float
+  valid: bool
+  is_goal: bool
+
+
+def replay(env: base.Env, plan: Plan) -> Replay:
+  """Applies the plan's actions from its start state through `env.evaluate` (the physics the
+  search used, one world) and returns the states reached and their costs."""
+  from pachs_jax.search.baselines import common
+  if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
+    raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
+                     f'takes [L, {env.action_size}]')
+  batch = lambda tree: jax.tree.map(lambda x: jnp.asarray(x)[None], tree)
+  length = jnp.asarray([plan.length], jnp.int32)
+  nodes, _, valid, is_goal = jax.jit(common.replay, static_argnums=0)(
+      env, batch(plan.start), batch(plan.actions), length)
+  states = jax.tree.map(lambda x: np.asarray(x)[0], nodes)
+  if plan.length:  # each transition's cost, re-evaluated from the replayed state before it
+    before = jax.tree.map(lambda x: jnp.asarray(x[:-1]), states)
+    step_costs = np.asarray(jax.jit(env.evaluate)(before, jnp.asarray(plan.actions)).cost)
+  else:
+    step_costs = np.zeros((0,), np.float32)
+  return Replay(states=states, step_costs=step_costs,
+                cost=float(np.sum(step_costs, dtype=np.float32)),
+                valid=bool(np.asarray(valid)[0]), is_goal=bool(np.asarray(is_goal)[0]))

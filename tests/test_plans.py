@@ -1,0 +1,100 @@
+"""`plans`: each instance's plan as actions and states, its JSON form, and its replay through the
+env's own transition, against the search's own path."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+from conftest import UniformActorCritic, trees_equal
+
+from pachs_jax import plans
+from pachs_jax.envs import gridworld, point_mass
+from pachs_jax.search import SearchConfig, instance_keys, plan
+
+
+def _grid_problem():
+  obstacles = np.zeros((12, 12), bool)
+  obstacles[2:10, 6] = True  # a wall the path must go around
+  env = gridworld.GridWorld(obstacles)
+  starts = np.array([[5, 1], [0, 0], [11, 11]])
+  goals = np.array([[5, 10], [11, 11], [11, 11]])  # the last: start == goal
+  return env, gridworld.GridActorCritic(env), env.node(starts, goals), goals
+
+
+@pytest.fixture(scope='module')
+def grid_plans():
+  env, actor_critic, nodes, goals = _grid_problem()
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=2000)
+  result = plan(env, actor_critic, nodes, config, instance_keys(jax.random.PRNGKey(0), 3))
+  return env, result, plans.from_result(result), goals
+
+
+def test_plans_hold_the_results_paths(grid_plans):
+  env, result, found, goals = grid_plans
+  assert len(found) == 3
+  for i, p in enumerate(found):
+    assert p.found and p.ends_at_goal and not p.truncated
+    assert p.length == int(result.path_length[i]) and p.actions.shape == (p.length, 2)
+    assert p.states.qpos.shape == (p.length + 1, 2)
+    np.testing.assert_array_equal(p.states.qpos[-1], goals[i])
+    assert p.cost == float(result.cost[i])
+    cheapest = gridworld.shortest_path_cost(env.obstacles, p.states.qpos[0], goals[i])
+    assert p.cost == pytest.approx(cheapest, rel=1e-6)  # w = 1, K small: optimal
+  assert found[2].length == 0 and found[2].actions.shape == (0, 2)
+
+
+def test_replay_reaches_the_searchs_states_bit_for_bit(grid_plans):
+  env, _, found, _ = grid_plans
+  for p in found:
+    again = plans.replay(env, p)
+    assert trees_equal(again.states, p.states)
+    assert again.valid and again.is_goal
+    assert again.step_costs.shape == (p.length,)
+    assert again.cost == pytest.approx(p.cost, rel=1e-6)
+
+
+def test_json_round_trip_is_exact_and_replays(grid_plans):
+  env, _, found, _ = grid_plans
+  for p in found:
+    back = plans.from_json(json.loads(json.dumps(plans.to_json(p))))
+    assert trees_equal(back.states, p.states)
+    np.testing.assert_array_equal(back.actions, p.actions)
+    assert (back.cost, back.found, back.length) == (p.cost, p.found, p.length)
+    assert trees_equal(plans.replay(env, back).states, p.states)
+
+
+def test_segment_edges_expand_into_transitions_and_replay_exactly():
+  # edges of 3 transitions (one sampled action, then two of the actor's) on the point mass,
+  # with paths cut at 4 transitions: the plan holds the transitions, and their prefix
+  env = point_mass.PointMassEnv()
+  nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(3), 2))
+  config = SearchConfig(weight=1.0, num_actions=4, pop_size=4, max_evaluations=600,
+                        edge_steps=3)
+  result = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1))
+  cut = plan(env, UniformActorCritic(2), nodes, dataclasses.replace(config, max_path_length=4),
+             jax.random.PRNGKey(1))
+  for whole, part in zip(plans.from_result(result), plans.from_result(cut)):
+    assert whole.length == whole.states.t[-1] > 3  # transitions, not edges
+    again = plans.replay(env, whole)
+    assert trees_equal(again.states, whole.states) and again.valid
+    assert again.cost == pytest.approx(whole.cost, rel=1e-5)
+    assert part.truncated and part.length == 4
+    np.testing.assert_array_equal(part.actions, whole.actions[:4])
+    assert trees_equal(plans.replay(env, part).states, part.states)
+
+
+def test_bad_plans_are_refused():
+  env = point_mass.PointMassEnv()
+  with pytest.raises(ValueError, match='not a plan'):
+    plans.from_json({'actions': []})
+  good = plans.to_json(plans.Plan(
+      actions=np.zeros((2, 2), np.float32), cost=0.0, found=False, ends_at_goal=False,
+      truncated=False, states=jax.tree.map(
+          lambda x: np.stack([np.asarray(x)] * 3), env.node_from_positions([0, 0], [1, 1]))))
+  with pytest.raises(ValueError, match='L \\+ 1 rows'):
+    plans.from_json(dict(good, actions=[[0.0, 0.0]]))
+  three_d = plans.from_json(good)
+  with pytest.raises(ValueError, match='takes \\[L, 3\\]'):
+    plans.replay(point_mass.PointMassEnv(point_mass.PointMassConfig(dim=3)), three_d)
