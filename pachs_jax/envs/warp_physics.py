@@ -27,7 +27,8 @@ class WarpPushTEnv(pusht.PushTEnv):
   contacts_per_world: Warp's contact buffer per simulated edge (naconmax = this x batch).
   constraints_per_world: Warp's constraint rows per edge (njmax).
   An edge whose physics overflowed either buffer (Warp Data's `overflow` bits) is invalid;
-  `overflowed(nodes, actions)` returns those edges. Batches go through `evaluate`: a vmapped
+  `overflowed(nodes, actions)` returns those edges (a full contact buffer marks every edge of
+  the call, since Warp counts contacts for the whole batch; constraints count per edge). Batches go through `evaluate`: a vmapped
   `transition` shares one world's contact buffer.
   """
 
