@@ -17,9 +17,8 @@ import jax
 import jax.numpy as jnp
 
 import common
-from pachs_jax import envs, planner
+from pachs_jax import envs, planner, programs
 from pachs_jax.envs import mujoco_c
-from pachs_jax.search import pachs
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -99,7 +98,7 @@ def evaluate_mode(args) -> None:
   starts = jax.tree.map(lambda x: x[:1], env.canonical_instances(30))
   config = planner.default_config('pusht-obs', max_evaluations=2000)
   start = time.perf_counter()
-  result = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0))
+  result = programs.plan(env, model, starts, config, jax.random.PRNGKey(0))
   plan_row = {'task': 'pusht-obs', 'instance': 0, 'budget': 2000,
               'search_s': float(result.wall_time_s),
               'total_s_incl_compile': time.perf_counter() - start,

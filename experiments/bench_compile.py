@@ -30,15 +30,15 @@ def main():
     sys.path.insert(0, args.source)
   import jax
   import common
-  from pachs_jax import planner
+  from pachs_jax import planner, programs
   from pachs_jax.search import pachs
   env, model = planner.load_model(args.task, None, 'mjx')
   config = planner.command_config(args.task, False, False, args.budget)  # GPU settings
   starts = env.canonical_instances(args.instances)
-  search = pachs.make_search(env, model, config)
+  search = programs.Programs(pachs.make_search(env, model, config))
   began = time.perf_counter()
-  out = jax.block_until_ready(pachs.plan(env, model, starts, config, jax.random.PRNGKey(0),
-                                         search=search, min_bucket=args.bucket))
+  out = jax.block_until_ready(programs.plan(env, model, starts, config, jax.random.PRNGKey(0),
+                                            search=search, min_bucket=args.bucket))
   total = time.perf_counter() - began
   provenance = common.provenance()
   if args.source:
@@ -49,8 +49,8 @@ def main():
          'compact_fractions': list(config.compact_fractions), 'plan_call_s': total,
          'search_s': float(out.wall_time_s), 'compile_s': total - float(out.wall_time_s),
          'found': out.found.tolist(), 'evaluated': out.evaluated.tolist(),
-         'loops_compiled': [str(key[1]) for programs in search.compiled.values()
-                            for key in programs if isinstance(key, tuple)]}
+         'loops_compiled': [str(key[1]) for compiled in search.compiled.values()
+                            for key in compiled if isinstance(key, tuple)]}
   common.write_json(args.out, row)
   print(json.dumps(row))
 

@@ -19,11 +19,12 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import argtypes, planner, trees
+from pachs_jax import argtypes, planner, programs, trees
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import anytime, compact, pachs
-from pachs_jax.search import types as search_types
+from pachs_jax.search import compact, pachs
+from pachs_jax import anytime
+from pachs_jax.search.config import CHAIN_RESTARTS, REALTIME_ANSWERS
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
@@ -137,10 +138,10 @@ def make_query(name: str, task: str, env, model, args, num: int):
                                     compact_fractions=args.compact_fractions,
                                     pop_size=args.pop_size,
                                     chain_restart=args.chain_restart)
-    search = pachs.make_search(env, model, config)
+    search = programs.Programs(pachs.make_search(env, model, config))
 
     def query(nodes, keys, executed):
-      out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
+      out = programs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
                        chunk_iterations=args.chunk_iterations, search=search)
       return (np.asarray(out.path_actions), np.asarray(out.path_length),
               np.asarray(out.evaluated), np.asarray(out.found))
@@ -289,12 +290,12 @@ def main():
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
-  parser.add_argument('--realtime-answer', default=None, choices=search_types.REALTIME_ANSWERS,
+  parser.add_argument('--realtime-answer', default=None, choices=REALTIME_ANSWERS,
                       help="PACHS's answer without a goal (SearchConfig.realtime_answer; "
                       "default: the algorithm's)")
   parser.add_argument('--pop-size', type=int, default=None,
                       help="PACHS's edges per instance and iteration, K (default: the task's)")
-  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
+  parser.add_argument('--chain-restart', default=None, choices=CHAIN_RESTARTS,
                       help="where PACHS's actor chains restart (default: the task's)")
   parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,
                       type=lambda text: argtypes.numbers(text, 'fractions'),

@@ -19,7 +19,8 @@ import numpy as np
 import common
 from pachs_jax import planner
 from pachs_jax.envs import layouts
-from pachs_jax.search import pachs, types
+from pachs_jax.search import pachs
+from pachs_jax.search.checks import instance_keys
 
 TASK = 'pusht-obs'
 
@@ -136,7 +137,7 @@ def main():
   count = common.task_instances(TASK, args.instances)
   starts = env.canonical_instances(count)
   search = pachs.make_search(env, model, config)
-  keys = types.instance_keys(jax.random.PRNGKey(args.seed), count)
+  keys = instance_keys(jax.random.PRNGKey(args.seed), count)
   state = search.run(search.init(starts, keys))
   result = jax.tree.map(np.asarray, search.result(state))
   blocks = np.asarray(layouts.layout(args.layout).blocks)

@@ -17,11 +17,12 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import envs, planner
+from pachs_jax import envs, planner, programs
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs, sharding
-from pachs_jax.search import types as search_types
-from pachs_jax.search.types import StopReason
+from pachs_jax.search import pachs
+from pachs_jax import sharding
+from pachs_jax.search.config import CHAIN_RESTARTS
+from pachs_jax.search.result import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
 SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
@@ -59,14 +60,14 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
           float(x) * args.lattice_scale for x in base))
-    search = pachs.make_search(env, model, config)
+    search = programs.Programs(pachs.make_search(env, model, config))
     if mesh is not None:
       return (lambda starts, keys: sharding.plan_sharded(env, model, starts, config, keys, mesh,
                                                          search=search)), config
     limit = args.time_limit
 
     def fn(starts, keys):
-      return pachs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
+      return programs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
     return fn, config
   if name == 'single':
     config = bl.SingleRolloutConfig()
@@ -221,7 +222,7 @@ def main():
                       help="PACHS's transitions per edge (default: the task's)")
   parser.add_argument('--rollout-share', type=float, default=None,
                       help="share of PACHS's lanes that extend actor chains (default: the task's)")
-  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
+  parser.add_argument('--chain-restart', default=None, choices=CHAIN_RESTARTS,
                       help="where PACHS's actor chains restart (default: the task's)")
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')

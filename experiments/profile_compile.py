@@ -65,7 +65,8 @@ def main():
   import jax.numpy as jnp
   import common
   from pachs_jax import planner
-  from pachs_jax.search import pachs, segment, types
+  from pachs_jax.search import pachs, segment
+  from pachs_jax.search.checks import instance_keys
   env, model = planner.load_model(args.task, None, 'mjx')
   config = planner.command_config(args.task, False, False, None)  # the GPU's settings
   search = pachs.make_search(env, model, config)
@@ -96,7 +97,7 @@ def main():
       if part == 'loop':
         instances = jax.tree.map(lambda x: jnp.repeat(x, args.bucket, axis=0), start)
         state = jax.eval_shape(search.init, instances,
-                               types.instance_keys(jax.random.PRNGKey(0), args.bucket))
+                               instance_keys(jax.random.PRNGKey(0), args.bucket))
         row = timed_compile(lambda s, n: search.loop(s, n, size=size), state, jnp.int32(32),
                             options=options)
       else:

@@ -10,27 +10,6 @@ import sys
 from pachs_jax import argtypes
 
 
-def _positive_int(text: str) -> int:
-  try:
-    value = int(text)
-  except ValueError:
-    value = 0
-  if value < 1:
-    raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}')
-  return value
-
-
-def _seed(text: str) -> int:
-  """--seed: an integer that fits a PRNG key's signed 64 bits."""
-  try:
-    value = int(text)
-  except ValueError:
-    raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-  if not -2**63 <= value < 2**63:
-    raise argparse.ArgumentTypeError(f'must fit in 64 bits (-2**63 .. 2**63 - 1), got {text}')
-  return value
-
-
 def check_output_path(flag: str, path: str) -> None:
   """ValueError naming flag and path unless a file can be written at path: not a directory, its
   directory exists, and creating (or opening) the file works; a file created for the test is
@@ -108,7 +87,7 @@ def _devices_arg(text: str):
   if text == 'all':
     return text
   try:
-    return _positive_int(text)
+    return argtypes.positive_int(text)
   except argparse.ArgumentTypeError:
     raise argparse.ArgumentTypeError(f"must be 'all' or a positive integer, got {text!r}") from None
 
@@ -126,7 +105,7 @@ def _plan_devices(args: argparse.Namespace):
                      '--devices 1, or drop --time-limit to run every instance to completion')
   import jax
 
-  from pachs_jax.search import sharding
+  from pachs_jax import sharding
   if args.devices == 'all':
     sharding.initialize_multihost()
     return jax.devices()
@@ -137,7 +116,8 @@ def _plan_devices(args: argparse.Namespace):
   return local[:args.devices]
 
 
-def _plan(args: argparse.Namespace) -> int:
+def _plan(args: argparse.Namespace, prefetch=None) -> int:
+  """`pachs plan`; prefetch: the command line's `compile_cache.Prefetch` (None: none)."""
   import time
 
   # every output path first: nothing is planned for results that could not be written
@@ -155,7 +135,8 @@ def _plan(args: argparse.Namespace) -> int:
   from pachs_jax import compile_cache, envs, planner
   if not args.no_cache:
     compile_cache.enable()
-  from pachs_jax.search import pachs, sharding, types
+  from pachs_jax import programs, sharding
+  from pachs_jax.search import checks, pachs
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
@@ -176,7 +157,7 @@ def _plan(args: argparse.Namespace) -> int:
       lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
       compact_fractions=args.compact_fractions)
   budget = config.max_evaluations
-  types.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
+  checks.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
                else 'MJX on the CPU (slow: milliseconds per world and step)')
@@ -198,8 +179,9 @@ def _plan(args: argparse.Namespace) -> int:
   if devices is None:
     # one-shot: the whole search in the loop of the live instances' physics size (no further
     # loop to compile or load; experiments/results/bench_startup_gpu_s11_*.md)
-    result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
-                        shrink=False)
+    search = programs.Programs(pachs.make_search(env, model, config), prefetch=prefetch)
+    result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
+                           search=search, shrink=False)
   else:
     result = sharding.plan_sharded(env, model, starts, config, key,
                                    mesh=sharding.instance_mesh(devices))
@@ -240,25 +222,17 @@ def main(argv=None) -> int:
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
     from pachs_jax import compile_cache
-    with compile_cache.prefetching(words):
-      return _main(words)
+    with compile_cache.prefetching(words) as prefetch:
+      return _main(words, prefetch)
   return _main(words)
 
 
 def run() -> None:
-  """The `pachs` console command: `main()`, then the process ends at once (output flushed),
-  skipping the interpreter's and JAX's teardown (most of a second after a GPU run); a
-  multi-process JAX job ends normally."""
-  code = main()
-  jax = sys.modules.get('jax')
-  if jax is not None and jax.process_count() > 1:
-    sys.exit(code)
-  sys.stdout.flush()
-  sys.stderr.flush()
-  os._exit(code)
+  """The `pachs` console command: `main()`, its code the process's exit status."""
+  sys.exit(main())
 
 
-def _main(words) -> int:
+def _main(words, prefetch=None) -> int:
   if any(w == '--gif' or w.startswith('--gif=') for w in words):
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
@@ -272,7 +246,7 @@ def _main(words) -> int:
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
-  demo.add_argument('--steps', type=_positive_int, default=60, help='control steps (20 Hz)')
+  demo.add_argument('--steps', type=argtypes.positive_int, default=60, help='control steps (20 Hz)')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
@@ -291,7 +265,7 @@ def _main(words) -> int:
   plan.add_argument('--budget', type=int, default=None,
                     help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
                          '20000 with MuJoCo C physics, 2000 with MJX)')
-  plan.add_argument('--seed', type=_seed, default=0, help='PRNG seed (64-bit integer)')
+  plan.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
   plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
   plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
   plan.add_argument('--algorithm', default='pachs', choices=registry.ALGORITHMS,
@@ -341,7 +315,7 @@ def _main(words) -> int:
   if args.command == 'plan' and args.layout is not None and args.task != 'pusht-obs':
     plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
   try:
-    return args.func(args)
+    return args.func(args, prefetch) if args.command == 'plan' else args.func(args)
   except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
         else f'{err.strerror}: {err.filename}' if err.filename else err.strerror
