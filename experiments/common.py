@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from pachs_jax import argtypes, envs
-from pachs_jax.envs import layouts
+from pachs_jax.envs import layouts, mujoco_c
 
 
 def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
@@ -38,7 +38,7 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                         help='the first N canonical instances, 0..N-1 (default: '
                         f'{instances or "the task set: 30 PushT, 100 shelf"})')
   if backend:
-    parser.add_argument('--backend', default='mjx', choices=['mjx', 'mujoco-c', 'auto'],
+    parser.add_argument('--backend', default='mjx', choices=mujoco_c.BACKENDS,
                         help="edge physics (mujoco-c: MuJoCo C on the CPU threads; auto: "
                         "mujoco-c for PushT without an accelerator)")
   if seed:

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import planner
+from pachs_jax import flags, planner
 from pachs_jax.envs import layouts
 from pachs_jax.search import pachs
 from pachs_jax.search.checks import instance_keys
@@ -112,12 +112,7 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument('--budget', type=int, default=None, help="None: pachs plan's default")
-  parser.add_argument('--weight', type=float, default=None)
-  parser.add_argument('--num-actions', type=int, default=None)
-  parser.add_argument('--edge-steps', type=int, default=None,
-                      help='transitions per edge (SearchConfig.edge_steps)')
-  parser.add_argument('--rollout-share', type=float, default=None,
-                      help="share of PACHS's lanes that extend actor chains (default: the task's)")
+  flags.add_search_flags(parser, ['weight', 'num_actions', 'edge_steps', 'rollout_share'])
   parser.add_argument('--lattice-scale', type=float, default=1.0,
                       help='lattice cell sizes = this x the default')
   common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
@@ -125,8 +120,7 @@ def main():
   args.layout = args.layout or layouts.DEFAULT
   env, model = planner.load_model(TASK, None, args.backend, layout=args.layout)
   on_cpu = jax.default_backend() == 'cpu'
-  overrides = {'weight': args.weight, 'num_actions': args.num_actions,
-               'edge_steps': args.edge_steps, 'rollout_share': args.rollout_share}
+  overrides = flags.search_overrides(args)
 
   config = planner.command_config(TASK, on_cpu, type(env).__name__ == 'MujocoCEnv',
                                   args.budget, **overrides)

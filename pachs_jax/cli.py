@@ -6,8 +6,9 @@ import argparse
 import json
 import os
 import sys
+import time
 
-from pachs_jax import argtypes
+from pachs_jax import argtypes, flags
 
 
 def check_output_path(flag: str, path: str) -> None:
@@ -118,7 +119,6 @@ def _plan_devices(args: argparse.Namespace):
 
 def _plan(args: argparse.Namespace, prefetch=None) -> int:
   """`pachs plan`; prefetch: the command line's `compile_cache.Prefetch` (None: none)."""
-  import time
 
   # every output path first: nothing is planned for results that could not be written
   if args.json:
@@ -149,13 +149,8 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
-  config = planner.command_config(
-      args.task, on_cpu, mujoco_c, args.budget,
-      algorithm=args.algorithm, edge_steps=args.edge_steps, rollout_share=args.rollout_share,
-      chain_restart=args.chain_restart,
-      weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
-      lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
-      compact_fractions=args.compact_fractions)
+  config = planner.command_config(args.task, on_cpu, mujoco_c, args.budget,
+                                  algorithm=args.algorithm, **flags.search_overrides(args))
   budget = config.max_evaluations
   checks.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
   if on_cpu:
@@ -228,8 +223,16 @@ def main(argv=None) -> int:
 
 
 def run() -> None:
-  """The `pachs` console command: `main()`, its code the process's exit status."""
-  sys.exit(main())
+  """The `pachs` console command: `main()`, then the process ends at once (output flushed),
+  skipping the interpreter's and JAX's teardown (measured in docs/startup_and_caching.md); a
+  multi-process JAX job ends normally."""
+  code = main()
+  jax = sys.modules.get('jax')
+  if jax is not None and jax.process_count() > 1:
+    sys.exit(code)
+  sys.stdout.flush()
+  sys.stderr.flush()
+  os._exit(code)
 
 
 def _main(words, prefetch=None) -> int:
@@ -238,8 +241,7 @@ def _main(words, prefetch=None) -> int:
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs
-  from pachs_jax.envs import layouts
-  from pachs_jax.envs import registry
+  from pachs_jax.envs import layouts, mujoco_c, registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
@@ -266,40 +268,21 @@ def _main(words, prefetch=None) -> int:
                     help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
                          '20000 with MuJoCo C physics, 2000 with MJX)')
   plan.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
-  plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
-  plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
+  flags.add_search_flags(plan, ['weight', 'num_actions'])
   plan.add_argument('--algorithm', default='pachs', choices=registry.ALGORITHMS,
                     help="pachs (default: edges that follow the actor for edge_steps "
                     "transitions) or original (the published one-step edges, its settings)")
-  plan.add_argument('--edge-steps', '-H', type=int, default=None,
-                    help='transitions per edge (default: the task\'s; 1 = one-step edges)')
-  plan.add_argument('--rollout-share', type=float, default=None,
-                    help="the share of the K lanes that extend chains of the actor's edges "
-                    "(default: the task's; 0: none)")
-  plan.add_argument('--chain-restart', default=None, choices=['start', 'novel'],
-                    help="where a chain of the actor's edges restarts: the start, or a node of "
-                    "a rarely visited coarse cell (default: the task's)")
-  plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
-  plan.add_argument('--lattice-resolution', type=lambda s: argtypes.numbers(s, 'cell sizes'),
-                    default=None, help='lattice cell sizes, comma separated')
+  flags.add_search_flags(plan, ['edge_steps', 'rollout_share', 'chain_restart', 'pop_size',
+                               'lattice_resolution'])
   plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
-  plan.add_argument('--compact-fractions', default=None,
-                    type=lambda s: argtypes.numbers(s, 'fractions'),
-                    help='smaller physics batches as fractions of the I x K lanes, comma '
-                    "separated ('' simulates every lane; default on a GPU: "
-                    'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625; on a CPU none)')
-  plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h', 'min_cost'],
-                    help='the state an unfinished search answers with: best_f (the best OPEN '
-                    "entry's; the original algorithm's and a user's task's default), min_h "
-                    "(least estimated cost-to-go) or min_cost (least cost per transition of the "
-                    "edge into the state; PushT's default)")
+  flags.add_search_flags(plan, ['compact_fractions', 'realtime_answer'])
   plan.add_argument('--devices', type=_devices_arg, default=1,
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "
                          "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
   plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
-  plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
+  plan.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
                     '(Playground tasks: MJX only)')
   plan.add_argument('--render', default=None, help='draw the first instance\'s path (PNG)')

@@ -12,8 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-REALTIME_ANSWERS = ('best_f', 'min_h', 'min_cost')
-CHAIN_RESTARTS = ('start', 'novel')
+from pachs_jax.flags import CHAIN_RESTARTS, REALTIME_ANSWERS
 
 
 def plain_number(value):

@@ -18,6 +18,7 @@ from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search import rules as rules_lib
 from pachs_jax.search import segment
 from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
                                      instance_keys)
@@ -104,16 +105,17 @@ def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   return resolution
 
 
-def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) -> Search:
-  """Builds the jitted PACHS functions for env, actor_critic and config."""
+def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
+                rules: Optional[rules_lib.Rules] = None) -> Search:
+  """Builds the jitted PACHS functions for env, actor_critic and config; rules: the variant's
+  edge, chain-restart and real-time answer functions (None: those config names,
+  `rules.from_config`)."""
   resolution = _check(env, actor_critic, config)
+  rules = rules_lib.from_config(env, actor_critic, config) if rules is None else rules
+  edge_rule, restart = rules.edges, rules.restart
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
-  steps, r = config.edge_steps, config.rollout_lanes
-  novel = config.chain_restart == 'novel' and r > 0
-  coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
-                                              config.novelty_cells)
-  edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
+  steps, r = edge_rule.steps, config.rollout_lanes
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -166,12 +168,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
       return tip, found, goal
     fits = lambda depth: depth + steps <= env.episode_length
     go_on = written & fits(pool_lib.gather(pool.depth, tip))
-    restart = pool_lib.ROOT_INDEX
-    if novel:
-      index = jnp.arange(pool.capacity)[None, :]
-      eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits(pool.depth)
-      restart = novelty.sample(visits, keys, eligible, r)
-    chain = jnp.where(go_on, tip, restart).astype(jnp.int32)
+    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth)))
+    chain = chain.astype(jnp.int32)
     at_goal = written & is_goal
     cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
     return (chain, found | jnp.any(at_goal, axis=1),
@@ -197,19 +195,19 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
-    inputs = action if steps == 1 else (action, lane_keys(state, 1, k))
     outcome, within, usable, out_of_budget = phases.evaluate(
-        edge_fn, pool_lib.gather_nodes(pool, parent), inputs, mask,
-        state.evaluated, config.max_evaluations, size, steps)
+        edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
+        edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
+        config.max_evaluations, size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
-    h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
+    h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
     cells, size = lattice_cells(outcome.next_node), pool.size[:, None]
     pool, table, dummy_key, node, write = phases.insert(
         pool, state.table, cells, parent, outcome, usable, action, h, w,
         unmerged=chain_lane if r else None)
     new = write & (node >= size)  # not an open node whose g improved
-    visits = novelty.add(state.visits, node, new, coarse(cells)) if novel else state.visits
+    visits = restart.record(state.visits, node, new, cells)
     chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
                                      node[:, k - r:], write[:, k - r:],
                                      outcome.is_goal[:, k - r:], found, goal)
@@ -231,8 +229,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
-                       visits=novelty.init(coarse(start_cells), config.pool_size if novel else 1,
-                                           config.novelty_cells),
+                       visits=restart.visits(start_cells),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None,
@@ -263,10 +260,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     dummy_key, dummy_value, in_dummy = heap_lib.peek(state.dummy_heap)
     use_dummy = in_dummy & (~in_open | (dummy_key <= key))
     value, in_open = jnp.where(use_dummy, dummy_value, value), in_open | in_dummy
-    if config.realtime_answer != 'best_f':
-      answer = {'min_h': path_lib.min_h_answer, 'min_cost': path_lib.min_cost_answer}
-      chosen, has = answer[config.realtime_answer](state.pool, slots)
-      value, in_open = jnp.where(has, chosen, value), has | in_open
+    chosen, has = rules.answer(state.pool, slots)  # the real-time answer, where it chooses
+    value, in_open = jnp.where(has, chosen, value), has | in_open
     return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
                                   config.max_path_length)
