@@ -35,9 +35,10 @@ def numbers(text: str, what: str) -> tuple:
 
 
 def integer(low: Optional[int] = None, high: Optional[int] = None,
-            bounds: Optional[str] = None) -> Callable[[str], int]:
+            bounds: Optional[str] = None, quoted: bool = False) -> Callable[[str], int]:
   """An argument type: an integer in [low, high) (None: no bound); bounds: the words of the
-  error for one outside them (default 'must be >= low' / 'must be < high')."""
+  error for one outside them (default 'must be >= low' / 'must be < high'), which quotes the
+  text given when quoted."""
   if bounds is None:
     bounds = ' and '.join(part for part in (low is not None and f'must be >= {low}',
                                             high is not None and f'must be < {high}') if part)
@@ -48,11 +49,12 @@ def integer(low: Optional[int] = None, high: Optional[int] = None,
     except ValueError:
       raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
     if (low is not None and value < low) or (high is not None and value >= high):
-      raise argparse.ArgumentTypeError(f'{bounds}, got {value}')
+      shown = repr(text) if quoted else value
+      raise argparse.ArgumentTypeError(f'{bounds}, got {shown}')
     return value
 
   return parse
 
 
-positive_int = integer(1, bounds='must be a positive integer')
+positive_int = integer(1, bounds='must be a positive integer', quoted=True)
 seed = integer(-2**63, 2**63, 'must fit in 64 bits (-2**63 .. 2**63 - 1)')  # a PRNG key's

@@ -299,7 +299,7 @@ def test_unwritable_directory_is_refused(tmp_path, capsys, no_planning):
 
 
 def test_overflowing_lattice_resolution_in_the_cli(capsys, monkeypatch):
-  monkeypatch.setattr(pachs, 'plan', lambda *a, **k: pytest.fail('planned'))
+  monkeypatch.setattr(programs, 'plan', lambda *a, **k: pytest.fail('planned'))
   err = _one_line_error(['plan', '--task', 'pusht-fixed', '--lattice-resolution',
                          '1e-30,0.01,0.1,0.02,0.02'], capsys)
   assert ('pachs plan: error: lattice_resolution (1e-30, 0.01, 0.1, 0.02, 0.02) overflows the '
