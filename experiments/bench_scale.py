@@ -18,8 +18,9 @@ import common
 import open_loop
 import stats
 from pachs_jax import planner
-from pachs_jax.search import pachs, sharding
-from pachs_jax.search.types import StopReason
+from pachs_jax.search import pachs
+from pachs_jax import sharding
+from pachs_jax.search.result import StopReason
 
 
 def peak_memory_bytes(device):

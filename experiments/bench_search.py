@@ -24,10 +24,11 @@ import numpy as np
 
 import bench_engines
 import common
-from pachs_jax import planner
+from pachs_jax import planner, programs
 from pachs_jax.envs import mujoco_c
-from pachs_jax.search import pachs, types
+from pachs_jax.search import pachs
 from pachs_jax.sac import actor_critic as ac_lib
+from pachs_jax.search.checks import instance_keys
 
 
 def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.SacActorCritic:
@@ -112,15 +113,15 @@ def main():
                                     max_evaluations=args.budget, weight=args.weight)
     index = np.arange(num_instances) % 30
     starts = jax.tree.map(lambda x: x[index], starts_all)
-    search = pachs.make_search(env, model, config)
+    search = programs.Programs(pachs.make_search(env, model, config))
     t0 = time.perf_counter()
-    out = pachs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
+    out = programs.plan(env, model, starts, config, jax.random.PRNGKey(0), search=search)
     first = time.perf_counter() - t0  # wall_time_s excludes compilation; this includes it
     wall = float(out.wall_time_s)
     evaluated = int(np.sum(out.evaluated))
     iterations = int(np.max(out.iterations))
     raw = bench_engines.jax_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
-    state_shape = jax.eval_shape(search.init, starts, types.instance_keys(
+    state_shape = jax.eval_shape(search.search.init, starts, instance_keys(
         jax.random.PRNGKey(0), num_instances))
     row = {
         'instances': num_instances, 'K': k, 'N': args.num_actions,

@@ -41,10 +41,11 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     mark = now
 
   from pachs_jax import compile_cache
-  with compile_cache.prefetching(sys.argv[1:]):  # as `pachs plan` (cli.main) runs it
+  with compile_cache.prefetching(sys.argv[1:]) as prefetch:  # as `pachs plan` (cli.main) does
     import jax
-    from pachs_jax import planner
-    from pachs_jax.search import pachs, types
+    from pachs_jax import planner, programs
+    from pachs_jax.search import pachs
+    from pachs_jax.search.checks import instance_keys
     phase('imports')
     with compile_cache.compile_log() as log:
       cache = compile_cache.enable()
@@ -57,18 +58,18 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
       starts = env.canonical_instances(instances)
       jax.block_until_ready(starts)
       phase('instance_generation')
-      search = pachs.make_search(env, model, config)
-      keys = types.instance_keys(jax.random.PRNGKey(0), instances)
+      search = programs.Programs(pachs.make_search(env, model, config), prefetch=prefetch)
+      keys = instance_keys(jax.random.PRNGKey(0), instances)
       phase('make_search')
       # as `pachs plan` runs it: checks, tracing and compilation (or loading the stored programs;
       # the loops of the reachable physics sizes concurrently), search
       began = time.perf_counter()
-      out = jax.block_until_ready(pachs.plan(env, model, starts, config, keys, search=search))
+      out = jax.block_until_ready(programs.plan(env, model, starts, config, keys, search=search))
       times['search'] = float(out.wall_time_s)
       times['checks_trace_compile'] = time.perf_counter() - began - times['search']
       ends['plan'] = round(time.perf_counter() - T_START, 3)
       mark = time.perf_counter()
-      loops = sorted(str(key[1]) for programs in search.compiled.values() for key in programs
+      loops = sorted(str(key[1]) for compiled in search.compiled.values() for key in compiled
                      if isinstance(key, tuple))
       rows = planner.result_rows(out, list(range(instances)))
       print(planner.format_table(rows, ['instance', 'found', 'cost', 'evaluated', 'stop']),

@@ -19,11 +19,10 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import argtypes, planner, trees
+from pachs_jax import anytime, flags, planner, programs, trees
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import anytime, compact, pachs
-from pachs_jax.search import types as search_types
+from pachs_jax.search import compact, pachs
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
@@ -133,15 +132,12 @@ def make_query(name: str, task: str, env, model, args, num: int):
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = planner.default_config(task, algorithm, max_evaluations=args.budget,
-                                    realtime_answer=args.realtime_answer,
-                                    compact_fractions=args.compact_fractions,
-                                    pop_size=args.pop_size,
-                                    chain_restart=args.chain_restart)
-    search = pachs.make_search(env, model, config)
+                                    **flags.search_overrides(args))
+    search = programs.Programs(pachs.make_search(env, model, config))
 
     def query(nodes, keys, executed):
-      out = pachs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
-                       chunk_iterations=args.chunk_iterations, search=search)
+      out = programs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
+                          chunk_iterations=args.chunk_iterations, search=search)
       return (np.asarray(out.path_actions), np.asarray(out.path_length),
               np.asarray(out.evaluated), np.asarray(out.found))
     return query, config
@@ -289,19 +285,9 @@ def main():
   parser.add_argument('--budget', type=int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
-  parser.add_argument('--realtime-answer', default=None, choices=search_types.REALTIME_ANSWERS,
-                      help="PACHS's answer without a goal (SearchConfig.realtime_answer; "
-                      "default: the algorithm's)")
-  parser.add_argument('--pop-size', type=int, default=None,
-                      help="PACHS's edges per instance and iteration, K (default: the task's)")
-  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
-                      help="where PACHS's actor chains restart (default: the task's)")
-  parser.add_argument('--compact-fractions', default=COMPACT_FRACTIONS,
-                      type=lambda text: argtypes.numbers(text, 'fractions'),
-                      help="PACHS's and the parallel rollout's smaller physics batches, as "
-                      "fractions of the I x K (I x copies) lanes, comma separated "
-                      "(SearchConfig.compact_fractions; '' for none, as recorded before "
-                      "session 12)")
+  flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
+                                 'compact_fractions'],
+                         defaults={'compact_fractions': COMPACT_FRACTIONS})
   parser.add_argument('--chunk-iterations', type=int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "

@@ -14,7 +14,7 @@ from typing import Any, Callable, Dict, List, Optional, Union
 import jax
 import numpy as np
 
-from pachs_jax import envs
+from pachs_jax import argtypes, envs
 from pachs_jax.envs import layouts, mujoco_c
 
 
@@ -42,7 +42,7 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                         help="edge physics (mujoco-c: MuJoCo C on the CPU threads; warp: MuJoCo "
                         "Warp; auto: warp or mjx on an accelerator, mujoco-c without one)")
   if seed:
-    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--seed', type=argtypes.seed, default=0)
   if layout:
     parser.add_argument('--layout', default=None, choices=layouts.NAMES,
                         help=f"pusht-obs only: the obstacle layout (default: {layouts.DEFAULT}; "

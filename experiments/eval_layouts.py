@@ -20,10 +20,9 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import planner
+from pachs_jax import planner, programs
 from pachs_jax.envs import coverage, layouts
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
 
 TASK = 'pusht-obs'
 MAX_POLICY_SUCCESS = 0.5
@@ -69,7 +68,7 @@ def evaluate(name: str, num: int, backend: str, pachs_budget: int, seed: int) ->
         planner.command_config(TASK, jax.default_backend() == 'cpu',
                                type(env).__name__ == 'MujocoCEnv'),
         max_evaluations=pachs_budget)
-    plan = pachs.plan(env, model, nodes, config, jax.random.PRNGKey(seed))
+    plan = programs.plan(env, model, nodes, config, jax.random.PRNGKey(seed))
     plan_found = np.asarray(plan.found)
     row.update({'pachs_budget': pachs_budget, 'pachs_config': repr(config),
                 'pachs_solved': int(plan_found.sum()),

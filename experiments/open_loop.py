@@ -17,11 +17,10 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import envs, planner
+from pachs_jax import envs, flags, planner, programs, sharding
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs, sharding
-from pachs_jax.search import types as search_types
-from pachs_jax.search.types import StopReason
+from pachs_jax.search import pachs
+from pachs_jax.search.result import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
 SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
@@ -50,23 +49,19 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
   budget = args.budget
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
     config = planner.default_config(task, 'original' if name == 'pachs-original' else 'pachs',
-                                    max_evaluations=budget, pop_size=args.pop_size,
-                                    weight=args.weight, num_actions=args.num_actions,
-                                    edge_steps=args.edge_steps,
-                                    rollout_share=args.rollout_share,
-                                    chain_restart=args.chain_restart)
+                                    max_evaluations=budget, **flags.search_overrides(args))
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
           float(x) * args.lattice_scale for x in base))
-    search = pachs.make_search(env, model, config)
+    search = programs.Programs(pachs.make_search(env, model, config))
     if mesh is not None:
       return (lambda starts, keys: sharding.plan_sharded(env, model, starts, config, keys, mesh,
                                                          search=search)), config
     limit = args.time_limit
 
     def fn(starts, keys):
-      return pachs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
+      return programs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
     return fn, config
   if name == 'single':
     config = bl.SingleRolloutConfig()
@@ -214,15 +209,8 @@ def main():
                       help='evaluations per run (default: 100,000 PushT, 20,000 shelf)')
   parser.add_argument('--time-limit', type=float, default=None,
                       help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
-  parser.add_argument('--pop-size', type=int, default=None, help='K (default: the task\'s)')
-  parser.add_argument('--num-actions', type=int, default=None, help='N (default: the task\'s)')
-  parser.add_argument('--weight', type=float, default=None, help='w (default: the task\'s)')
-  parser.add_argument('--edge-steps', type=int, default=None,
-                      help="PACHS's transitions per edge (default: the task's)")
-  parser.add_argument('--rollout-share', type=float, default=None,
-                      help="share of PACHS's lanes that extend actor chains (default: the task's)")
-  parser.add_argument('--chain-restart', default=None, choices=search_types.CHAIN_RESTARTS,
-                      help="where PACHS's actor chains restart (default: the task's)")
+  flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
+                                 'rollout_share', 'chain_restart'])
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')

@@ -15,10 +15,10 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import envs, planner
+from pachs_jax import argtypes, envs, planner, programs
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs
-from pachs_jax.search.types import StopReason
+from pachs_jax.search.result import StopReason
 
 
 def _rows(result):
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
                       'comma separated (each budget is one row of each)')
   parser.add_argument('--copies', type=int, default=16, help='parallel-rollout copies')
   parser.add_argument('--pop-size', type=int, default=None, help='PACHS K (default: the task\'s)')
-  parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument('--seed', type=argtypes.seed, default=0)
   parser.add_argument('--out', default=None, help='results JSON (default: '
                       'experiments/results/playground_<name>.json)')
   args = parser.parse_args(argv)
@@ -84,11 +84,11 @@ def main(argv=None) -> int:
         jax.jit(bl.make_parallel_rollout(env, model, parallel).plan), starts,
         jax.random.split(key, args.instances))
     config = planner.default_config(args.task, max_evaluations=budget, pop_size=args.pop_size)
-    search = pachs.make_search(env, model, config)
+    search = programs.Programs(pachs.make_search(env, model, config))
     start = time.perf_counter()
-    pachs.plan(env, model, starts, config, key, search=search)  # compiles
+    programs.plan(env, model, starts, config, key, search=search)  # compiles
     compile_s = time.perf_counter() - start
-    result = pachs.plan(env, model, starts, config, key, search=search)
+    result = programs.plan(env, model, starts, config, key, search=search)
     rows = _rows(result)
     per_planner[f'PACHS {budget}'] = rows
     summaries.append(_summary(

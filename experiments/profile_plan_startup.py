@@ -80,7 +80,7 @@ def main() -> int:
     from pachs_jax import cli, compile_cache, planner
     from pachs_jax.envs import mujoco_c
     from pachs_jax.sac import checkpoint
-    from pachs_jax.search import pachs, types
+    from pachs_jax import programs
   timed(planner, 'load_model', 'load_model (env + physics + checkpoint)')
   physics = []
   inner_backend = mujoco_c.make_backend
@@ -93,18 +93,18 @@ def main() -> int:
   mujoco_c.make_backend = make_backend
   timed(checkpoint, 'load_actor_critic', 'checkpoint load')
   timed(planner, 'canonical_instances', 'canonical instances')
-  timed(types, 'check_model_outputs', 'model check (thread)')
-  timed(pachs, 'plan', 'pachs.plan (programs + search)')
+  timed(programs, 'check_model_outputs', 'model check (thread)')
+  timed(programs, 'plan', 'programs.plan (programs + search)')
   stores = collections.Counter()
   inner_compiled = compile_cache.compiled_program
 
-  def compiled_program(jitted, call_args, fingerprint, donate_argnums=()):
+  def compiled_program(jitted, call_args, fingerprint, donate_argnums=(), prefetch=None):
     name = (fingerprint or '').rsplit(' ', 2)[-1] if fingerprint else 'unnamed'
     directory = jax.config.jax_compilation_cache_dir
     before = set(os.listdir(os.path.join(directory, compile_cache.TRACES))) if directory and \
         os.path.isdir(os.path.join(directory, compile_cache.TRACES)) else set()
     with phase(f'program {name} (thread time)'):
-      out = inner_compiled(jitted, call_args, fingerprint, donate_argnums)
+      out = inner_compiled(jitted, call_args, fingerprint, donate_argnums, prefetch)
     after = set(os.listdir(os.path.join(directory, compile_cache.TRACES))) if directory and \
         os.path.isdir(os.path.join(directory, compile_cache.TRACES)) else set()
     new = sorted(after - before)

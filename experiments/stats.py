@@ -6,8 +6,8 @@ import math
 from typing import Dict, List
 
 import numpy as np
+from pachs_jax.search.result import StopReason
 
-from pachs_jax.search.types import StopReason
 
 
 def wilson_interval(successes: int, total: int, z: float = 1.96):

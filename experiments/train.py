@@ -19,29 +19,7 @@ import threading
 from pachs_jax import argtypes
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
-
-
-def _int_at_least(low: int):
-  def parse(text: str) -> int:
-    try:
-      value = int(text)
-    except ValueError:
-      raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
-    if value < low:
-      raise argparse.ArgumentTypeError(f'must be >= {low}, got {value}')
-    return value
-  return parse
-
-
-def _seed(text: str) -> int:
-  try:
-    value = int(text)
-  except ValueError:
-    raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
-  if not 0 <= value < SEED_LIMIT:
-    raise argparse.ArgumentTypeError(f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}], got '
-                                     f'{value}')
-  return value
+TRAIN_SEED = argtypes.integer(0, SEED_LIMIT, f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}]')
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -49,10 +27,11 @@ def parse_args(argv=None) -> argparse.Namespace:
   p.add_argument('--task', '--env', dest='task', required=True,
                  help="'point-mass', a name of pachs_jax.envs.make, or playground:NAME (a MuJoCo "
                       "Playground env; needs pip install -e '.[playground]')")
-  p.add_argument('--steps', type=_int_at_least(1), required=True,
+  p.add_argument('--steps', type=argtypes.integer(1), required=True,
                  help='total environment steps of the run')
   p.add_argument('--out', required=True, help='run directory')
-  p.add_argument('--seed', type=_seed, default=None, help='PRNG seed in [0, 2**32) (preset: 0)')
+  p.add_argument('--seed', type=TRAIN_SEED, default=None,
+                 help='PRNG seed in [0, 2**32) (preset: 0)')
   p.add_argument('--resume', action='store_true',
                  help='continue the run in --out (an error if it holds none)')
   p.add_argument('--start-if-missing', action='store_true',
@@ -61,9 +40,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   p.add_argument('--minutes', type=argtypes.positive_float, default=None,
                  help='wall-time budget of this call')
   p.add_argument('--checkpoint-minutes', type=argtypes.positive_float, default=5.0)
-  p.add_argument('--checkpoint-every', type=_int_at_least(0), default=0,
+  p.add_argument('--checkpoint-every', type=argtypes.integer(0), default=0,
                  help='also save every N epochs')
-  p.add_argument('--keep', type=_int_at_least(1), default=3, help='training checkpoints kept')
+  p.add_argument('--keep', type=argtypes.integer(1), default=3, help='training checkpoints kept')
   p.add_argument('--progress', choices=('bar', 'lines', 'none'), default=None,
                  help='default: bar on a terminal, else lines')
   p.add_argument('--no-tensorboard', action='store_true')

@@ -16,8 +16,7 @@ import numpy as np
 import common
 import open_loop
 import stats
-from pachs_jax import planner
-from pachs_jax.search import pachs
+from pachs_jax import planner, programs
 
 # One-at-a-time variations around the defaults; 'res' scales the env's lattice resolution.
 SWEEP = {'weight': (1.0, 3.0, 5.0), 'num_actions': (4, 16), 'pop_size': (16, 256),
@@ -60,7 +59,7 @@ def main():
     if args.budget:
       config = dataclasses.replace(config, max_evaluations=args.budget)
     start = time.perf_counter()
-    result = pachs.plan(env, model, starts, config, keys)
+    result = programs.plan(env, model, starts, config, keys)
     compile_s = time.perf_counter() - start - float(result.wall_time_s)
     r = jax.tree.map(np.asarray, result)
     row = {'setting': label, 'w': config.weight, 'N': config.num_actions, 'K': config.pop_size,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import Callable, Optional
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -31,3 +32,29 @@ def numbers(text: str, what: str) -> tuple:
     return tuple(float(x) for x in text.split(',') if x.strip())
   except ValueError:
     raise argparse.ArgumentTypeError(f'must be {what}, comma separated, got {text!r}') from None
+
+
+def integer(low: Optional[int] = None, high: Optional[int] = None,
+            bounds: Optional[str] = None, quoted: bool = False) -> Callable[[str], int]:
+  """An argument type: an integer in [low, high) (None: no bound); bounds: the words of the
+  error for one outside them (default 'must be >= low' / 'must be < high'), which quotes the
+  text given when quoted."""
+  if bounds is None:
+    bounds = ' and '.join(part for part in (low is not None and f'must be >= {low}',
+                                            high is not None and f'must be < {high}') if part)
+
+  def parse(text: str) -> int:
+    try:
+      value = int(text)
+    except ValueError:
+      raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+    if (low is not None and value < low) or (high is not None and value >= high):
+      shown = repr(text) if quoted else value
+      raise argparse.ArgumentTypeError(f'{bounds}, got {shown}')
+    return value
+
+  return parse
+
+
+positive_int = integer(1, bounds='must be a positive integer', quoted=True)
+seed = integer(-2**63, 2**63, 'must fit in 64 bits (-2**63 .. 2**63 - 1)')  # a PRNG key's

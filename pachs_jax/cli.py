@@ -6,29 +6,9 @@ import argparse
 import json
 import os
 import sys
+import time
 
-from pachs_jax import argtypes
-
-
-def _positive_int(text: str) -> int:
-  try:
-    value = int(text)
-  except ValueError:
-    value = 0
-  if value < 1:
-    raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}')
-  return value
-
-
-def _seed(text: str) -> int:
-  """--seed: an integer that fits a PRNG key's signed 64 bits."""
-  try:
-    value = int(text)
-  except ValueError:
-    raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-  if not -2**63 <= value < 2**63:
-    raise argparse.ArgumentTypeError(f'must fit in 64 bits (-2**63 .. 2**63 - 1), got {text}')
-  return value
+from pachs_jax import argtypes, flags
 
 
 def check_output_path(flag: str, path: str) -> None:
@@ -109,7 +89,7 @@ def _devices_arg(text: str):
   if text == 'all':
     return text
   try:
-    return _positive_int(text)
+    return argtypes.positive_int(text)
   except argparse.ArgumentTypeError:
     raise argparse.ArgumentTypeError(f"must be 'all' or a positive integer, got {text!r}") from None
 
@@ -127,7 +107,7 @@ def _plan_devices(args: argparse.Namespace):
                      '--devices 1, or drop --time-limit to run every instance to completion')
   import jax
 
-  from pachs_jax.search import sharding
+  from pachs_jax import sharding
   if args.devices == 'all':
     sharding.initialize_multihost()
     return jax.devices()
@@ -138,8 +118,8 @@ def _plan_devices(args: argparse.Namespace):
   return local[:args.devices]
 
 
-def _plan(args: argparse.Namespace) -> int:
-  import time
+def _plan(args: argparse.Namespace, prefetch=None) -> int:
+  """`pachs plan`; prefetch: the command line's `compile_cache.Prefetch` (None: none)."""
 
   # every output path first: nothing is planned for results that could not be written
   from pachs_jax import outputs
@@ -159,7 +139,8 @@ def _plan(args: argparse.Namespace) -> int:
   from pachs_jax import compile_cache, envs, planner
   if not args.no_cache:
     compile_cache.enable()
-  from pachs_jax.search import pachs, sharding, types
+  from pachs_jax import programs, sharding
+  from pachs_jax.search import checks, pachs
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
@@ -173,15 +154,10 @@ def _plan(args: argparse.Namespace) -> int:
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
-  config = planner.command_config(
-      args.task, on_cpu, mujoco_c, args.budget,
-      algorithm=args.algorithm, edge_steps=args.edge_steps, rollout_share=args.rollout_share,
-      chain_restart=args.chain_restart,
-      weight=args.weight, num_actions=args.num_actions, pop_size=args.pop_size,
-      lattice_resolution=args.lattice_resolution, realtime_answer=args.realtime_answer,
-      compact_fractions=args.compact_fractions)
+  config = planner.command_config(args.task, on_cpu, mujoco_c, args.budget,
+                                  algorithm=args.algorithm, **flags.search_overrides(args))
   budget = config.max_evaluations
-  types.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
+  checks.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
                else 'MJX on the CPU (slow: milliseconds per world and step)')
@@ -203,8 +179,9 @@ def _plan(args: argparse.Namespace) -> int:
   if devices is None:
     # one-shot: the whole search in the loop of the live instances' physics size (no further
     # loop to compile or load; docs/startup_and_caching.md)
-    result = pachs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
-                        shrink=False)
+    search = programs.Programs(pachs.make_search(env, model, config), prefetch=prefetch)
+    result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
+                           search=search, shrink=False)
   else:
     result = sharding.plan_sharded(env, model, starts, config, key,
                                    mesh=sharding.instance_mesh(devices))
@@ -249,14 +226,14 @@ def main(argv=None) -> int:
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
     from pachs_jax import compile_cache
-    with compile_cache.prefetching(words):
-      return _main(words)
+    with compile_cache.prefetching(words) as prefetch:
+      return _main(words, prefetch)
   return _main(words)
 
 
 def run() -> None:
   """The `pachs` console command: `main()`, then the process ends at once (output flushed),
-  skipping the interpreter's and JAX's teardown (most of a second after a GPU run); a
+  skipping the interpreter's and JAX's teardown (measured in docs/startup_and_caching.md); a
   multi-process JAX job ends normally."""
   code = main()
   jax = sys.modules.get('jax')
@@ -267,7 +244,7 @@ def run() -> None:
   os._exit(code)
 
 
-def _main(words) -> int:
+def _main(words, prefetch=None) -> int:
   if any(w.startswith(('--animate', '--animate=')) and not w.startswith('--animate-instance')
          for w in words) and words[:1] == ['plan']:
     import ctypes.util
@@ -278,15 +255,14 @@ def _main(words) -> int:
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs
-  from pachs_jax.envs import layouts
-  from pachs_jax.envs import registry
+  from pachs_jax.envs import layouts, mujoco_c, registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
   demo = sub.add_parser('demo', help='scripted PushT rollout through the MJX task, drawn to PNG')
   demo.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
-  demo.add_argument('--steps', type=_positive_int, default=300,
+  demo.add_argument('--steps', type=argtypes.positive_int, default=300,
                     help='control steps (20 Hz), at most 2000')
   demo.add_argument('--out', default='demo.png')
   demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
@@ -306,41 +282,22 @@ def _main(words) -> int:
   plan.add_argument('--budget', type=int, default=None,
                     help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
                          '20000 with MuJoCo C physics, 2000 with MJX)')
-  plan.add_argument('--seed', type=_seed, default=0, help='PRNG seed (64-bit integer)')
-  plan.add_argument('--weight', '-w', type=float, default=None, help='heuristic weight w')
-  plan.add_argument('--num-actions', '-N', type=int, default=None, help='actions per expansion')
+  plan.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
+  flags.add_search_flags(plan, ['weight', 'num_actions'])
   plan.add_argument('--algorithm', default='pachs', choices=registry.ALGORITHMS,
                     help="pachs (default: edges that follow the actor for edge_steps "
                     "transitions) or original (the published one-step edges, its settings)")
-  plan.add_argument('--edge-steps', '-H', type=int, default=None,
-                    help='transitions per edge (default: the task\'s; 1 = one-step edges)')
-  plan.add_argument('--rollout-share', type=float, default=None,
-                    help="the share of the K lanes that extend chains of the actor's edges "
-                    "(default: the task's; 0: none)")
-  plan.add_argument('--chain-restart', default=None, choices=['start', 'novel'],
-                    help="where a chain of the actor's edges restarts: the start, or a node of "
-                    "a rarely visited coarse cell (default: the task's)")
-  plan.add_argument('--pop-size', '-K', type=int, default=None, help='edges popped per iteration')
-  plan.add_argument('--lattice-resolution', type=lambda s: argtypes.numbers(s, 'cell sizes'),
-                    default=None, help='lattice cell sizes, comma separated')
+  flags.add_search_flags(plan, ['edge_steps', 'rollout_share', 'chain_restart', 'pop_size',
+                               'lattice_resolution'])
   plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
-  plan.add_argument('--compact-fractions', default=None,
-                    type=lambda s: argtypes.numbers(s, 'fractions'),
-                    help='smaller physics batches as fractions of the I x K lanes, comma '
-                    "separated ('' simulates every lane; default on a GPU: "
-                    'planner.COMMAND_COMPACT_FRACTIONS, 0.125,0.015625; on a CPU none)')
-  plan.add_argument('--realtime-answer', default=None, choices=['best_f', 'min_h', 'min_cost'],
-                    help='the state an unfinished search answers with: best_f (the best OPEN '
-                    "entry's; the original algorithm's and a user's task's default), min_h "
-                    "(least estimated cost-to-go) or min_cost (least cost per transition of the "
-                    "edge into the state; PushT's default)")
+  flags.add_search_flags(plan, ['compact_fractions', 'realtime_answer'])
   plan.add_argument('--devices', type=_devices_arg, default=1,
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "
                          "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
   plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
-  plan.add_argument('--backend', default='auto', choices=['auto', 'mjx', 'mujoco-c'],
+  plan.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
                     '(Playground tasks: MJX only)')
   plan.add_argument('--render', default=None,
@@ -363,7 +320,7 @@ def _main(words) -> int:
   if args.command == 'plan' and args.layout is not None and args.task != 'pusht-obs':
     plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
   try:
-    return args.func(args)
+    return args.func(args, prefetch) if args.command == 'plan' else args.func(args)
   except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
         else f'{err.strerror}: {err.filename}' if err.filename else err.strerror

@@ -2,7 +2,7 @@
 second run of a command skips XLA compilation, and beside it the traced search programs
 (`jax.export`) and their compiled executables, so that it also skips Python tracing, lowering and
 the cache lookup; a command line's executables can load at its start, beside its imports
-(`prefetch`)."""
+(`Prefetch`)."""
 
 from __future__ import annotations
 
@@ -145,7 +145,8 @@ def _compile(jitted, args: tuple) -> Program:
 
 
 def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
-                     donate_argnums: tuple = ()) -> Program:
+                     donate_argnums: tuple = (), prefetch: Optional['Prefetch'] = None
+                     ) -> Program:
   """`jitted.lower(*args).compile()` as a `Program`, skipping Python tracing where it can.
 
   With a fingerprint and the compilation cache on (jax_compilation_cache_dir set), the
@@ -155,7 +156,8 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
   executable (else compile the stored trace; the CPU stores no executables). Programs that
   cannot be exported (host callbacks) are remembered as such and compiled as usual.
   fingerprint: names everything jitted closes over (env, model parameters, config); None
-    turns the store off. args: arrays or ShapeDtypeStructs.
+    turns the store off. args: arrays or ShapeDtypeStructs. prefetch: a command line's
+    `Prefetch`, which loads the executable ahead and records its use.
   """
   directory = jax.config.jax_compilation_cache_dir
   if fingerprint is None or not directory:
@@ -169,9 +171,9 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
   path = os.path.join(directory, TRACES, key[:32])
   if os.path.exists(path + '.unexportable'):
     return _compile(jitted, args)
-  if _PREFETCH is not None:  # in the order the command asks for them
-    _PREFETCH.used.append(path + '.executable')
-  stored = _load(path + '.executable', _executable)
+  if prefetch is not None:  # in the order the command asks for them
+    prefetch.used.append(path + '.executable')
+  stored = _load(path + '.executable', _executable, prefetch)
   if stored is None:
     traced = _load(path + '.exported', _exported) or _export(jitted, treedef, specs, path)
     if traced is None:  # not exportable (e.g. host callbacks)
@@ -248,16 +250,11 @@ def _read(path: str, parse):
                  threading.current_thread().name)
 
 
-def _load(path: str, parse):
+def _load(path: str, parse, prefetch: Optional['Prefetch'] = None):
   """parse(the bytes at path), or None when missing or unreadable (then rewritten); an
-  executable that `prefetch` loads is taken from it."""
-  loading = _PREFETCH.loading.pop(path, None) if _PREFETCH is not None else None
-  if loading is not None:  # loads are serialised inside XLA: wait rather than load beside it
-    try:
-      return loading.result()
-    except concurrent.futures.CancelledError:
-      pass
-  return _read(path, parse)
+  executable that prefetch loads is taken from it."""
+  loaded = prefetch.take(path) if prefetch is not None else None
+  return loaded if loaded is not None else _read(path, parse)
 
 
 def _write(path: str, blob: bytes):
@@ -276,17 +273,71 @@ def _write(path: str, blob: bytes):
 COMMANDS = 'commands'  # the traces' subdirectory: per command line, the executables it used
 
 
-@dataclasses.dataclass
-class _Prefetch:
-  """The executables of one command line: `loading` (path -> Future of `_executable`'s
-  result) those it used last time, `used` the paths it uses now, `index` where they are kept."""
+class Prefetch:
+  """The stored executables of one command line, loaded ahead of their use.
 
-  index: str
-  loading: dict
-  used: list
+  index: the file listing the executables the command line used last time (`command_index`).
+  `load()` reads them (in a thread of the caller's, beside its imports and model load);
+  `compiled_program(..., prefetch=this)` takes them from here and records what it uses;
+  `finish()` cancels what is still unread and writes the index back.
+  """
 
+  def __init__(self, index: str):
+    self.index = index
+    self.loading: dict = {}  # path -> Future of `_executable`'s result
+    self.used: list = []  # the paths asked for now, in order
+    self._lock = threading.Lock()
+    self._finished = False
 
-_PREFETCH: Optional[_Prefetch] = None  # this process's command line (`prefetch`)
+  def load(self) -> None:
+    """Reads the listed executables, in this thread, one after another."""
+    try:
+      with open(self.index) as f:
+        paths = [line.strip() for line in f if line.strip()]
+    except OSError:
+      paths = []
+    futures = {path: concurrent.futures.Future() for path in paths}
+    with self._lock:
+      if self._finished:
+        return
+      self.loading.update(futures)
+    try:
+      for path, future in futures.items():
+        if future.set_running_or_notify_cancel():
+          future.set_result(_read(path, _executable))
+    finally:  # should this thread fail, nobody waits for the rest
+      for future in futures.values():
+        future.cancel()
+
+  def take(self, path: str):
+    """The loaded executable at path, waiting for one being read (None: not listed)."""
+    with self._lock:
+      loading = self.loading.pop(path, None)
+    if loading is None:
+      return None
+    try:  # loads are serialised inside XLA: wait rather than load beside it
+      return loading.result()
+    except concurrent.futures.CancelledError:
+      return None
+
+  def finish(self, write: bool = True) -> None:
+    """Cancels the loads not begun and, with write, lists the executables asked for, in that
+    order, in the index (when they changed)."""
+    with self._lock:
+      self._finished = True
+      loading, self.loading = self.loading, {}
+    for future in loading.values():
+      future.cancel()
+    if not write:
+      return
+    listed = [path for path in dict.fromkeys(self.used) if os.path.exists(path)]
+    try:
+      with open(self.index) as f:
+        if f.read().split() == listed:
+          return
+    except OSError:
+      pass
+    _write(self.index, ''.join(f'{path}\n' for path in listed).encode())
 
 
 def command_index(words) -> Optional[str]:
@@ -300,68 +351,30 @@ def command_index(words) -> Optional[str]:
   return os.path.join(directory, TRACES, COMMANDS, key[:32] + '.txt')
 
 
-def prefetch(index: Optional[str]) -> None:
-  """Loads, in this thread, the executables listed in index (`command_index`) for
-  `compiled_program` to take, and records the ones this process uses (`finish_prefetch` writes
-  them back). Called at a command's start, beside its imports and model load."""
-  global _PREFETCH
-  if index is None:
-    return
-  try:
-    with open(index) as f:
-      paths = [line.strip() for line in f if line.strip()]
-  except OSError:
-    paths = []
-  futures = {path: concurrent.futures.Future() for path in paths}
-  _PREFETCH = _Prefetch(index, dict(futures), [])
-  try:
-    for path, future in futures.items():
-      if future.set_running_or_notify_cancel():
-        future.set_result(_read(path, _executable))
-  finally:  # should this thread fail, nobody waits for the rest
-    for future in futures.values():
-      future.cancel()
-
-
 @contextlib.contextmanager
-def prefetching(words) -> Iterator[None]:
-  """Runs the block with `prefetch` of the command line's words in a thread (jax is imported
-  before it starts, so the two threads never import one module at once); afterwards writes the
-  index and waits for the thread, or after an error only cancels what it has not begun."""
+def prefetching(words) -> Iterator[Optional[Prefetch]]:
+  """Yields the `Prefetch` of the command line's words (None when the cache is off), loading
+  in a thread (jax is imported before it starts, so the two threads never import one module at
+  once); afterwards writes the index and waits for the thread, or after an error only cancels
+  what it has not begun."""
+  index = command_index(words)
+  if index is None:
+    yield None
+    return
+  prefetch = Prefetch(index)
 
   def load():
     try:
-      prefetch(command_index(words))
+      prefetch.load()
     except Exception:  # pylint: disable=broad-except  (it only saves time)
       pass
 
   thread = threading.Thread(target=load, name='prefetch', daemon=True)
   thread.start()
   try:
-    yield
+    yield prefetch
   except BaseException:
-    finish_prefetch(write=False)  # (an error exits without waiting for the thread)
+    prefetch.finish(write=False)  # (an error exits without waiting for the thread)
     raise
-  finish_prefetch()
+  prefetch.finish()
   thread.join()
-
-
-def finish_prefetch(write: bool = True) -> None:
-  """Cancels the loads `prefetch` has not begun and, with write, lists the executables this
-  process asked for, in that order, in its command line's index (when they changed)."""
-  global _PREFETCH
-  if _PREFETCH is None:
-    return
-  done, _PREFETCH = _PREFETCH, None
-  for future in done.loading.values():
-    future.cancel()
-  if not write:
-    return
-  listed = [path for path in dict.fromkeys(done.used) if os.path.exists(path)]
-  try:
-    with open(done.index) as f:
-      if f.read().split() == listed:
-        return
-  except OSError:
-    pass
-  _write(done.index, ''.join(f'{path}\n' for path in listed).encode())

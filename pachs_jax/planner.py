@@ -9,8 +9,12 @@ from typing import List, Optional, Sequence
 import jax
 import numpy as np
 
-from pachs_jax import envs
-from pachs_jax.search import types as search_types
+from pachs_jax import compile_cache, envs, programs
+from pachs_jax.envs import mujoco_c, registry
+from pachs_jax.sac import checkpoint as checkpoint_lib
+from pachs_jax.search import pachs
+from pachs_jax.search.config import SearchConfig
+from pachs_jax.search.result import SearchResult, StopReason
 
 CHECKPOINT_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'checkpoints')
 
@@ -24,23 +28,22 @@ COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
 
 
 def default_config(task: Optional[str], algorithm: str = 'pachs',
-                   **overrides) -> search_types.SearchConfig:
+                   **overrides) -> SearchConfig:
   """The task's SearchConfig for an algorithm of `registry.ALGORITHMS` ('pachs' or 'original';
   task None: a user's task, `registry.USER_SEARCH`) with fields replaced by the non-None
   `overrides`."""
-  from pachs_jax.envs import registry
   if task is None:  # a user's task: one-step edges either way
     registry.check_algorithm(algorithm)
     values = dict(registry.USER_SEARCH)
   else:
     values = dict(envs.spec(task).algorithm_defaults(algorithm))
   values.update({k: v for k, v in overrides.items() if v is not None})
-  return search_types.SearchConfig(**values)
+  return SearchConfig(**values)
 
 
 def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
                    budget: Optional[int] = None, algorithm: str = 'pachs',
-                   **explicit) -> search_types.SearchConfig:
+                   **explicit) -> SearchConfig:
   """The SearchConfig of `pachs plan`.
 
   The task's defaults; on a CPU without a `budget`, the backend's CPU budget (`CPU_DEFAULTS`)
@@ -64,7 +67,6 @@ def checkpoint_path(task: str) -> str:
 def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
   """The env of a task name with the chosen physics backend, or a user's Env (checked with
   `envs.check_task`; MJX physics only)."""
-  from pachs_jax.envs import mujoco_c
   if isinstance(task, envs.Env):
     if backend == 'mujoco-c':
       raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
@@ -88,7 +90,6 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   layout: pusht-obs's obstacle layout (`envs.layouts.LAYOUTS`; None: the default).
   Raises FileNotFoundError for a missing checkpoint, ValueError for one of another task or size.
   """
-  from pachs_jax.sac import checkpoint
   env = _make_env(task, backend, nthread, layout)
   if isinstance(task, envs.Env):
     if path is None:
@@ -101,7 +102,7 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   if not os.path.exists(path):
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
                             f'--task {model_task}')
-  model = checkpoint.load_actor_critic(path)
+  model = checkpoint_lib.load_actor_critic(path)
   allowed = {task, model_task}
   if model.config.task not in allowed:
     raise ValueError(f'{path!r} holds a model of task {model.config.task!r}; task {task!r} '
@@ -125,7 +126,7 @@ def canonical_instances(env, num: int):
 class Planner:
   """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
   kept warm between calls (compiled once per padded instance count and physics batch size,
-  see `pachs.plan`).
+  see `programs.plan`).
 
   task: a task name (`envs.TASKS`, 'playground:NAME') or a user's `envs.Env` (checked with
   `envs.check_task`); checkpoint: a model directory (None: the shipped one);
@@ -138,21 +139,19 @@ class Planner:
   def __init__(self, task: str, checkpoint: Optional[str] = None, backend: str = 'auto',
                budget: Optional[int] = None, cache: bool = True, layout: Optional[str] = None,
                **overrides):
-    from pachs_jax import compile_cache
-    from pachs_jax.search import pachs
     if cache:
       compile_cache.enable()
     self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
     self.task = self.env.name if isinstance(task, envs.Env) else task
     on_cpu = jax.default_backend() == 'cpu'
-    mujoco_c = type(self.env).__name__ == 'MujocoCEnv'
+    c_physics = type(self.env).__name__ == 'MujocoCEnv'
     if isinstance(task, envs.Env):  # a user's task: registry.USER_SEARCH
-      self.config = command_config(None, on_cpu, mujoco_c, budget, **overrides)
+      self.config = command_config(None, on_cpu, c_physics, budget, **overrides)
       self._num_instances = 30
     else:
-      self.config = command_config(task, on_cpu, mujoco_c, budget, **overrides)
+      self.config = command_config(task, on_cpu, c_physics, budget, **overrides)
       self._num_instances = envs.spec(task).num_instances
-    self.search = pachs.make_search(self.env, self.model, self.config)
+    self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config))
     self._canonical = None
 
   def canonical(self, instances: Sequence[int]):
@@ -163,16 +162,15 @@ class Planner:
     return jax.tree.map(lambda x: x[index], self._canonical)
 
   def plan(self, instances: Optional[Sequence[int]] = None, start_nodes=None, seed: int = 0,
-           time_limit_s: Optional[float] = None) -> search_types.SearchResult:
+           time_limit_s: Optional[float] = None) -> SearchResult:
     """Plans the canonical `instances` (indices) or the given start_nodes [I]; returns the
     SearchResult [I] (wall_time_s without compilation)."""
-    from pachs_jax.search import pachs
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
     if start_nodes is None:
       start_nodes = self.canonical(instances)
-    return pachs.plan(self.env, self.model, start_nodes, self.config, jax.random.PRNGKey(seed),
-                      time_limit_s=time_limit_s, search=self.search)
+    return programs.plan(self.env, self.model, start_nodes, self.config,
+                         jax.random.PRNGKey(seed), time_limit_s=time_limit_s, search=self.search)
 
 
 def parse_instances(text: str, available: int) -> List[int]:
@@ -193,7 +191,7 @@ def parse_instances(text: str, available: int) -> List[int]:
   return sorted(out)
 
 
-def result_rows(result: search_types.SearchResult, instances: Sequence[int]) -> List[dict]:
+def result_rows(result: SearchResult, instances: Sequence[int]) -> List[dict]:
   """One dict per instance: found, cost, expansions, evaluations, stop reason."""
   r = jax.tree.map(np.asarray, result)
   rows = []
@@ -202,7 +200,7 @@ def result_rows(result: search_types.SearchResult, instances: Sequence[int]) -> 
         'instance': int(inst), 'found': bool(r.found[i]), 'cost': float(r.cost[i]),
         'path_length': int(r.path_length[i]), 'expanded': int(r.expanded[i]),
         'evaluated': int(r.evaluated[i]), 'iterations': int(r.iterations[i]),
-        'stop': search_types.StopReason.name(r.stop_reason[i]),
+        'stop': StopReason.name(r.stop_reason[i]),
         'overflow': int(r.heap_overflow[i] + r.pool_overflow[i] + r.table_overflow[i])})
   return rows
 
@@ -218,7 +216,7 @@ def format_table(rows: List[dict], columns: Sequence[str]) -> str:
   return '\n'.join(lines)
 
 
-def draw_result(env, result: search_types.SearchResult, instances: Sequence[int],
+def draw_result(env, result: SearchResult, instances: Sequence[int],
                 path: str) -> str:
   """Draws the first instance's path (PushT: T poses, goal, obstacles, pusher trace)."""
   from pachs_jax.envs import render

@@ -6,8 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pachs_jax.search import anytime
-from pachs_jax.search.types import StopReason
+from pachs_jax import anytime
+from pachs_jax.search.result import StopReason
 
 
 class Clock:

@@ -3,6 +3,7 @@
 that cannot fit in memory, numpy numbers in configs, and the CLI's arguments and output paths."""
 
 import dataclasses
+import functools
 import json
 import os
 import re
@@ -15,10 +16,13 @@ import pytest
 
 from pachs_jax import cli, planner
 from pachs_jax.envs import gridworld, point_mass, pusht
-from pachs_jax.search import SearchConfig, StopReason, make_search, memory, pachs, plan, sharding
-from pachs_jax.search import types
+from pachs_jax.search import SearchConfig, StopReason, make_search, memory, pachs
+from pachs_jax import programs
+from pachs_jax.programs import plan
+from pachs_jax import sharding
 from pachs_jax.search import baselines as bl
 from pachs_jax.search.baselines import epase
+from pachs_jax.search.checks import instance_keys
 
 SIZE = 10
 CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=500)
@@ -91,7 +95,7 @@ def test_without_the_check_a_nan_critic_looks_like_an_exhausted_search(grid):
   # empty after 0 evaluations, which reads like an exhaustively searched task
   env, _, nodes = grid
   search = make_search(env, NanCritic(env), CONFIG)
-  keys = types.instance_keys(jax.random.PRNGKey(0), 4)
+  keys = instance_keys(jax.random.PRNGKey(0), 4)
   result = search.result(search.run(search.init(nodes, keys)))
   np.testing.assert_array_equal(np.asarray(result.stop_reason), StopReason.OPEN_EMPTY)
   np.testing.assert_array_equal(np.asarray(result.evaluated), 0)
@@ -192,7 +196,7 @@ def test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can(grid, m
 def test_state_bytes_are_exact_and_checked_against_real_memory(grid):
   env, ac, nodes = grid
   search = make_search(env, ac, CONFIG)
-  state = search.init(nodes, types.instance_keys(jax.random.PRNGKey(0), 4))
+  state = search.init(nodes, instance_keys(jax.random.PRNGKey(0), 4))
   assert memory.search_bytes(search, nodes, 4) == (
       memory.tree_bytes(state) + memory.tree_bytes(search.result(state)))
   available, where = memory.device_memory()
@@ -201,7 +205,7 @@ def test_state_bytes_are_exact_and_checked_against_real_memory(grid):
   # a budget of 1 takes 0.3 GB
   big = make_search(env, ac, dataclasses.replace(CONFIG, max_evaluations=10**6))
   with pytest.raises(ValueError, match=r'needs 2.\d+ TB .* largest budget that fits'):
-    memory.check_fits(env, ac, big, nodes, 8192)
+    memory.check_fits(functools.partial(make_search, env, ac), big, nodes, 8192)
 
 
 # ---- 5. numpy and JAX numbers in configs ----
@@ -246,7 +250,7 @@ def no_planning(monkeypatch):
   def reached(*args, **kwargs):
     raise AssertionError('the command went on to load a model or plan')
   monkeypatch.setattr(planner, 'load_model', reached)
-  monkeypatch.setattr(pachs, 'plan', reached)
+  monkeypatch.setattr(programs, 'plan', reached)
 
 
 def _one_line_error(argv, capsys):
@@ -296,7 +300,7 @@ def test_unwritable_directory_is_refused(tmp_path, capsys, no_planning):
 
 
 def test_overflowing_lattice_resolution_in_the_cli(capsys, monkeypatch):
-  monkeypatch.setattr(pachs, 'plan', lambda *a, **k: pytest.fail('planned'))
+  monkeypatch.setattr(programs, 'plan', lambda *a, **k: pytest.fail('planned'))
   err = _one_line_error(['plan', '--task', 'pusht-fixed', '--lattice-resolution',
                          '1e-30,0.01,0.1,0.02,0.02'], capsys)
   assert ('pachs plan: error: lattice_resolution (1e-30, 0.01, 0.1, 0.02, 0.02) overflows the '

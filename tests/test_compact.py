@@ -10,7 +10,9 @@ import pytest
 
 from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, compact, make_search, plan, sharding
+from pachs_jax.search import SearchConfig, compact, make_search
+from pachs_jax.programs import Programs, plan
+from pachs_jax import sharding
 
 
 def test_batch_sizes():
@@ -77,7 +79,7 @@ def test_pachs_with_compaction_equals_without():
   env.batches.clear()
   got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
   jax.effects_barrier()
-  # 6 instances padded to 8 (pachs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
+  # 6 instances padded to 8 (programs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
   # ran once at most 4 and then 2 instances were still searching
   assert {8, 16} <= set(env.batches) and 32 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
@@ -85,7 +87,7 @@ def test_pachs_with_compaction_equals_without():
   assert_results_equal(got, want)
   # without shrinking (the one-shot command): the search stays in the first size's loop
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
-  search = make_search(env, ac, compacted)
+  search = Programs(make_search(env, ac, compacted))
   env.batches.clear()
   assert_results_equal(plan(env, ac, nodes, compacted, key, search=search, shrink=False), want)
   jax.effects_barrier()
@@ -109,7 +111,7 @@ def test_loops_are_compiled_for_the_sizes_reached():
   ac = gridworld.GridActorCritic(env)
   config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=200,
                         compact_fractions=(0.25, 0.5))
-  search = make_search(env, ac, config)
+  search = Programs(make_search(env, ac, config))
   nodes = env.node(np.array([[0, 0]]), np.array([[5, 4]]))
   out = plan(env, ac, nodes, config, jax.random.PRNGKey(0), search=search, min_bucket=8)
   jax.effects_barrier()

@@ -1,4 +1,4 @@
-"""Programs compiled by `pachs.plan` (issue 15): the search compiles a few whole programs, never
+"""Programs compiled by `programs.plan` (issue 15): the search compiles a few whole programs, never
 one program per array operation, and a second call of the same shapes compiles nothing."""
 
 import threading
@@ -9,7 +9,8 @@ import pytest
 
 from pachs_jax import compile_cache
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, make_search, plan
+from pachs_jax.search import SearchConfig, make_search
+from pachs_jax.programs import Programs, plan
 
 OBSTACLES = np.zeros((8, 8), bool)
 OBSTACLES[1:7, 4] = True
@@ -27,7 +28,7 @@ def grid():
 
 def test_plan_compiles_whole_programs_once(grid):
   env, ac, nodes = grid
-  search = make_search(env, ac, CONFIG)
+  search = Programs(make_search(env, ac, CONFIG))
   key = jax.random.PRNGKey(0)
   with compile_cache.compile_log() as log:
     out = plan(env, ac, nodes, CONFIG, key, search=search)
@@ -80,19 +81,22 @@ def test_prefetch_loads_what_the_command_line_used_last_time(tmp_path, monkeypat
   index = compile_cache.command_index(words)
   assert index != compile_cache.command_index(words + ['--weight', '2'])
   try:
-    compile_cache.prefetch(index)  # no index yet: nothing to load
-    np.testing.assert_allclose(compile_cache.compiled_program(double, (x,), 'double')(x), 2 * x)
-    compile_cache.finish_prefetch()
+    prefetch = compile_cache.Prefetch(index)
+    prefetch.load()  # no index yet: nothing to load
+    np.testing.assert_allclose(
+        compile_cache.compiled_program(double, (x,), 'double', prefetch=prefetch)(x), 2 * x)
+    prefetch.finish()
     with open(index) as f:
       listed = f.read().split()
     assert listed == list(compiled) and parsed == []
-    thread = threading.Thread(target=compile_cache.prefetch, args=(index,), name='prefetch')
+    prefetch = compile_cache.Prefetch(index)
+    thread = threading.Thread(target=prefetch.load, name='prefetch')
     thread.start()
     thread.join()
-    program = compile_cache.compiled_program(double, (x,), 'double')
+    program = compile_cache.compiled_program(double, (x,), 'double', prefetch=prefetch)
     np.testing.assert_allclose(program(x), 2 * x)
     assert parsed == [(listed[0], 'prefetch')]  # loaded once, in the prefetch thread
-    compile_cache.finish_prefetch()
+    prefetch.finish()
   finally:
-    compile_cache.finish_prefetch()
+    prefetch.finish()
     jax.config.update('jax_compilation_cache_dir', previous)

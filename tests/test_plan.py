@@ -10,22 +10,22 @@ import pytest
 
 from pachs_jax import cli, planner
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
+from pachs_jax import programs
 
 
 @pytest.fixture
 def captured_plans(monkeypatch):
-  """Records (env, starts, result) of every `pachs.plan` call, so a test can replay the plan
+  """Records (env, starts, result) of every `programs.plan` call, so a test can replay the plan
   `pachs plan` found on the very physics backend it planned with."""
   calls = []
-  real = pachs.plan
+  real = programs.plan
 
   def recording(env, model, starts, config, key, **kwargs):
     result = real(env, model, starts, config, key, **kwargs)
     calls.append((env, starts, result))
     return result
 
-  monkeypatch.setattr(pachs, 'plan', recording)
+  monkeypatch.setattr(programs, 'plan', recording)
   return calls
 
 

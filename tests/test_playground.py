@@ -123,10 +123,10 @@ def test_tiny_pachs_plan(env):
   """PACHS with a stand-in actor-critic and a tiny budget: the loop runs on the adapter's
   nodes, and its path replays through the env to the reported cost."""
   from pachs_jax.planner import default_config
-  from pachs_jax.search import pachs
+  from pachs_jax import programs
   config = default_config('playground:PointMass', max_evaluations=96, pop_size=8)
   starts = env.canonical_instances(2)
-  result = pachs.plan(env, UniformActorCritic(env.action_size), starts, config,
+  result = programs.plan(env, UniformActorCritic(env.action_size), starts, config,
                       jax.random.PRNGKey(0))
   assert np.asarray(result.evaluated).max() <= 96 and np.asarray(result.expanded).min() > 0
   node = jax.tree.map(lambda x: x[:1], starts)

@@ -11,7 +11,8 @@ import pytest
 from conftest import assert_results_equal, take
 from pachs_jax import compile_cache
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search, plan
+from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search
+from pachs_jax.programs import Programs, plan
 
 SIZE = 14
 POCKET = (1, 12)  # a free cell walled in: unreachable from outside
@@ -452,7 +453,7 @@ def test_plans_of_one_bucket_share_compiled_programs(problem):
   # 3 and 4 instances pad to one bucket of 4 (and 3 to 8 with min_bucket 8): one compilation
   # each, and padding changes no instance's result.
   env, ac = problem.env, problem.actor_critic
-  search = make_search(env, ac, BASE)
+  search = Programs(make_search(env, ac, BASE))
   rows = lambda tree, n: jax.tree.map(lambda x: x[:n] if jnp.ndim(x) else x, tree)
   three = plan(env, ac, rows(problem.nodes, 3), BASE, problem.keys[:3], search=search,
                min_bucket=1)

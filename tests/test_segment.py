@@ -13,7 +13,9 @@ import pytest
 from conftest import assert_results_equal
 from pachs_jax import planner
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, StopReason, make_search, plan, sharding
+from pachs_jax.search import SearchConfig, StopReason, make_search
+from pachs_jax.programs import plan
+from pachs_jax import sharding
 from pachs_jax.search import segment
 
 OBSTACLES = np.zeros((12, 12), bool)

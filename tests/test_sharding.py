@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from conftest import assert_results_equal, result_leaves
-from pachs_jax.search import SearchConfig, make_search, plan
-from pachs_jax.search import sharding
+from pachs_jax.search import SearchConfig, make_search
+from pachs_jax.programs import plan
+from pachs_jax import sharding
 
 # Shared by the in-process tests and the 4-device subprocess (the same source text).
 SETUP = textwrap.dedent('''
@@ -41,7 +42,7 @@ SETUP = textwrap.dedent('''
     CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400)
 
     from pachs_jax.search import baselines as bl
-    from pachs_jax.search import sharding
+    from pachs_jax import sharding
 
     class GreedyActor(RandomActor):
       # The single rollout's deterministic policy: the move of the best Q.
@@ -74,7 +75,8 @@ BASELINES = ('rollout', 'beam', 'epase', 'single')
 # NAME_OK per planner, or NAME_FAILED with the error (each planner is checked).
 FOUR_DEVICES = SETUP + textwrap.dedent('''
     import traceback
-    from pachs_jax.search import plan, make_search
+    from pachs_jax.search import make_search
+    from pachs_jax.programs import plan
     assert len(jax.devices()) == 4, jax.devices()
     key = jax.random.PRNGKey(3)
     mesh = sharding.instance_mesh()
@@ -204,10 +206,11 @@ def test_bad_input_raises(search):
 # JAX_COORDINATOR_ADDRESS variables: 6 instances over the 4 global devices (padded to 8), the
 # result gathered whole on every process, equal to the unsharded plan field by field.
 TWO_HOSTS = textwrap.dedent('''
-    from pachs_jax.search import sharding as _sharding
+    from pachs_jax import sharding as _sharding
     assert _sharding.initialize_multihost(), 'the job was not joined'
 ''') + SETUP + textwrap.dedent('''
-    from pachs_jax.search import plan, make_search
+    from pachs_jax.search import make_search
+    from pachs_jax.programs import plan
     assert jax.process_count() == 2 and len(jax.devices()) == 4, jax.devices()
     assert len(jax.local_devices()) == 2
     key = jax.random.PRNGKey(3)

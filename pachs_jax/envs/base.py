@@ -111,7 +111,7 @@ class Env(abc.ABC):
     """[L] the largest |value| (units of `default_lattice_resolution`) of each coordinate that
     `lattice_coords` divides by the cell size, over the task's valid states; None: unknown.
     The search refuses cell sizes below lattice_extent / 2**30, which would overflow the int32
-    lattice coordinates (`search.types.env_lattice_resolution`)."""
+    lattice coordinates (`search.checks.env_lattice_resolution`)."""
     return None
 
   @property

@@ -60,7 +60,7 @@ class ActorCriticParams:
 
 @struct.dataclass
 class SacActorCritic:
-  """A trained tanh-Gaussian actor and twin critic (implements `search.types.ActorCritic`).
+  """A trained tanh-Gaussian actor and twin critic (implements `search.model.ActorCritic`).
 
   sample_actions(key, obs[B, O], num) -> [B, num, A] stochastic actions in [-1, 1].
   q_values(obs[B, O], actions[B, num, A]) -> [B, num] min of the twin critics in the

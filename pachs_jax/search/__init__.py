@@ -1,8 +1,17 @@
 """PACHS: a batched best-first search over the edges that a trained actor-critic proposes."""
 
-from pachs_jax.search.pachs import Search, SearchState, make_search, plan
-from pachs_jax.search.types import (ActorCritic, SearchConfig, SearchResult, StopReason,
-                                    instance_keys)
+from pachs_jax.search.pachs import Search, SearchState, make_search
+from pachs_jax.search.checks import instance_keys
+from pachs_jax.search.config import SearchConfig
+from pachs_jax.search.model import ActorCritic
+from pachs_jax.search.result import SearchResult, StopReason
 
 __all__ = ['ActorCritic', 'Search', 'SearchConfig', 'SearchResult', 'SearchState', 'StopReason',
-           'instance_keys', 'make_search', 'plan']
+           'instance_keys', 'make_search']
+
+
+def __getattr__(name):
+  if name == 'plan':
+    raise AttributeError('pachs_jax.search.plan is now pachs_jax.programs.plan (compiling, '
+                         'threads and wall-clock timing live above the search core)')
+  raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

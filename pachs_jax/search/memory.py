@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Optional, Tuple
+from typing import Callable, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -101,24 +101,23 @@ def _round_down(n: int) -> int:
   return n // scale * scale
 
 
-def check_fits(env: base.Env, actor_critic, search, start_nodes: base.NodeState,
-               num_instances: int, device=None, need: Optional[int] = None) -> int:
+def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_instances: int,
+               device=None, need: Optional[int] = None) -> int:
   """Returns the device bytes of a PACHS search of num_instances (padded) instances; ValueError
   when they exceed the device's memory (`device_memory`), naming the largest budget
-  (max_evaluations) that fits. need: those bytes when the caller knows them (None: traced
-  with `search_bytes`). Compiles nothing."""
+  (max_evaluations) that fits. search_for(config) -> the search of another budget (e.g.
+  `make_search` with env and model bound). need: those bytes when the caller knows them
+  (None: traced with `search_bytes`). Compiles nothing."""
   need = search_bytes(search, start_nodes, num_instances) if need is None else need
   available, where = device_memory(device)
   if need <= available:
     return need
-  from pachs_jax.search import pachs  # pylint: disable=g-import-not-at-top (pachs imports us)
   config = search.config
 
   def bytes_at(budget):
     if budget == config.max_evaluations:
       return need
-    smaller = pachs.make_search(env, actor_critic,
-                                dataclasses.replace(config, max_evaluations=budget))
+    smaller = search_for(dataclasses.replace(config, max_evaluations=budget))
     return search_bytes(smaller, start_nodes, num_instances)
 
   steps = getattr(config, 'edge_steps', 1)  # a budget below one edge's transitions is invalid

@@ -3,9 +3,7 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
-import time
 from typing import Callable, Optional, Tuple
 
 import jax
@@ -13,19 +11,20 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from pachs_jax import compile_cache
 from pachs_jax.envs import base
-from pachs_jax.search import anytime
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
-from pachs_jax.search import memory
 from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
+from pachs_jax.search import rules as rules_lib
 from pachs_jax.search import segment
-from pachs_jax.search import types
-from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
+from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
+                                     instance_keys)
+from pachs_jax.search.config import SearchConfig
+from pachs_jax.search.model import ActorCritic, clean_actions, cost_to_go
+from pachs_jax.search.result import SearchResult
 
 
 @struct.dataclass
@@ -66,8 +65,6 @@ class Search:
   run(state) -> state when every instance has stopped (one program: the loops of every size).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
-  compiled: (instances, platform) -> the compiled programs of `plan` (init, result and the
-    loops of the sizes reachable so far), kept so that later calls compile nothing new.
   """
 
   init: Callable[..., SearchState]
@@ -76,7 +73,6 @@ class Search:
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
   config: SearchConfig
-  compiled: dict = dataclasses.field(default_factory=dict, compare=False, hash=False)
 
   def size_of(self, num_active: int, num_instances: int) -> Optional[int]:
     lanes = num_active * self.config.pop_size
@@ -93,8 +89,8 @@ def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   """Validates the pieces against each other; returns the lattice resolution [L]."""
   if not isinstance(config, SearchConfig):
     raise ValueError(f'config must be a SearchConfig, got {type(config).__name__}')
-  types.check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
-  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
+  check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
+  resolution = env_lattice_resolution(env, config.lattice_resolution)
   num = config.num_actions
   obs = jax.ShapeDtypeStruct((2, env.observation_size), jnp.float32)
   sampled = jax.eval_shape(lambda k, o: actor_critic.sample_actions(k, o, num),
@@ -109,16 +105,17 @@ def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   return resolution
 
 
-def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) -> Search:
-  """Builds the jitted PACHS functions for env, actor_critic and config."""
+def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
+                rules: Optional[rules_lib.Rules] = None) -> Search:
+  """Builds the jitted PACHS functions for env, actor_critic and config; rules: the variant's
+  edge, chain-restart and real-time answer functions (None: those config names,
+  `rules.from_config`)."""
   resolution = _check(env, actor_critic, config)
+  rules = rules_lib.from_config(env, actor_critic, config) if rules is None else rules
+  edge_rule, restart = rules.edges, rules.restart
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
-  steps, r = config.edge_steps, config.rollout_lanes
-  novel = config.chain_restart == 'novel' and r > 0
-  coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
-                                              config.novelty_cells)
-  edge_fn = env.evaluate if steps == 1 else segment.make_segment_fn(env, actor_critic, steps)
+  steps, r = edge_rule.steps, config.rollout_lanes
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -135,8 +132,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     obs = phases.unflat(env.observe(phases.flat(sources, num_instances * k)), num_instances)
     rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
     actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o, n))(rng, obs)
-    actions = jnp.clip(jnp.nan_to_num(actions.astype(jnp.float32)), -1.0, 1.0)
-    q = types.cost_to_go(actor_critic.q_values(phases.flat(obs, num_instances * k),
+    actions = clean_actions(actions)
+    q = cost_to_go(actor_critic.q_values(phases.flat(obs, num_instances * k),
                                                phases.flat(actions, num_instances * k)))
     q = q.reshape(num_instances, k, n)
     pool = pool_lib.close(state.pool, popped.node, expanding, actions, q)
@@ -158,7 +155,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     num_instances = tips.shape[0]
     obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
     actions = segment.actor_samples(actor_critic, lane_keys(state, 2, r).reshape(-1, 2), obs)
-    q = types.cost_to_go(actor_critic.q_values(obs, actions[:, None]))
+    q = cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
   def next_chains(pool, visits, keys, tip, written, is_goal, found, goal):
@@ -171,12 +168,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
       return tip, found, goal
     fits = lambda depth: depth + steps <= env.episode_length
     go_on = written & fits(pool_lib.gather(pool.depth, tip))
-    restart = pool_lib.ROOT_INDEX
-    if novel:
-      index = jnp.arange(pool.capacity)[None, :]
-      eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits(pool.depth)
-      restart = novelty.sample(visits, keys, eligible, r)
-    chain = jnp.where(go_on, tip, restart).astype(jnp.int32)
+    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth)))
+    chain = chain.astype(jnp.int32)
     at_goal = written & is_goal
     cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
     return (chain, found | jnp.any(at_goal, axis=1),
@@ -202,19 +195,19 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
-    inputs = action if steps == 1 else (action, lane_keys(state, 1, k))
     outcome, within, usable, out_of_budget = phases.evaluate(
-        edge_fn, pool_lib.gather_nodes(pool, parent), inputs, mask,
-        state.evaluated, config.max_evaluations, size, steps)
+        edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
+        edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
+        config.max_evaluations, size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
-    h = jnp.maximum(q - outcome.cost, 0.0) if steps == 1 else outcome.h
+    h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
     cells, size = lattice_cells(outcome.next_node), pool.size[:, None]
     pool, table, dummy_key, node, write = phases.insert(
         pool, state.table, cells, parent, outcome, usable, action, h, w,
         unmerged=chain_lane if r else None)
     new = write & (node >= size)  # not an open node whose g improved
-    visits = novelty.add(state.visits, node, new, coarse(cells)) if novel else state.visits
+    visits = restart.record(state.visits, node, new, cells)
     chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
                                      node[:, k - r:], write[:, k - r:],
                                      outcome.is_goal[:, k - r:], found, goal)
@@ -227,17 +220,16 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
                          chain=chain, visits=visits)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
-    num_instances = types.check_start_nodes(start_nodes, env)
+    num_instances = check_start_nodes(start_nodes, env)
     start_cells = env.lattice_key(start_nodes, resolution)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
                                config.pool_size, config.table_size, n, env.action_size, steps)
     dummy_heap = heap_lib.init(num_instances, config.dummy_heap_size, k)
     return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
-                       rng=types.instance_keys(keys, num_instances),
+                       rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
-                       visits=novelty.init(coarse(start_cells), config.pool_size if novel else 1,
-                                           config.novelty_cells),
+                       visits=restart.visits(start_cells),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None,
@@ -268,136 +260,11 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig) 
     dummy_key, dummy_value, in_dummy = heap_lib.peek(state.dummy_heap)
     use_dummy = in_dummy & (~in_open | (dummy_key <= key))
     value, in_open = jnp.where(use_dummy, dummy_value, value), in_open | in_dummy
-    if config.realtime_answer != 'best_f':
-      answer = {'min_h': path_lib.min_h_answer, 'min_cost': path_lib.min_cost_answer}
-      chosen, has = answer[config.realtime_answer](state.pool, slots)
-      value, in_open = jnp.where(has, chosen, value), has | in_open
+    chosen, has = rules.answer(state.pool, slots)  # the real-time answer, where it chooses
+    value, in_open = jnp.where(has, chosen, value), has | in_open
     return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
                                   config.max_path_length)
 
   return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='size', donate_argnums=0),
                 lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config)
-
-
-def bucket_size(num_instances: int, minimum: int = 1) -> int:
-  """The padded instance count that `plan` compiles for: the next power of two, at least
-  minimum (so that nearby counts share one compiled program)."""
-  return max(minimum, types.next_pow2(num_instances))
-
-
-def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
-  """What the search loop closes over, as a string; None when env or model cannot say."""
-  parts = (getattr(env, 'fingerprint', None), getattr(actor_critic, 'fingerprint', None))
-  return None if None in parts else repr(parts + (config,))
-
-
-def _ready(programs: dict, name, waiting: Optional[dict] = None):
-  """programs[name], waiting for (and then storing) one still being compiled in a thread; the
-  time waited (s) is added to waiting['s'] when given."""
-  if isinstance(programs[name], concurrent.futures.Future):
-    began = time.perf_counter()
-    programs[name] = programs[name].result()
-    if waiting is not None:
-      waiting['s'] += time.perf_counter() - began
-  return programs[name]
-
-
-def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
-         config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
-         chunk_iterations: int = 32, search: Optional[Search] = None,
-         min_bucket: Optional[int] = None, shrink: bool = True) -> SearchResult:
-  """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
-
-  key: one PRNG key (split per instance) or per-instance keys [I, 2].
-  time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
-    least one) while the next chunk and the result, timed as their last runs, would end within
-    the limit (s), and instances still searching then report TIME_LIMIT with the path to their
-    real-time answer.
-    The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
-    leaves them out: init, result and the loop of the live instances' physics size before the
-    clock starts; the loops of the smaller sizes the search can reach also before it with a
-    time limit, else beside the search (time spent waiting for one is not counted).
-  search: a `make_search` result to reuse: its compiled programs stay warm between calls.
-  min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
-    cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
-  shrink: move to the loops of smaller physics sizes as instances stop (each one more program
-    to compile or load); False runs the whole search in the loop of the live instances' size
-    (the one-shot `pachs plan`: a shorter start-up for a longer search).
-  """
-  if time_limit_s is not None and not time_limit_s > 0:
-    raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-  if chunk_iterations < 1:
-    raise ValueError(f'chunk_iterations must be >= 1, got {chunk_iterations}')
-  if search is None:
-    search = make_search(env, actor_critic, config)
-  elif search.config != config:
-    raise ValueError('search was built with another config')
-  num_instances = types.check_start_nodes(start_nodes, env)
-  fingerprint = program_fingerprint(env, actor_critic, config)
-  stored = lambda name: fingerprint and f'{fingerprint} {name}'
-  keys = types.instance_keys(key, num_instances)
-  if min_bucket is None:
-    min_bucket = 1 if jax.default_backend() == 'cpu' else 32
-  padded = bucket_size(num_instances, min_bucket)
-  steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
-  # the loops of the sizes this search can reach (lanes only shrink from the live instances')
-  first = search.size_of(num_instances, padded)
-  reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
-                         if shrink and (first is None or s < first)]
-  shrinking = jnp.asarray(shrink)
-  programs = search.compiled.setdefault((padded, jax.default_backend()), {})
-  # every program compiled (or loaded from the store) at once, beside the model check; without
-  # a time limit the smaller loops go on beside the search
-  threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
-  try:
-    checked = threads.submit(types.check_model_outputs, env, actor_critic, start_nodes,
-                             config.num_actions, stored('model check'))
-    if padded != num_instances:
-      start_nodes, keys = types.pad_rows((start_nodes, keys), padded)
-    live = jax.device_put(np.arange(padded) < num_instances)
-    new = 'init' not in programs
-    if new:
-      programs['init'] = compile_cache.compiled_program(
-          search.init, (start_nodes, keys, live), stored('init'))
-      result = threads.submit(compile_cache.compiled_program, search.result,
-                              (programs['init'].out_shapes,), stored('result'))
-    for size in reachable:
-      if ('loop', size) not in programs:
-        programs[('loop', size)] = threads.submit(
-            compile_cache.compiled_program,
-            jax.jit(lambda state, n, shrink, size=size: search.loop(state, n, size, shrink),
-                    donate_argnums=0),
-            (programs['init'].out_shapes, steps, shrinking), stored(f'loop size={size}'),
-            donate_argnums=(0,))
-    checked.result()  # a bad model's error before anything runs
-    if new:
-      programs['result'] = result.result()
-      memory.check_fits(env, actor_critic, search, start_nodes, padded, need=memory.tree_bytes(
-          (programs['init'].out_shapes, programs['result'].out_shapes)))
-    for size in reachable[:1] if time_limit_s is None else reachable:
-      _ready(programs, ('loop', size))
-    waiting = {'s': 0.0}  # for the smaller loops during the search
-    state = programs['init'](start_nodes, keys, live)
-
-    def advance(state):
-      """One chunk (time limit) or the whole search: the loop of each size in turn."""
-      while True:
-        size = search.size_for(state) if shrink else first
-        state = _ready(programs, ('loop', size), waiting)(state, steps, shrinking)
-        if time_limit_s is not None or not np.asarray(state.active).any():
-          return state
-
-    out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
-                               timing=programs.setdefault('timing', {}))
-    out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
-    for size in reachable:  # nothing left compiling once plan returns
-      _ready(programs, ('loop', size), waiting)
-  except BaseException:
-    for name in [name for name, p in programs.items()
-                 if isinstance(p, concurrent.futures.Future)]:
-      programs.pop(name).cancel()
-    raise
-  finally:
-    threads.shutdown(wait=False)
-  return types.first_rows(out, num_instances)

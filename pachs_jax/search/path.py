@@ -11,7 +11,7 @@ from flax import struct
 
 from pachs_jax.envs import base
 from pachs_jax.search import pool as pool_lib
-from pachs_jax.search.types import SearchResult, StopReason
+from pachs_jax.search.result import SearchResult, StopReason
 
 
 @struct.dataclass

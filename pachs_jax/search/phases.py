@@ -15,7 +15,7 @@ from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import lattice as lattice_lib
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search import segment
-from pachs_jax.search.types import StopReason
+from pachs_jax.search.result import StopReason
 
 NO_NODE = -1  # goal_node of an instance that has found no goal
 

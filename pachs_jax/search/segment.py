@@ -11,7 +11,7 @@ from flax import struct
 
 from pachs_jax import trees
 from pachs_jax.envs import base
-from pachs_jax.search import types
+from pachs_jax.search.model import ActorCritic, clean_actions, cost_to_go
 
 
 @struct.dataclass
@@ -34,15 +34,15 @@ class SegmentOutcome(base.EdgeOutcome):
   h: jax.Array
 
 
-def actor_samples(actor_critic: types.ActorCritic, keys: jax.Array, obs: jax.Array) -> jax.Array:
+def actor_samples(actor_critic: ActorCritic, keys: jax.Array, obs: jax.Array) -> jax.Array:
   """[B, A] float32 one actor sample per lane, drawn with the lane's own key (so that a lane's
   sample does not depend on the batch it is in); keys [B, 2], obs [B, O]. Non-finite entries
   become 0, and actions are clipped to [-1, 1]."""
   sample = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o[None], 1)[0, 0])
-  return jnp.clip(jnp.nan_to_num(sample(keys, obs).astype(jnp.float32)), -1.0, 1.0)
+  return clean_actions(sample(keys, obs))
 
 
-def make_segment_fn(env: base.Env, actor_critic: types.ActorCritic, edge_steps: int
+def make_segment_fn(env: base.Env, actor_critic: ActorCritic, edge_steps: int
                     ) -> Callable[[base.NodeState, Tuple[jax.Array, jax.Array]], SegmentOutcome]:
   """segment(nodes [B], (actions [B, A], keys [B, 2] uint32)) -> SegmentOutcome [B].
 
@@ -76,7 +76,7 @@ def make_segment_fn(env: base.Env, actor_critic: types.ActorCritic, edge_steps: 
     (last, action, obs, cost, length, is_goal, _), (actions, states) = jax.lax.scan(
         body, carry, jnp.arange(edge_steps))
     # h: the critic at the last state, for the actor's sample there (drawn in the last step)
-    h = types.cost_to_go(actor_critic.q_values(obs, action[:, None]))[:, 0]
+    h = cost_to_go(actor_critic.q_values(obs, action[:, None]))[:, 0]
     to_lanes = lambda x: jnp.swapaxes(x, 0, 1)  # [H, B, ...] -> [B, H, ...]
     return SegmentOutcome(
         next_node=last, cost=cost, is_goal=is_goal, is_valid=length >= 1,

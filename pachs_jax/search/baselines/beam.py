@@ -12,9 +12,13 @@ import jax.numpy as jnp
 from pachs_jax import trees
 from pachs_jax.envs import base
 from pachs_jax.search import lattice as lattice_lib
-from pachs_jax.search import types
 from pachs_jax.search.baselines import common
-from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
+from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
+                                     instance_keys)
+from pachs_jax.search.config import (check_weight, lattice_resolution_tuple, normalize_numbers,
+                                     positive_int)
+from pachs_jax.search.model import ActorCritic, clean_actions, cost_to_go
+from pachs_jax.search.result import SearchResult, StopReason
 
 SCORES = ('edge', 'next')
 
@@ -36,15 +40,15 @@ class BeamConfig:
   lattice_resolution: Optional[Tuple[float, ...]] = None
 
   def __post_init__(self):
-    types.normalize_numbers(self)
+    normalize_numbers(self)
     for name in ('beam_width', 'num_actions', 'max_evaluations'):
-      types.positive_int('BeamConfig', name, getattr(self, name))
-    types.positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
-    types.check_weight('BeamConfig', self.weight)
+      positive_int('BeamConfig', name, getattr(self, name))
+    positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
+    check_weight('BeamConfig', self.weight)
     if self.score not in SCORES:
       raise ValueError(f'BeamConfig.score must be one of {SCORES}, got {self.score!r}')
     object.__setattr__(self, 'lattice_resolution',
-                       types.lattice_resolution_tuple('BeamConfig', self.lattice_resolution))
+                       lattice_resolution_tuple('BeamConfig', self.lattice_resolution))
 
 
 def _first_in_cell(cells: jax.Array, score: jax.Array, ok: jax.Array) -> jax.Array:
@@ -82,12 +86,12 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
   """A jitted fn(start_nodes [I], key) -> SearchResult (key: one PRNG key or [I, 2])."""
   if not isinstance(config, BeamConfig):
     raise ValueError(f'config must be a BeamConfig, got {type(config).__name__}')
-  types.check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
+  check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
   b, n, budget = config.beam_width, config.num_actions, config.max_evaluations
   depth_limit = config.max_depth or env.episode_length
   w = float(config.weight)
   a_size = env.action_size
-  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
+  resolution = env_lattice_resolution(env, config.lattice_resolution)
   weighted = (lambda q: q * w) if w else jnp.zeros_like
 
   def policy_q(key, obs):
@@ -96,12 +100,12 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
       act = actor_critic.deterministic_action(obs)[:, None]
     else:
       act = actor_critic.sample_actions(key, obs, 1)
-    act = jnp.clip(jnp.nan_to_num(act.astype(jnp.float32)), -1.0, 1.0)
-    return types.cost_to_go(actor_critic.q_values(obs, act))[:, 0]
+    act = clean_actions(act)
+    return cost_to_go(actor_critic.q_values(obs, act))[:, 0]
 
   def search(start_nodes: base.NodeState, key: jax.Array) -> SearchResult:
-    num = types.check_start_nodes(start_nodes, env)
-    keys = types.instance_keys(key, num)
+    num = check_start_nodes(start_nodes, env)
+    keys = instance_keys(key, num)
     rows = jnp.arange(num)
     start_goal = env.is_goal(start_nodes)
     zeros = jnp.zeros((num,), jnp.int32)
@@ -129,7 +133,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
       k_next = jax.vmap(lambda k: jax.random.split(k)[1])(step_keys)
       act = jax.vmap(lambda k, o: actor_critic.sample_actions(k, o, n))(
           k_sample, obs.reshape(num, b, -1))
-      act = jnp.clip(jnp.nan_to_num(act.astype(jnp.float32)), -1.0, 1.0)  # [I, B, N, A]
+      act = clean_actions(act)  # [I, B, N, A]
       sources = c['valid'] & active[:, None]
       cand = jnp.repeat(sources, n, axis=1)  # [I, B * N] in (slot, action) order
       left = budget - c['evaluated']
@@ -141,7 +145,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
       g_src = jnp.repeat(c['g'], n, axis=1)
       g_next = g_src + out.cost
       if config.score == 'edge':
-        q = types.cost_to_go(actor_critic.q_values(obs, act.reshape(num * b, n, a_size)))
+        q = cost_to_go(actor_critic.q_values(obs, act.reshape(num * b, n, a_size)))
         rank = g_src + weighted(q.reshape(num, b * n))
       else:
         next_flat = jax.tree.map(lambda x: x.reshape((num * b * n,) + x.shape[2:]),

@@ -16,8 +16,9 @@ from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
-from pachs_jax.search import types
-from pachs_jax.search.types import SearchResult
+from pachs_jax.search.checks import check_start_nodes, env_lattice_resolution
+from pachs_jax.search.config import EdgeSearchConfig
+from pachs_jax.search.result import SearchResult
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +31,7 @@ class Heuristic:
 
 
 @dataclasses.dataclass(frozen=True)
-class EpaseConfig(types.EdgeSearchConfig):
+class EpaseConfig(EdgeSearchConfig):
   """ePA*SE parameters, those of `EdgeSearchConfig`; heap_capacity None: (P + 1)(budget + 1)
   entries for P motion primitives."""
 
@@ -80,12 +81,12 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
                        f'of {env.action_size}; pass an edge_fn for other primitives')
     edge_fn = env.evaluate
   primitives = jnp.asarray(prims)
-  resolution = types.env_lattice_resolution(env, config.lattice_resolution)
+  resolution = env_lattice_resolution(env, config.lattice_resolution)
   config.check_slots(num_prims + 1)
   w, k, slots, dummy = float(config.weight), config.pop_size, num_prims + 1, num_prims
 
   def init(start_nodes: base.NodeState) -> EpaseState:
-    num = types.check_start_nodes(start_nodes, env)
+    num = check_start_nodes(start_nodes, env)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes),
                                env.lattice_key(start_nodes, resolution), config.pool_size,
                                config.table_size, 1, dim)

@@ -13,9 +13,12 @@ from flax import struct
 
 from pachs_jax import trees
 from pachs_jax.envs import base
-from pachs_jax.search import anytime, types
+from pachs_jax import anytime
 from pachs_jax.search.baselines import common
-from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
+from pachs_jax.search.checks import check_actor_critic, check_start_nodes, instance_keys
+from pachs_jax.search.config import normalize_numbers, positive_int
+from pachs_jax.search.model import ActorCritic, clean_actions, cost_to_go
+from pachs_jax.search.result import SearchResult, StopReason
 
 FALLBACKS = ('nominal', 'best')
 
@@ -56,9 +59,9 @@ class MppiConfig:
   fallback: str = 'nominal'
 
   def __post_init__(self):
-    types.normalize_numbers(self)
+    normalize_numbers(self)
     for name in ('num_samples', 'horizon', 'max_iterations', 'max_evaluations'):
-      types.positive_int('MppiConfig', name, getattr(self, name))
+      positive_int('MppiConfig', name, getattr(self, name))
     _finite_number('MppiConfig', 'temperature', self.temperature, positive=True)
     for name in ('noise_std', 'terminal_weight', 'invalid_penalty'):
       _finite_number('MppiConfig', name, getattr(self, name), positive=False)
@@ -136,10 +139,6 @@ def shift_plan(actions: jax.Array, num_steps: int) -> jax.Array:
   return actions[:, index]
 
 
-def _clean(action: jax.Array) -> jax.Array:
-  return jnp.clip(jnp.nan_to_num(action.astype(jnp.float32)), -1.0, 1.0)
-
-
 def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = MppiConfig()
               ) -> Mppi:
   """Builds the jitted MPPI planner for env, actor_critic and config.
@@ -154,7 +153,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     needed.append('sample_actions')
   if config.terminal_weight:
     needed.append('q_values')
-  types.check_actor_critic(actor_critic, needed)
+  check_actor_critic(actor_critic, needed)
   s, h, p = config.num_samples, config.horizon, config.num_policy_samples
   per_iteration, budget = config.evaluations_per_iteration, config.max_evaluations
   a_size = env.action_size
@@ -165,7 +164,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     """[I, steps, A] deterministic policy actions from start_nodes [I] (an invalid edge leaves
     the state unchanged)."""
     def body(node, _):
-      action = _clean(actor_critic.deterministic_action(env.observe(node)))
+      action = clean_actions(actor_critic.deterministic_action(env.observe(node)))
       out = env.evaluate(node, action)
       ok = out.is_valid & jnp.isfinite(out.cost)
       return trees.where(ok, out.next_node, node), action
@@ -175,14 +174,14 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
 
   def init(start_nodes: base.NodeState, key: jax.Array,
            nominal: Optional[jax.Array] = None) -> MppiState:
-    num = types.check_start_nodes(start_nodes, env)
-    keys = types.instance_keys(key, num)
+    num = check_start_nodes(start_nodes, env)
+    keys = instance_keys(key, num)
     if nominal is None:
       nominal = policy_rollout(start_nodes, h)
     elif jnp.shape(nominal) != (num, h, a_size):
       raise ValueError(f'nominal must have shape [I, H, A] = {(num, h, a_size)}, '
                        f'got {jnp.shape(nominal)}')
-    nominal = _clean(jnp.asarray(nominal))
+    nominal = clean_actions(jnp.asarray(nominal))
     start_goal = env.is_goal(start_nodes)
     zeros = jnp.zeros((num,), jnp.int32)
     inf = jnp.full((num,), jnp.inf, jnp.float32)
@@ -213,7 +212,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
                                        .reshape((num * p,) + x.shape[1:]), node))
         obs = obs.reshape(num, p, -1)
         prior = jax.vmap(lambda k, o: actor_critic.sample_actions(k, o, 1)[:, 0])(key_t, obs)
-        action = jnp.concatenate([_clean(prior), planned_t], axis=1)
+        action = jnp.concatenate([clean_actions(prior), planned_t], axis=1)
       else:
         action = planned_t
       out = env.evaluate(node, action.reshape(num * s, a_size))
@@ -237,8 +236,9 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     score = cost + extra
     if weight:
       obs = env.observe(last)
-      q = actor_critic.q_values(obs, _clean(actor_critic.deterministic_action(obs))[:, None])
-      score = score + jnp.where(goal_length > 0, 0.0, weight * types.cost_to_go(q)[:, 0])
+      q = actor_critic.q_values(
+          obs, clean_actions(actor_critic.deterministic_action(obs))[:, None])
+      score = score + jnp.where(goal_length > 0, 0.0, weight * cost_to_go(q)[:, 0])
     actions = jnp.moveaxis(actions, 0, 2)  # [I, S, H, A]
     return (actions, score.reshape(num, s), cost.reshape(num, s), goal_length.reshape(num, s),
             *(jnp.sum(x, axis=0) for x in counts))
@@ -255,7 +255,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
                                   / config.temperature), 0.0)
     total = jnp.sum(w, axis=1, keepdims=True)
     mean = jnp.einsum('is,isha->iha', w / jnp.maximum(total, 1e-30), actions)
-    nominal = jnp.where(total[:, :, None] > 0, _clean(mean), state.nominal)
+    nominal = jnp.where(total[:, :, None] > 0, clean_actions(mean), state.nominal)
     # lowest score so far
     j = jnp.argmin(score, axis=1)
     better = score[rows, j] < state.best_score
@@ -341,8 +341,8 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     then report TIME_LIMIT. Compilation happens before the clock starts."""
     if time_limit_s is not None and not time_limit_s > 0:
       raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-    num = types.check_start_nodes(start_nodes, env)
-    keys = types.instance_keys(key, num)
+    num = check_start_nodes(start_nodes, env)
+    keys = instance_keys(key, num)
     init_c = init_jit.lower(start_nodes, keys, nominal).compile()
     shape = jax.eval_shape(init, start_nodes, keys, nominal)
     loop_c = (run_jit if time_limit_s is None else step_jit).lower(shape).compile()

@@ -12,9 +12,12 @@ from flax import struct
 
 from pachs_jax import trees
 from pachs_jax.envs import base
-from pachs_jax.search import compact, types
+from pachs_jax.search import compact
 from pachs_jax.search.baselines import common
-from pachs_jax.search.types import ActorCritic, SearchResult, StopReason
+from pachs_jax.search.checks import check_actor_critic, check_start_nodes, instance_keys
+from pachs_jax.search.config import normalize_numbers, positive_int
+from pachs_jax.search.model import ActorCritic, clean_actions
+from pachs_jax.search.result import SearchResult, StopReason
 
 FALLBACKS = ('last_cost', 'total_cost')
 
@@ -51,8 +54,8 @@ class SingleRolloutConfig:
   max_steps: Optional[int] = None
 
   def __post_init__(self):
-    types.normalize_numbers(self)
-    types.positive_int('SingleRolloutConfig', 'max_steps', self.max_steps, allow_none=True)
+    normalize_numbers(self)
+    positive_int('SingleRolloutConfig', 'max_steps', self.max_steps, allow_none=True)
 
 
 def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig = SingleRolloutConfig()
@@ -65,12 +68,12 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
   """
   if not isinstance(config, SingleRolloutConfig):
     raise ValueError(f'config must be a SingleRolloutConfig, got {type(config).__name__}')
-  types.check_actor_critic(actor_critic, ('deterministic_action',))
+  check_actor_critic(actor_critic, ('deterministic_action',))
   steps = config.max_steps or env.episode_length
   action_size = env.action_size
 
   def rollout(start_nodes: base.NodeState) -> SearchResult:
-    num = types.check_start_nodes(start_nodes, env)
+    num = check_start_nodes(start_nodes, env)
     start_goal = env.is_goal(start_nodes)
     nodes = jax.tree.map(lambda x: jnp.repeat(x[:, None], steps + 1, axis=1), start_nodes)
     rows = jnp.arange(num)
@@ -87,7 +90,7 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
     def body(c):
       active, t = c['active'], c['t']
       action = actor_critic.deterministic_action(env.observe(c['node']))
-      action = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32)), -1.0, 1.0)
+      action = clean_actions(action)
       out = env.evaluate(c['node'], action)
       ok = active & out.is_valid & jnp.isfinite(out.cost)
       goal = ok & out.is_goal
@@ -133,10 +136,10 @@ class ParallelRolloutConfig:
   fallback: str = 'last_cost'
 
   def __post_init__(self):
-    types.normalize_numbers(self)
+    normalize_numbers(self)
     for name in ('num_copies', 'max_evaluations'):
-      types.positive_int('ParallelRolloutConfig', name, getattr(self, name))
-    types.positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,
+      positive_int('ParallelRolloutConfig', name, getattr(self, name))
+    positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,
                         allow_none=True)
     if self.fallback not in FALLBACKS:
       raise ValueError(f'ParallelRolloutConfig.fallback must be one of {FALLBACKS}, '
@@ -192,14 +195,14 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
   """Builds the jitted parallel rollout for env, actor_critic and config."""
   if not isinstance(config, ParallelRolloutConfig):
     raise ValueError(f'config must be a ParallelRolloutConfig, got {type(config).__name__}')
-  types.check_actor_critic(actor_critic, ('sample_actions',))
+  check_actor_critic(actor_critic, ('sample_actions',))
   m, budget = config.num_copies, config.max_evaluations
   steps = config.episode_length or env.episode_length
   action_size = env.action_size
 
   def init(start_nodes: base.NodeState, key: jax.Array) -> RolloutState:
-    num = types.check_start_nodes(start_nodes, env)
-    keys = types.instance_keys(key, num)
+    num = check_start_nodes(start_nodes, env)
+    keys = instance_keys(key, num)
     start_goal = env.is_goal(start_nodes)
     node = jax.tree.map(lambda x: jnp.repeat(x[:, None], m, axis=1), start_nodes)
     zeros = jnp.zeros((num,), jnp.int32)
@@ -233,7 +236,7 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
     obs = env.observe(flat_node).reshape(num, m, -1)
     keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
     action = jax.vmap(lambda k, o: actor_critic.sample_actions(k, o, 1)[:, 0])(keys, obs)
-    action = jnp.clip(jnp.nan_to_num(action.astype(jnp.float32)), -1.0, 1.0)
+    action = clean_actions(action)
     out = _unflat(compact.evaluate_live(env.evaluate, flat_node,
                                         action.reshape(num * m, action_size),
                                         lane.reshape(num * m), size), num)

@@ -10,8 +10,8 @@ from typing import Any, Callable, Dict, Optional, Tuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from pachs_jax.search.result import SearchResult, StopReason
 
-from pachs_jax.search.types import SearchResult, StopReason
 
 
 def run_until(advance: Callable[[Any], Any], state: Any, time_limit_s: Optional[float],

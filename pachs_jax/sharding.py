@@ -11,11 +11,16 @@ from typing import Callable, Optional
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from pachs_jax.envs import base
-from pachs_jax.search import memory, pachs, types
-from pachs_jax.search.types import ActorCritic, SearchConfig, SearchResult
+from pachs_jax.programs import check_model
+from pachs_jax.search import memory, pachs
+from pachs_jax.search.checks import check_start_nodes, instance_keys
+from pachs_jax.search.config import SearchConfig
+from pachs_jax.search.model import ActorCritic
+from pachs_jax.search.result import SearchResult
 
 AXIS = 'instances'
 
@@ -99,7 +104,6 @@ def to_host(tree):
   """tree's arrays whole on every host: `process_allgather` of the global arrays when there are
   several processes (numpy arrays then), the tree unchanged with one."""
   if jax.process_count() > 1:
-    from jax.experimental import multihost_utils  # pylint: disable=g-import-not-at-top
     return multihost_utils.process_allgather(tree, tiled=True)
   return tree
 
@@ -166,7 +170,7 @@ def plan_sharded_fn(fn: ShardFn, start_nodes: base.NodeState, key: jax.Array,
   """
   mesh = check_mesh(mesh)
   num_instances = _num_instances(start_nodes)
-  keys = types.instance_keys(key, num_instances)
+  keys = instance_keys(key, num_instances)
   devices = mesh.devices.size
   padded = -(-num_instances // devices) * devices
   sharding = NamedSharding(mesh, PartitionSpec(AXIS))
@@ -207,8 +211,9 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     search = pachs.make_search(env, actor_critic, config)
   elif search.config != config:
     raise ValueError('search was built with another config')
-  num_instances = types.check_start_nodes(start_nodes, env)
-  types.check_model_outputs(env, actor_critic, start_nodes, config.num_actions)
-  memory.check_fits(env, actor_critic, search, start_nodes,
-                    -(-num_instances // mesh.devices.size), device=mesh.local_devices[0])
+  num_instances = check_start_nodes(start_nodes, env)
+  check_model(env, actor_critic, start_nodes, config.num_actions)
+  memory.check_fits(functools.partial(pachs.make_search, env, actor_critic), search,
+                    start_nodes, -(-num_instances // mesh.devices.size),
+                    device=mesh.local_devices[0])
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

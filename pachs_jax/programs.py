@@ -1,0 +1,209 @@
+"""The layer above the search core: PACHS's programs compiled (or loaded from the store) in
+threads, instances padded to buckets, the model and memory checks, and the wall-clock rule of
+`plan` (docs/startup_and_caching.md)."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import functools
+import time
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pachs_jax import anytime
+from pachs_jax import compile_cache
+from pachs_jax.envs import base
+from pachs_jax.search import memory
+from pachs_jax.search.checks import check_model_outputs, check_start_nodes, instance_keys
+from pachs_jax.search.config import SearchConfig, next_pow2
+from pachs_jax.search.model import ActorCritic, output_checks
+from pachs_jax.search.pachs import Search, make_search
+from pachs_jax.search.result import SearchResult
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def pad_rows(tree, size: int):
+  """The pytree's leaves [n, ...] as [size, ...] (size >= n), the new rows copies of row 0:
+  one compiled program for the whole tree instead of a few per leaf."""
+  return jax.tree.map(
+      lambda x: jnp.concatenate([x, jnp.repeat(x[:1], size - x.shape[0], axis=0)]), tree)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def first_rows(tree, size: int):
+  """The pytree's leaves with a leading axis cut to their first `size` rows (scalars kept), as
+  one compiled program."""
+  return jax.tree.map(lambda x: x[:size] if jnp.ndim(x) else x, tree)
+
+
+def bucket_size(num_instances: int, minimum: int = 1) -> int:
+  """The padded instance count that `plan` compiles for: the next power of two, at least
+  minimum (so that nearby counts share one compiled program)."""
+  return max(minimum, next_pow2(num_instances))
+
+
+def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
+  """What the search loop closes over, as a string; None when env or model cannot say."""
+  parts = (getattr(env, 'fingerprint', None), getattr(actor_critic, 'fingerprint', None))
+  return None if None in parts else repr(parts + (config,))
+
+
+@dataclasses.dataclass
+class Programs:
+  """A search with its compiled programs, kept warm between `plan` calls by their owner.
+
+  search: a `make_search` result. prefetch: a command line's `compile_cache.Prefetch` (None:
+    nothing loaded ahead).
+  compiled: (padded instances, platform) -> the programs of `plan` (init, result, the loops of
+    the sizes reached so far, the last result's 'timing').
+  model_checks: padded instances -> the compiled model check.
+  """
+
+  search: Search
+  prefetch: Optional[compile_cache.Prefetch] = None
+  compiled: dict = dataclasses.field(default_factory=dict)
+  model_checks: dict = dataclasses.field(default_factory=dict)
+
+  @property
+  def config(self) -> SearchConfig:
+    return self.search.config
+
+
+def check_model(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
+                num_actions: int, fingerprint: Optional[str] = None,
+                programs: Optional[Programs] = None) -> None:
+  """ValueError when the model's outputs on the start states [I] are not finite
+  (`checks.check_model_outputs`): one small program on the start nodes padded to a power of
+  two, stored under fingerprint, kept in programs.model_checks when given."""
+  num = jax.tree.leaves(start_nodes)[0].shape[0]
+  padded = next_pow2(num)
+  if padded != num:
+    start_nodes = pad_rows(start_nodes, padded)
+  cache = {} if programs is None else programs.model_checks
+  if padded not in cache:
+    cache[padded] = compile_cache.compiled_program(
+        jax.jit(output_checks(env, actor_critic, num_actions)),
+        (start_nodes, jax.random.PRNGKey(0)), fingerprint,
+        prefetch=programs and programs.prefetch)
+  outputs = cache[padded](start_nodes, jax.random.PRNGKey(0))
+  check_model_outputs(env.name, *(np.asarray(x)[:num] for x in outputs))
+
+
+def _ready(programs: dict, name, waiting: Optional[dict] = None):
+  """programs[name], waiting for (and then storing) one still being compiled in a thread; the
+  time waited (s) is added to waiting['s'] when given."""
+  if isinstance(programs[name], concurrent.futures.Future):
+    began = time.perf_counter()
+    programs[name] = programs[name].result()
+    if waiting is not None:
+      waiting['s'] += time.perf_counter() - began
+  return programs[name]
+
+
+def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
+         config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
+         chunk_iterations: int = 32, search=None, min_bucket: Optional[int] = None,
+         shrink: bool = True) -> SearchResult:
+  """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
+
+  key: one PRNG key (split per instance) or per-instance keys [I, 2].
+  time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
+    least one) while the next chunk and the result, timed as their last runs, would end within
+    the limit (s), and instances still searching then report TIME_LIMIT with the path to their
+    real-time answer.
+    The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
+    leaves them out: init, result and the loop of the live instances' physics size before the
+    clock starts; the loops of the smaller sizes the search can reach also before it with a
+    time limit, else beside the search (time spent waiting for one is not counted).
+  search: a `Programs` to reuse (its compiled programs stay warm between calls), or a
+    `make_search` result (compiled for this call only); None builds one.
+  min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
+    cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
+  shrink: move to the loops of smaller physics sizes as instances stop (each one more program
+    to compile or load); False runs the whole search in the loop of the live instances' size
+    (the one-shot `pachs plan`: a shorter start-up for a longer search).
+  """
+  if time_limit_s is not None and not time_limit_s > 0:
+    raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
+  if chunk_iterations < 1:
+    raise ValueError(f'chunk_iterations must be >= 1, got {chunk_iterations}')
+  if search is None:
+    search = make_search(env, actor_critic, config)
+  if not isinstance(search, Programs):
+    search = Programs(search)
+  if search.config != config:
+    raise ValueError('search was built with another config')
+  owner, search = search, search.search
+  num_instances = check_start_nodes(start_nodes, env)
+  fingerprint = program_fingerprint(env, actor_critic, config)
+  stored = lambda name: fingerprint and f'{fingerprint} {name}'
+  compiled_program = functools.partial(compile_cache.compiled_program, prefetch=owner.prefetch)
+  keys = instance_keys(key, num_instances)
+  if min_bucket is None:
+    min_bucket = 1 if jax.default_backend() == 'cpu' else 32
+  padded = bucket_size(num_instances, min_bucket)
+  steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
+  # the loops of the sizes this search can reach (lanes only shrink from the live instances')
+  first = search.size_of(num_instances, padded)
+  reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
+                         if shrink and (first is None or s < first)]
+  shrinking = jnp.asarray(shrink)
+  programs = owner.compiled.setdefault((padded, jax.default_backend()), {})
+  # every program compiled (or loaded from the store) at once, beside the model check; without
+  # a time limit the smaller loops go on beside the search
+  threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
+  try:
+    checked = threads.submit(check_model, env, actor_critic, start_nodes, config.num_actions,
+                             stored('model check'), owner)
+    if padded != num_instances:
+      start_nodes, keys = pad_rows((start_nodes, keys), padded)
+    live = jax.device_put(np.arange(padded) < num_instances)
+    new = 'init' not in programs
+    if new:
+      programs['init'] = compiled_program(search.init, (start_nodes, keys, live), stored('init'))
+      result = threads.submit(compiled_program, search.result,
+                              (programs['init'].out_shapes,), stored('result'))
+    for size in reachable:
+      if ('loop', size) not in programs:
+        programs[('loop', size)] = threads.submit(
+            compiled_program,
+            jax.jit(lambda state, n, shrink, size=size: search.loop(state, n, size, shrink),
+                    donate_argnums=0),
+            (programs['init'].out_shapes, steps, shrinking), stored(f'loop size={size}'),
+            donate_argnums=(0,))
+    checked.result()  # a bad model's error before anything runs
+    if new:
+      programs['result'] = result.result()
+      memory.check_fits(functools.partial(make_search, env, actor_critic), search,
+                        start_nodes, padded, need=memory.tree_bytes(
+                            (programs['init'].out_shapes, programs['result'].out_shapes)))
+    for size in reachable[:1] if time_limit_s is None else reachable:
+      _ready(programs, ('loop', size))
+    waiting = {'s': 0.0}  # for the smaller loops during the search
+    state = programs['init'](start_nodes, keys, live)
+
+    def advance(state):
+      """One chunk (time limit) or the whole search: the loop of each size in turn."""
+      while True:
+        size = search.size_for(state) if shrink else first
+        state = _ready(programs, ('loop', size), waiting)(state, steps, shrinking)
+        if time_limit_s is not None or not np.asarray(state.active).any():
+          return state
+
+    out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
+                               timing=programs.setdefault('timing', {}))
+    out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
+    for size in reachable:  # nothing left compiling once plan returns
+      _ready(programs, ('loop', size), waiting)
+  except BaseException:
+    for name in [name for name, p in programs.items()
+                 if isinstance(p, concurrent.futures.Future)]:
+      programs.pop(name).cancel()
+    raise
+  finally:
+    threads.shutdown(wait=False)
+  return first_rows(out, num_instances)
