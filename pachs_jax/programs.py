@@ -146,12 +146,14 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
   padded = bucket_size(num_instances, min_bucket)
-  steps = jnp.int32(chunk_iterations if time_limit_s is not None else jnp.iinfo(jnp.int32).max)
+  # host values placed with device_put: jnp.asarray of a host scalar compiles a program of its own
+  steps = jax.device_put(np.int32(chunk_iterations if time_limit_s is not None
+                                  else np.iinfo(np.int32).max))
   # the loops of the sizes this search can reach (lanes only shrink from the live instances')
   first = search.size_of(num_instances, padded)
   reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
                          if shrink and (first is None or s < first)]
-  shrinking = jnp.asarray(shrink)
+  shrinking = jax.device_put(np.bool_(shrink))
   programs = owner.compiled.setdefault((padded, jax.default_backend()), {})
   # every program compiled (or loaded from the store) at once, beside the model check; without
   # a time limit the smaller loops go on beside the search
