@@ -200,10 +200,10 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
                  search: Optional[pachs.Search] = None) -> SearchResult:
   """Plans from start_nodes [I] with the instances split over mesh; returns SearchResult [I].
 
-  key: one PRNG key (split per instance, as in `pachs.plan`) or per-instance keys [I, 2].
+  key: one PRNG key (split per instance, as in `programs.plan`) or per-instance keys [I, 2].
   mesh: a `jax.sharding.Mesh` with the single axis 'instances' (default: all `jax.devices()`).
   search: a `make_search` result to reuse; built here when None.
-  Runs every instance to completion (no time limit; use `pachs.plan` for anytime chunks).
+  Runs every instance to completion (no time limit; use `programs.plan` for anytime chunks).
   See `plan_sharded_fn` for padding, the result across hosts and wall_time_s.
   """
   mesh = check_mesh(mesh)

@@ -1,5 +1,5 @@
 """Inverse kinematics of a site position (MuJoCo C, damped least squares, with collision
-clearance) and sets of IK-reachable targets; method: docs/shelf_model.md."""
+clearance) and sets of IK-reachable targets; method: docs/tasks.md."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """PushT-Obs obstacle layouts as data: the blocks on the table and the region the T starts in
-(frames, units and checks: docs/pusht_model.md)."""
+(frames, units and checks: docs/tasks.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """MuJoCo C (float64, CPU threads) for PushT: NodeState <-> MuJoCo C state conversion, the
-`MujocoCEnv` search backend and a `World` for closed-loop execution; docs/pusht_model.md."""
+`MujocoCEnv` search backend and a `World` for closed-loop execution; docs/tasks.md."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """A Franka Panda arm written from the public modified-DH table, as MJCF built in code
-(conventions: docs/panda_arm.md)."""
+(conventions: docs/tasks.md)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ NUM_JOINTS = 7
 
 @dataclasses.dataclass(frozen=True)
 class ArmConfig:
-  """Actuation of the arm: position servos on every joint (gains: docs/panda_arm.md).
+  """Actuation of the arm: position servos on every joint (gains: docs/tasks.md).
 
   kp: [7] position gains (N m / rad); kv: [7] velocity gains (N m s / rad).
   armature: [7] reflected rotor inertia (kg m^2); damping: [7] joint damping (N m s / rad).

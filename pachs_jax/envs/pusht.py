@@ -1,5 +1,5 @@
 """PushT-Fixed / -Rand / -Obs: a Panda with a stick pushes a T-shaped block to a goal pose
-(model and its choices: docs/pusht_model.md; PushT-Obs's obstacle layouts: layouts.py)."""
+(model and its choices: docs/tasks.md; PushT-Obs's obstacle layouts: layouts.py)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Panda-Shelf: a collision-free reach into the compartments of a bookshelf (after panda-gym),
-with kinematic edges and exact signed distances in JAX (model: docs/shelf_model.md)."""
+with kinematic edges and exact signed distances in JAX (model: docs/tasks.md)."""
 
 from __future__ import annotations
 
@@ -245,7 +245,7 @@ class ShelfEnv(base.Env):
   Edge: q' = q + action_scale * action, valid within the joint limits and collision-free at
   `num_checks` points of the straight joint-space motion; cost |tip(q') - tip(q)| (m); goal: the
   tip within `goal_tolerance` of the target. `step` trains on the dense reward of
-  `dense_reward`, not on -cost (docs/shelf_model.md).
+  `dense_reward`, not on -cost (docs/tasks.md).
   """
 
   goal_size = 3

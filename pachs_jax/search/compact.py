@@ -1,7 +1,7 @@
 """Evaluating only the live lanes of a batch of edges: at the tail of a batched search, when
 the instances still searching hold few lanes, their popped edges are gathered into a smaller
 static batch, so that a small physics call runs instead of a full one. Each size is its own
-loop (`pachs.make_search`); `pachs.plan` compiles those a search can reach, concurrently."""
+loop (`pachs.make_search`); `programs.plan` compiles those a search can reach, concurrently."""
 
 from __future__ import annotations
 
