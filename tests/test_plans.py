@@ -11,7 +11,8 @@ from conftest import UniformActorCritic, trees_equal
 
 from pachs_jax import plans
 from pachs_jax.envs import gridworld, point_mass
-from pachs_jax.search import SearchConfig, instance_keys, plan
+from pachs_jax.programs import plan
+from pachs_jax.search import SearchConfig, instance_keys
 
 
 def _grid_problem():
