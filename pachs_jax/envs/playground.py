@@ -1,5 +1,5 @@
 """MuJoCo Playground tasks as PACHS tasks: `from_playground(env, ...)` wraps a Playground
-`MjxEnv` (JAX implementation) into `base.Env` (docs/own_task.md).
+`MjxEnv` (MJX's JAX or Warp implementation) into `base.Env` (docs/own_task.md).
 
 Needs the optional extra: pip install -e '.[playground]'. Playground is imported lazily here,
 so the core package imports without it."""
@@ -162,12 +162,11 @@ class PlaygroundEnv(base.Env):
 
   def __init__(self, env, config: PlaygroundConfig = PlaygroundConfig(),
                name: Optional[str] = None):
-    from mujoco import mjx  # pylint: disable=import-outside-toplevel
     impl = getattr(env.mjx_model, 'impl', None)
-    if impl is not None and getattr(impl, 'value', impl) != 'jax':
-      raise ValueError(f'{type(env).__name__} uses the {getattr(impl, "value", impl)!r} MJX '
-                       "implementation; PACHS needs impl='jax' (load it with "
-                       "config_overrides={'impl': 'jax'}, as envs.playground.load_env does)")
+    self.impl = str(getattr(impl, 'value', impl) or 'jax')
+    if self.impl not in ('jax', 'warp'):
+      raise ValueError(f'{type(env).__name__} uses the {self.impl!r} MJX implementation; '
+                       "PACHS takes impl='jax' or impl='warp'")
     self.playground_env = env
     self.config = config
     self.name = name or f'{PREFIX}{type(env).__name__}'
@@ -182,7 +181,12 @@ class PlaygroundEnv(base.Env):
     # cannot save zero-size arrays, and they hold nothing
     self._fields = tuple(f for f in STATE_FIELDS if hasattr(self._data_spec, f)
                          and int(np.prod(getattr(self._data_spec, f).shape)) > 0)
-    del mjx
+    self._warp_template = None
+    if self.impl == 'warp':  # private Warp buffers (contacts, constraints) from a real reset
+      from pachs_jax.envs import warp_import  # pylint: disable=import-outside-toplevel
+      warp_import.require("a Playground env with impl='warp'")
+      self._warp_template = jax.tree.map(np.asarray,
+                                         jax.jit(env.reset)(jax.random.PRNGKey(0)).data)
     model = env.mj_model
     self._resolution = self._lattice_resolution(model)
     self._extent = self._qpos_extent(model)
@@ -201,9 +205,14 @@ class PlaygroundEnv(base.Env):
 
   def state_from_node(self, node: PlaygroundNode):
     """The Playground State a node restores (no batch axis): its integration state in an
-    mjx.Data whose other fields are zeros (mjx.step recomputes them from the state)."""
+    mjx.Data whose other fields are zeros (mjx.step recomputes them from the state); with
+    impl='warp', Warp's buffers of one reset (shared by a vmapped batch, as in Playground)."""
     from mujoco_playground import State  # pylint: disable=import-outside-toplevel
-    data = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._data_spec)
+    if self._warp_template is not None:
+      from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
+      data = warp_physics.rebuild(self._warp_template)
+    else:
+      data = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._data_spec)
     data = data.replace(qpos=node.qpos, qvel=node.qvel, **node.sim)
     return State(data=data, obs=node.obs, reward=node.reward, done=node.done,
                  metrics=dict(node.metrics), info=dict(node.info))
@@ -252,6 +261,9 @@ class PlaygroundEnv(base.Env):
     finite = (jnp.all(jnp.isfinite(new.qpos)) & jnp.all(jnp.isfinite(new.qvel))
               & jnp.isfinite(reward))
     valid = ok & finite & ~(jnp.asarray(stepped.done) > 0)
+    if self._warp_template is not None:  # Warp's buffers overflowed: not simulated right
+      from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
+      valid = valid & ~warp_physics.data_overflowed(stepped.data)
     cost = self.config.reward_max - reward
     cost = jnp.where(valid, cost, self.config.reward_max + self._termination_cost)
     keep = lambda a, b: jnp.where(valid, a, b)

@@ -12,6 +12,22 @@ from mujoco import mjx
 from pachs_jax.envs import base, pusht, warp_import
 
 
+def rebuild(host_data):
+  """A Warp Data from its host values (numpy leaves) inside a trace: uniform leaves as
+  `jnp.full`, so that large buffers are no constants of the program."""
+  def leaf(x):
+    if x.size and np.all(x == x.flat[0]):
+      return jnp.full(x.shape, x.flat[0], x.dtype)
+    return jnp.asarray(x)
+  return jax.tree.map(leaf, host_data)
+
+
+def data_overflowed(data: mjx.Data) -> jax.Array:
+  """[] bool (or batched): Warp Data `data` overflowed a buffer (contacts, constraints,
+  collision) in its last step; the solver's iteration limits do not count."""
+  return (data._impl.overflow & _capacity_overflow_mask()) != 0  # pylint: disable=protected-access
+
+
 def _capacity_overflow_mask() -> int:
   """Warp's `OverflowType` bits for buffers too small (contacts, constraints, collision);
   the solver's iteration limits, which the few Newton iterations reach by design, left out."""
@@ -65,12 +81,7 @@ class WarpPushTEnv(pusht.PushTEnv):
                              naconmax=self.contacts_per_world * worlds,
                              njmax=self.constraints_per_world)
       self._warp_templates[worlds] = jax.tree.map(np.asarray, data)
-
-    def rebuild(x):
-      if x.size and np.all(x == x.flat[0]):
-        return jnp.full(x.shape, x.flat[0], x.dtype)
-      return jnp.asarray(x)
-    return jax.tree.map(rebuild, self._warp_templates[worlds])
+    return rebuild(self._warp_templates[worlds])
 
   def _simulate(self, nodes: base.NodeState, actions: jax.Array):
     """(EdgeOutcome [B], [B] bool overflowed) of edges nodes [B], actions [B, A]."""
@@ -79,10 +90,11 @@ class WarpPushTEnv(pusht.PushTEnv):
 
     def one(node, action):
       data, action_ok = self._actuated(node, action, template)
-      for _ in range(self.config.substeps):
-        data = mjx.step(self.warp_model, data)
-      overflowed = (data._impl.overflow & self._overflow_mask) != 0  # pylint: disable=protected-access
-      return self._outcome(node, data, action_ok & ~overflowed), overflowed
+      # a loop, not unrolled: one Warp call in the program, traced and lowered once
+      data = jax.lax.fori_loop(0, self.config.substeps,
+                               lambda _, d: mjx.step(self.warp_model, d), data)
+      over = data_overflowed(data)
+      return self._outcome(node, data, action_ok & ~over), over
 
     return jax.vmap(one)(nodes, actions)
 
