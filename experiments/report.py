@@ -378,6 +378,75 @@ def speed(src: Sources) -> str:
       table(['K', 'GPUs', 'wall (s)', 'speed-up', 'found', 'file'], scale)])
 
 
+def warp_physics(src: Sources) -> str:
+  """MuJoCo Warp physics: engines, the open-loop suite beside MJX-JAX, `pachs plan` start-up,
+  search throughput over the raw step and iteration time against live instances."""
+  engines = src.load('engines/bench_engines_h200.json')
+  ratio = [[r['layout'], r['engine'], f'{r["worlds"]:,}', f'{r["over_mujoco_c"]:.1f}x']
+           for r in engines['ratios'] if r['worlds'] == 16384]
+  suite = []
+  for layout in LAYOUTS:
+    warp = src.load(f'engines/open_loop_{layout}_warp.json')
+    mjx = src.load(f'open_loop_pusht-obs_{layout}.json')
+    for planner, label in (('pachs', 'PACHS'), ('parallel', 'parallel rollout')):
+      w, m = summary_of(warp, planner), summary_of(mjx, planner)
+      suite.append([layout, label, solved(w), num(w['batch_wall_s']), solved(m),
+                    num(m['batch_wall_s'])])
+  same = src.load('engines/open_loop_two-gaps_mjx.json')
+  same_rows = [[label, solved(summary_of(same, planner)),
+                num(summary_of(same, planner)['batch_wall_s'])]
+               for planner, label in (('pachs', 'PACHS'), ('parallel', 'parallel rollout'))]
+  start = src.load('engines/plan_startup_warp.json')
+  walls = {}
+  for r in start['walls']:
+    if r['run'] == 'B':
+      walls.setdefault(r['label'], []).append(r['process_wall_s'])
+  plan_rows = [[label, span(walls[key])] for label, key in (
+      ('first run on a fresh machine (Warp compiles its kernels)', 'first_on_fresh_machine'),
+      ('cold (JAX caches empty, Warp kernels cached)', 'cold'), ('warm', 'warm'),
+      ('warm, XLA_PYTHON_CLIENT_PREALLOCATE=false', 'warm, XLA_PYTHON_CLIENT_PREALLOCATE=false'))]
+  warm = next(p for p in start['phases'] if p['run'] == 'B' and p['label'] == 'warm')['phases']
+  phase_rows = [[name, f'{warm[key]:.1f}'] for name, key in (
+      ('import jax', 'import jax'), ('import MuJoCo, MJX and MuJoCo Warp',
+                                     'import mujoco, mjx (warp part)'),
+      ('model, env and Warp model', 'load_model (env + physics + checkpoint)'),
+      ('search loop: trace, lower, JAX cache load', 'trace+lower+XLA compile/JAX-cache load '
+                                                    '(not stored)'),
+      ('search', 'search run (result.wall_time_s, in pachs.plan)'))]
+  search = [[r['instances'], r['K'], num(r['edges_per_s']),
+             num(r['raw_env_steps_per_s_same_batch']), f'{r["search_over_raw"]:.2f}']
+            for r in src.load('engines/search_over_raw_warp.json')['rows']]
+  lanes = src.load('engines/live_lanes_two-gaps_warp.json')
+  runs = lanes['settings']['instances'] * lanes['settings']['rounds']
+  lane_rows = []
+  for mode, m in lanes['modes'].items():
+    for r in m['summary']:
+      lane_rows.append([mode, r['live_fraction'], r['iterations'],
+                        num(r['ms_per_iteration_median']), pct(r['share_of_wall']),
+                        pct(r['lanes_used'])])
+  return '\n\n'.join([
+      'Env steps/s at 16,384 worlds on policy-rollout states in contact, over MuJoCo C on all '
+      'the host\'s threads in the same run:',
+      table(['layout', 'engine', 'worlds', 'over MuJoCo C'], ratio),
+      'The open-loop suite with Warp physics (150 runs each, 100,000 evaluations, one H200; '
+      'batch wall in s) beside the MJX-JAX results of the section above (an H100, earlier '
+      'revisions, walls inflated where runs shared the GPU: see their sources):',
+      table(['layout', 'planner', 'Warp', 'Warp wall', 'MJX-JAX', 'MJX-JAX wall'], suite),
+      'MJX-JAX on two-gaps again, at the revision and on the machine of the Warp two-gaps row:',
+      table(['planner', 'MJX-JAX', 'wall'], same_rows),
+      '`pachs plan --task pusht-obs` on one GPU with Warp physics (`--backend auto` picks it), '
+      'process wall in s:',
+      table(['run', 'process wall'], plan_rows),
+      'Where a warm run\'s time goes (s, one profiled run):',
+      table(['phase', 's'], phase_rows),
+      'PACHS run to budget with Warp physics against `env.evaluate` alone at the same batch:',
+      table(['instances', 'K', 'edges/s', 'raw env steps/s', 'search / raw'], search),
+      f'Iteration time against live instances, {runs} two-gaps runs stepped one iteration '
+      'per call:',
+      table(['physics batch', 'live instances', 'iterations', 'ms / iteration',
+             'share of wall', 'lanes used'], lane_rows)])
+
+
 def playground(src: Sources) -> str:
   """MuJoCo Playground's reacher tasks: the policy, the parallel rollout and PACHS."""
   rows = []
@@ -401,6 +470,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Closed loop', closed_loop),
     ('Speed and start-up', speed),
     ('MuJoCo Playground', playground),
+    ('MuJoCo Warp physics', warp_physics),
 )
 
 
