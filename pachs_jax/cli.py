@@ -245,11 +245,6 @@ def run() -> None:
 
 
 def _main(words, prefetch=None) -> int:
-  if any(w.startswith(('--animate', '--animate=')) and not w.startswith('--animate-instance')
-         for w in words) and words[:1] == ['plan']:
-    import ctypes.util
-    if ctypes.util.find_library('EGL'):  # the arm rendered by MuJoCo beside the drawing
-      os.environ.setdefault('MUJOCO_GL', 'egl')
   if any(w == '--gif' or w.startswith('--gif=') for w in words):
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).

@@ -101,13 +101,19 @@ def write_still(path: str, env, result, instances: Sequence[int], instance: int)
 
 
 def write_animation(path: str, env, result, instances: Sequence[int], instance: int,
-                    arm: bool = True) -> tuple[str, Optional[str]]:
+                    arm: Optional[bool] = None) -> tuple[str, Optional[str]]:
   """Writes a GIF of the plan of `instance` executing (`render.animation_frames`: the
-  drawing, with the MuJoCo rendering of the arm beside it where OpenGL allows); returns
-  (path, note: why the rendering is left out, or None)."""
+  drawing, with the MuJoCo rendering of the arm beside it with `arm`; None: where the user
+  chose an OpenGL backend with MUJOCO_GL, since creating a context without one can abort the
+  process); returns (path, note: why the rendering is left out, or None)."""
   from pachs_jax.envs import render
   plan = _instance_plan(result, instances, instance)
+  if arm is None:
+    arm = bool(os.environ.get('MUJOCO_GL'))
   frames, note = render.animation_frames(env, plan.states, _title(env, plan, instance), arm=arm)
+  if not arm:
+    note = ('the arm is drawn from its kinematics; set MUJOCO_GL=egl (or osmesa) for '
+            "MuJoCo's rendering beside it")
   shown = render.frame_steps(plan.length + 1)
   stride = float(np.mean(np.diff(shown))) if len(shown) > 1 else 1.0
   fps = control_hz(env) / stride
