@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import gc
-import hashlib
 import inspect
 import json
 import logging
@@ -23,6 +22,7 @@ import tensorstore as ts
 from pachs_jax.envs import base
 from pachs_jax.sac import config as config_lib
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
+from pachs_jax.sac.digest import params_hash
 
 FORMAT = 'pachs_jax.actor_critic/1'
 CONFIG_FILE = 'actor_critic.json'
@@ -36,20 +36,6 @@ class CheckpointError(ValueError):
   """A checkpoint that cannot be used: missing, incomplete, damaged or not what was asked for.
 
   The message is one line and names the checkpoint."""
-
-
-def params_hash(tree: Any) -> str:
-  """SHA-256 (hex) of a pytree's arrays: for each leaf in sorted key-path order its path,
-  dtype and shape, then its bytes (little-endian, C order). Equal trees hash equally however
-  they were built (dicts or FrozenDicts, device or host arrays)."""
-  leaves = [(jax.tree_util.keystr(k), v) for k, v in jax.tree_util.tree_leaves_with_path(tree)]
-  h = hashlib.sha256()
-  for name, leaf in sorted(leaves, key=lambda kv: kv[0]):
-    a = np.asarray(leaf)
-    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder('<'))
-    h.update(f'{name}|{a.dtype.str}|{a.shape}\n'.encode())
-    h.update(a.tobytes())
-  return h.hexdigest()
 
 
 def _orbax_call(fn: Callable[[], Any]) -> Tuple[Any, Optional[str]]:

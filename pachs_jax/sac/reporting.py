@@ -8,6 +8,8 @@ import os
 import time
 from typing import Dict
 
+import tqdm
+
 CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'success_rate',
                'episodes', 'reward_mean', 'critic_loss', 'actor_loss', 'alpha_loss', 'alpha',
                'buffer_size', 'eval_success_deterministic', 'eval_success_stochastic',
@@ -64,7 +66,6 @@ class RunReporter:
       except ImportError:
         self._writer = None
     if self._progress == 'bar':
-      import tqdm  # pylint: disable=import-outside-toplevel
       self._bar = tqdm.tqdm(total=total_env_steps, initial=env_steps, unit='step',
                             unit_scale=True, desc=self._description, dynamic_ncols=True)
     self._last = env_steps
