@@ -16,7 +16,7 @@ import signal
 import sys
 import threading
 
-from pachs_jax import argtypes
+from pachs_jax import argtypes, xla_cpu
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 
@@ -187,6 +187,7 @@ def _main(args: argparse.Namespace) -> int:
     flags = os.environ.get('XLA_FLAGS', '')
     if 'xla_gpu_deterministic_ops' not in flags:
       os.environ['XLA_FLAGS'] = (flags + ' --xla_gpu_deterministic_ops=true').strip()
+  xla_cpu.configure(os.environ)  # before JAX starts: batched LAPACK calls cannot deadlock
 
   import jax  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac import checkpoint, presets, train  # pylint: disable=import-outside-toplevel
