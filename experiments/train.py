@@ -16,7 +16,7 @@ import signal
 import sys
 import threading
 
-from pachs_jax import argtypes, xla_cpu
+from pachs_jax import argtypes, files, xla_cpu
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 
@@ -249,8 +249,10 @@ def _main(args: argparse.Namespace) -> int:
             'env_steps': result.env_steps, 'total_env_steps': args.steps,
             'interrupted': interrupted,
             'model': os.path.join(os.path.abspath(args.out), 'model')}
-  with open(os.path.join(args.out, 'status.json'), 'w') as f:
-    json.dump(status, f, indent=2)
+  try:
+    files.write_json(os.path.join(args.out, 'status.json'), status)
+  except files.WriteError as e:
+    raise SystemExit(f'error: {e}') from None
   if interrupted is not None:
     if result.epoch > result.start_epoch:
       line = (f'stopped by {interrupted}: saved epoch {result.epoch} ({result.env_steps} env '

@@ -396,12 +396,17 @@ def test_resume_continues_and_appends_metrics(interrupted_run, run_env):
   meta = train.read_run_config(out)
   rows = _metric_rows(out)
   assert rows[0].startswith('env_steps,') and len(rows) >= 2
-  # A row past the checkpoint, as a hard kill (SIGKILL) mid-run leaves: it stays.
+  # A row past the checkpoint and a row cut short, as a hard kill (SIGKILL) mid-run leaves, and
+  # the temporary directories of a save cut short: all dropped on resume.
   late = rows[-1].split(',')
   late[:2] = [str(meta['env_steps'] + 400), f'{meta["epoch"] + 1}.0']
   with open(os.path.join(out, 'metrics.csv'), 'a') as f:
-    f.write(','.join(late) + '\r\n')
-  before = _metric_rows(out)
+    f.write(','.join(late) + '\r\n' + ','.join(late)[:9])
+  partial = [os.path.join(out, 'state', f'{meta["epoch"] + 1}.orbax-checkpoint-tmp-1234'),
+             os.path.join(out, 'model.tmp-999999999')]
+  for directory in partial:
+    os.makedirs(directory)
+  before = rows
   # Two more epochs of 400 env steps.
   total = meta['env_steps'] + 800
   proc = subprocess.run(_train_cmd(out, '--steps', str(total), '--resume'), capture_output=True,
@@ -411,10 +416,11 @@ def test_resume_continues_and_appends_metrics(interrupted_run, run_env):
           in proc.stdout), proc.stdout
   assert 'FINISHED' in proc.stdout
   after = _metric_rows(out)
-  assert after[:len(before)] == before  # appended, not rewritten
+  assert after[:len(before)] == before  # the rows up to the checkpoint stay as they were
   new = after[len(before):]
   assert [int(r.split(',')[1].split('.')[0]) for r in new] == [meta['epoch'] + 1,
                                                                 meta['epoch'] + 2]
+  assert not any(os.path.exists(d) for d in partial)
   assert train.read_run_config(out)['epoch'] == meta['epoch'] + 2
 
 

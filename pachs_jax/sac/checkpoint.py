@@ -406,7 +406,8 @@ def add_hashes(path: str) -> str:
 # ------------------------------------------------------------------ training states ----
 
 class TrainingCheckpoints:
-  """Full training states of one run, numbered by epoch; keeps the last `keep`."""
+  """Full training states of one run, numbered by epoch; keeps the last `keep`. Opening it
+  removes the temporary directories of a save that a kill interrupted."""
 
   def __init__(self, directory: str, keep: int = 3):
     if keep < 1:
@@ -415,7 +416,15 @@ class TrainingCheckpoints:
     self._manager = ocp.CheckpointManager(
         self.directory,
         options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True,
-                                             enable_async_checkpointing=False))
+                                             enable_async_checkpointing=False,
+                                             cleanup_tmp_directories=True))
+    self._remove_partial_saves()
+
+  def _remove_partial_saves(self) -> None:
+    """Removes orbax's temporary step directories (a save cut short by a kill or an error)."""
+    for entry in os.listdir(self.directory):
+      if '.orbax-checkpoint-tmp' in entry:
+        shutil.rmtree(os.path.join(self.directory, entry), ignore_errors=True)
 
   def latest_epoch(self) -> Optional[int]:
     """The newest complete epoch saved, or None."""
@@ -423,11 +432,23 @@ class TrainingCheckpoints:
 
   def save(self, epoch: int, state: Any, meta: Dict[str, Any]) -> None:
     """Saves the state pytree and the JSON-ready meta dict, plus the state's `params_hash` as
-    'state_sha256', as step `epoch` (blocking)."""
+    'state_sha256', as step `epoch` (blocking).
+
+    A failed save (a full disk) raises a one-line CheckpointError and leaves no partial step
+    behind; the earlier checkpoints stay."""
     meta = dict(meta, **{STATE_HASH_KEY: params_hash(state)})
-    self._manager.save(int(epoch), args=ocp.args.Composite(
-        state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
-    self._manager.wait_until_finished()
+
+    def save():
+      self._manager.save(int(epoch), args=ocp.args.Composite(
+          state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
+      self._manager.wait_until_finished()
+
+    _, failure = _orbax_call(save)
+    if failure is not None:
+      self._remove_partial_saves()
+      full = 'space' in failure.lower() or 'ENOSPC' in failure
+      raise CheckpointError(f'cannot save {self._where(epoch)}: '
+                            + ('no space left on device' if full else failure))
 
   def _where(self, epoch: int) -> str:
     return f'training checkpoint {os.path.join(self.directory, str(int(epoch)))}'
