@@ -93,6 +93,13 @@ class RunReporter:
         self._last_line = now
     self._last = env_steps
 
+  def note(self, line: str) -> None:
+    """Prints a one-line note (above the bar when there is one; not with progress 'none')."""
+    if self._bar is not None:
+      self._bar.write(f'[{self._description}] {line}')
+    elif self._progress != 'none':
+      print(f'[{self._description}] {line}', flush=True)
+
   def close(self) -> None:
     if self._bar is not None:
       self._bar.close()
