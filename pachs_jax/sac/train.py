@@ -328,7 +328,8 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   checkpoint_minutes / checkpoint_every_epochs: save when either is due (0 disables the latter);
     the second epoch and the end of the call always save.
   handle_signals: (main thread) the first SIGINT or SIGTERM (handled at once, also while
-    XLA computes: results are awaited in short sleeps) stops the run after the current epoch; it saves that epoch like the time budget does and returns (finished=False,
+    XLA computes: results are awaited in short sleeps) stops the run after the current epoch;
+    it saves that epoch like the time budget does and returns (finished=False,
     interrupted='SIGINT'/'SIGTERM'); a second signal ends the process at once (os._exit with
     128 + signal number, one line on stderr), without saving.
   Damaged checkpoints raise checkpoint.CheckpointError; both errors are ValueErrors.
