@@ -52,6 +52,12 @@ def meta_hash(meta: Dict[str, Any]) -> str:
   return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _full_disk(reason: str) -> bool:
+  """Whether an orbax / TensorStore failure reason says the disk is full (TensorStore reports
+  ENOSPC as RESOURCE_EXHAUSTED)."""
+  return any(k in reason for k in ('No space left', 'ENOSPC', 'RESOURCE_EXHAUSTED'))
+
+
 def _save_failure(what: str, error: BaseException) -> CheckpointError:
   """The one-line CheckpointError of a failed write (a full disk names itself)."""
   reason = 'no space left on device' if getattr(error, 'errno', None) == errno.ENOSPC else (
@@ -140,7 +146,7 @@ def save_actor_critic(path: str, actor_critic: SacActorCritic,
     _, failure = _orbax_call(lambda: _save_and_wait(checkpointer, os.path.join(tmp, PARAMS_DIR),
                                                     tree))
     if failure is not None:
-      raise OSError(errno.ENOSPC if 'space' in failure.lower() else errno.EIO, failure)
+      raise OSError(errno.ENOSPC if _full_disk(failure) else errno.EIO, failure)
     files.write_json(os.path.join(tmp, CONFIG_FILE), meta)
     if os.path.exists(path):
       os.rename(path, old)
@@ -446,9 +452,8 @@ class TrainingCheckpoints:
     _, failure = _orbax_call(save)
     if failure is not None:
       self._remove_partial_saves()
-      full = 'space' in failure.lower() or 'ENOSPC' in failure
       raise CheckpointError(f'cannot save {self._where(epoch)}: '
-                            + ('no space left on device' if full else failure))
+                            + ('no space left on device' if _full_disk(failure) else failure))
 
   def _where(self, epoch: int) -> str:
     return f'training checkpoint {os.path.join(self.directory, str(int(epoch)))}'
