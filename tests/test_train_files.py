@@ -151,7 +151,7 @@ def _train_cmd(out, *extra):
 
 def test_signals_are_handled_while_an_epoch_runs(tmp_path):
   """An epoch of minutes: the first SIGINT is acknowledged and the second ends the process
-  during it, not after it."""
+  during it, not after it (as a deadlocked or very long epoch needs)."""
   out = str(tmp_path / 'run')
   previous = {s: signal.signal(s, signal.default_int_handler) for s in (signal.SIGINT,
                                                                          signal.SIGTERM)}

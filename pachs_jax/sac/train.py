@@ -224,8 +224,9 @@ POLL_SECONDS = 0.05
 
 
 def wait_ready(tree: Any) -> Any:
-  """The tree once all its arrays are computed, waiting in short sleeps rather than inside XLA,
-  so that signal handlers run while XLA computes (a blocking wait defers them to its end)."""
+  """The tree once all its arrays are computed, waiting in short sleeps: signal handlers run
+  between them, and with one computation in flight at a time the next dispatch never queues
+  inside XLA (where a handler would wait for the queue)."""
   leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array)]
   while not all(x.is_ready() for x in leaves):
     time.sleep(POLL_SECONDS)
