@@ -189,3 +189,30 @@ def test_steps_below_one_epoch_are_named_before_work(tmp_path):
   work = [i for i, line in enumerate(lines) if 'prefill:' in line]
   assert note and work and note[0] < work[0], proc.stdout
   assert 'this run takes 256 random prefill steps and one epoch, 656 env steps' in lines[note[0]]
+
+
+def test_resume_after_sigkill_has_one_row_per_epoch(tmp_path):
+  out = str(tmp_path / 'run')
+  proc = subprocess.Popen(_train_cmd(out, '--steps', '10000000', '--checkpoint-every', '3'),
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+  csv_path = os.path.join(out, 'metrics.csv')
+  try:
+    deadline = time.time() + 240
+    while time.time() < deadline:  # some epochs written, checkpoints among them
+      if os.path.exists(csv_path) and len(open(csv_path).read().splitlines()) > 8:
+        break
+      time.sleep(0.2)
+    proc.kill()  # SIGKILL: no handler runs
+    proc.wait(timeout=60)
+  finally:
+    proc.kill()
+  saved = train.read_run_config(out)['epoch']
+  resumed = subprocess.run(_train_cmd(out, '--steps', '10000000', '--resume', '--minutes',
+                                      '0.1'), capture_output=True, text=True, timeout=300,
+                           cwd=REPO)
+  assert resumed.returncode == 0, resumed.stderr[-2000:]
+  with open(csv_path) as f:
+    epochs = [int(float(row.split(',')[1])) for row in f.read().splitlines()[1:]]
+  assert epochs == list(range(1, len(epochs) + 1))  # each epoch once, in order
+  assert len(epochs) > saved
+  assert not [d for d in os.listdir(os.path.join(out, 'state')) if 'tmp' in d]
