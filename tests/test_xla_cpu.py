@@ -14,6 +14,7 @@ from pachs_jax import xla_cpu
 # it deadlocks (4 runs of 4 on a 2-core machine; all XLA threads in lapack_spotrf_ffi waiting).
 PROGRAM = textwrap.dedent('''
     import os, sys
+    os.sched_setaffinity(0, {cpus!r})  # before JAX sizes its thread pool: 2 threads
     sys.path.insert(0, {root!r})
     from pachs_jax import xla_cpu
     if {fix}:
@@ -62,9 +63,8 @@ def test_concurrent_batched_cholesky_on_two_cpus_finishes_with_the_setting():
   env = {k: v for k, v in os.environ.items() if k != 'XLA_FLAGS'}
   env['JAX_PLATFORMS'] = 'cpu'
   try:
-    out = subprocess.run([sys.executable, '-c', PROGRAM.format(root=root, fix=True)], env=env,
-                         capture_output=True, text=True, timeout=240,
-                         preexec_fn=lambda: os.sched_setaffinity(0, cpus))
+    out = subprocess.run([sys.executable, '-c', PROGRAM.format(root=root, fix=True, cpus=cpus)],
+                         env=env, capture_output=True, text=True, timeout=240)
   except subprocess.TimeoutExpired:
     pytest.fail('batched Cholesky calls deadlocked XLA\'s CPU thread pool')
   assert out.returncode == 0, out.stderr[-2000:]
