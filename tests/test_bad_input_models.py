@@ -352,7 +352,7 @@ def interrupted_run(tmp_path_factory, run_env):
   deadline = time.time() + 120
   for line in proc.stdout:
     lines.append(line)
-    if line.startswith('[point-mass]') or time.time() > deadline:
+    if line.startswith('[point-mass] env_steps=') or time.time() > deadline:
       proc.send_signal(signal.SIGINT)
       break
   try:
@@ -367,7 +367,7 @@ def interrupted_run(tmp_path_factory, run_env):
 
 def test_sigint_saves_a_resumable_checkpoint(interrupted_run):
   out, code, stdout, stderr, _ = interrupted_run
-  assert any(line.startswith('[point-mass]') for line in stdout.splitlines()), stdout
+  assert any(line.startswith('[point-mass] env_steps=') for line in stdout.splitlines()), stdout
   assert code == 128 + signal.SIGINT, (code, stderr[-2000:])
   assert 'Traceback' not in stderr and 'KeyboardInterrupt' not in stderr, stderr[-2000:]
   last = stderr.strip().splitlines()[-1]
