@@ -16,7 +16,7 @@ import signal
 import sys
 import threading
 
-from pachs_jax import argtypes
+from pachs_jax import argtypes, files, xla_cpu
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 TRAIN_SEED = argtypes.integer(0, SEED_LIMIT, f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}]')
@@ -46,6 +46,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   p.add_argument('--progress', choices=('bar', 'lines', 'none'), default=None,
                  help='default: bar on a terminal, else lines')
   p.add_argument('--no-tensorboard', action='store_true')
+  p.add_argument('--physics', choices=('auto', 'mjx', 'mujoco-c'), default='auto',
+                 help="PushT physics: 'auto' is MuJoCo C when JAX runs on the CPU (much faster "
+                      "there), else MJX")
   p.add_argument('--nondeterministic', action='store_true',
                  help='allow non-deterministic GPU ops and autotuning (faster, not resumable '
                       'bit for bit)')
@@ -166,6 +169,7 @@ def _main(args: argparse.Namespace) -> int:
     flags = os.environ.get('XLA_FLAGS', '')
     if 'xla_gpu_deterministic_ops' not in flags:
       os.environ['XLA_FLAGS'] = (flags + ' --xla_gpu_deterministic_ops=true').strip()
+  xla_cpu.configure(os.environ)  # before JAX starts: batched LAPACK calls cannot deadlock
 
   import jax  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac import checkpoint, presets, train  # pylint: disable=import-outside-toplevel
@@ -173,6 +177,7 @@ def _main(args: argparse.Namespace) -> int:
       SACConfig, config_from_dict, config_to_dict)
   from pachs_jax.sac.reporting import RunReporter  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import mujoco_c  # pylint: disable=import-outside-toplevel
 
   try:
     train.check_run_dir(args.out)  # every output path writable, before any work
@@ -198,19 +203,37 @@ def _main(args: argparse.Namespace) -> int:
                        'to continue it or choose another --out')
     if args.resume:
       print(f'--start-if-missing: {args.out} holds no run; starting a new one', flush=True)
-    base = presets.PRESETS.get(args.task)
-    if base is None:
+    platform = jax.default_backend()
+    if args.task in presets.PRESETS:
+      base = presets.preset(args.task, platform)
+      if base is not presets.PRESETS[args.task]:
+        print(f'{platform} preset for {args.task} (smaller than the GPU one)', flush=True)
+    else:
       print(f'no preset for {args.task!r}: using SACConfig defaults', flush=True)
       base = SACConfig()
     try:
       config = dataclasses.replace(base, **changes)
     except ValueError as e:
       raise SystemExit(str(e)) from None
+  try:
+    env = mujoco_c.make_backend(env, args.physics)
+  except ValueError as e:
+    raise SystemExit(f'error: --physics: {e}') from None
+  physics = 'MuJoCo C' if isinstance(env, mujoco_c.MujocoCEnv) else 'JAX'
   print(f'task {env.name}: obs {env.observation_size}, action {env.action_size}, episode '
-        f'{env.episode_length}; device {jax.devices()[0]}; '
+        f'{env.episode_length}; device {jax.devices()[0]}; physics {physics}; '
         f'config {json.dumps(config_to_dict(config))}',
         flush=True)
   trainer = make_trainer(env, config)
+  one_epoch = trainer.env_steps(1)
+  updates = config.steps_per_epoch * config.grad_updates_per_step
+  print(f'an epoch: {trainer.env_steps_per_epoch} env steps ({config.num_envs} envs x '
+        f'{config.steps_per_epoch} steps) and {updates} gradient updates; an evaluation: '
+        f'{train.evaluation_env_steps(trainer)} env steps at most', flush=True)
+  if args.steps < one_epoch and not (meta is not None and args.resume):
+    print(f'note: --steps {args.steps} is below one epoch: this run takes '
+          f'{trainer.prefill_env_steps} random prefill steps and one epoch, {one_epoch} env steps '
+          '(lower --num-envs, --steps-per-epoch or --min-replay for fewer)', flush=True)
   progress = args.progress or ('bar' if sys.stderr.isatty() else 'lines')
   reporter = RunReporter(args.out, progress=progress, tensorboard=not args.no_tensorboard,
                          description=args.task)
@@ -227,8 +250,10 @@ def _main(args: argparse.Namespace) -> int:
             'env_steps': result.env_steps, 'total_env_steps': args.steps,
             'interrupted': interrupted,
             'model': os.path.join(os.path.abspath(args.out), 'model')}
-  with open(os.path.join(args.out, 'status.json'), 'w') as f:
-    json.dump(status, f, indent=2)
+  try:
+    files.write_json(os.path.join(args.out, 'status.json'), status)
+  except files.WriteError as e:
+    raise SystemExit(f'error: {e}') from None
   if interrupted is not None:
     if result.epoch > result.start_epoch:
       line = (f'stopped by {interrupted}: saved epoch {result.epoch} ({result.env_steps} env '

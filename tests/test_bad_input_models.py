@@ -69,8 +69,10 @@ def test_shipped_checkpoints_carry_and_verify_their_hash():
   assert {os.path.basename(d) for d in SHIPPED} >= {'pusht-fixed', 'pusht-rand', 'shelf'}
   for path in SHIPPED:
     with open(os.path.join(path, checkpoint.CONFIG_FILE)) as f:
-      recorded = json.load(f)[checkpoint.HASH_KEY]
+      meta = json.load(f)
+    recorded = meta[checkpoint.HASH_KEY]
     assert re.fullmatch('[0-9a-f]{64}', recorded), path
+    assert meta[checkpoint.META_HASH_KEY] == checkpoint.meta_hash(meta), path
     ac = checkpoint.load_actor_critic(path)  # verifies the hash
     tree = {'normalizer': dict(ac.params.normalizer), 'policy': ac.params.policy,
             'q': ac.params.q}
@@ -110,7 +112,7 @@ def test_overwritten_weights_are_refused_by_the_hash(tmp_path):
   _refused(path, r'params hash mismatch \(file damaged\?\)')
   assert verify.main([path]) == 1
   with pytest.raises(checkpoint.CheckpointError, match='params hash mismatch'):
-    checkpoint.add_params_hash(path)  # --add-hash does not paper over damage
+    checkpoint.add_hashes(path)  # --add-hash does not paper over damage
 
 
 def test_truncated_or_missing_params_files_are_one_line_errors(tmp_path, capfd):
@@ -153,16 +155,44 @@ def test_model_json_without_required_entries(tmp_path):
   _refused(wrong_format, 'unknown checkpoint format')
   wrong_hash = _copy(tmp_path, 'wrong_hash')
   _edit_json(wrong_hash, lambda m: m.update({checkpoint.HASH_KEY: '0' * 64}))
-  _refused(wrong_hash, 'params hash mismatch')
-  # No hash (an export from before hashes): refused, until --add-hash records it.
-  no_hash = _copy(tmp_path, 'no_hash')
-  _edit_json(no_hash, lambda m: m.pop(checkpoint.HASH_KEY))
-  _refused(no_hash, r'has no "params_sha256".*--add-hash')
-  assert verify.main(['--add-hash', no_hash]) == 0
-  with open(os.path.join(no_hash, checkpoint.CONFIG_FILE)) as f, \
-       open(os.path.join(SMALLEST, checkpoint.CONFIG_FILE)) as g:
-    assert json.load(f) == json.load(g)
-  checkpoint.load_actor_critic(no_hash)
+  _refused(wrong_hash, 'changed after it was written')
+  rehashed = _copy(tmp_path, 'rehashed')  # a wrong parameter hash with a matching meta hash
+  _edit_json(rehashed, lambda m: m.update({checkpoint.HASH_KEY: '0' * 64,
+                                           checkpoint.META_HASH_KEY: checkpoint.meta_hash(
+                                               dict(m, **{checkpoint.HASH_KEY: '0' * 64}))}))
+  _refused(rehashed, 'params hash mismatch')
+  # Without hashes (exports from before them, or before metadata hashes): refused, until
+  # --add-hash records them; the files then equal the shipped ones.
+  for name, keys in (('no_hash', (checkpoint.HASH_KEY, checkpoint.META_HASH_KEY)),
+                     ('no_meta_hash', (checkpoint.META_HASH_KEY,))):
+    path = _copy(tmp_path, name)
+    _edit_json(path, lambda m, keys=keys: [m.pop(k) for k in keys])
+    _refused(path, rf'has no "{keys[0]}" \(written before .*hashes.*\).*run: '
+                   rf'python -m pachs_jax\.sac\.verify --add-hash {re.escape(path)}$')
+    assert verify.main(['--add-hash', path]) == 0
+    with open(os.path.join(path, checkpoint.CONFIG_FILE)) as f, \
+         open(os.path.join(SMALLEST, checkpoint.CONFIG_FILE)) as g:
+      assert json.load(f) == json.load(g)
+    checkpoint.load_actor_critic(path)
+
+
+def test_metadata_naming_another_task_is_refused(tmp_path):
+  """The parameters are untouched; only actor_critic.json names another task (same sizes)."""
+  path = _copy(tmp_path)
+  with open(os.path.join(path, checkpoint.CONFIG_FILE)) as f:
+    task = json.load(f)['model']['task']
+  other = 'playground:ReacherHard' if task != 'playground:ReacherHard' else (
+      'playground:ReacherEasy')
+  _edit_json(path, lambda m: m['model'].update(task=other))
+  message = _refused(path, r'changed after it was written \(meta hash mismatch; it now names '
+                           rf"task '{re.escape(other)}'\).*--add-hash")
+  _refused(path, 'changed after it was written', task=other)  # also when asked for that task
+  assert verify.main([path]) == 1
+  assert 'verify --add-hash' in message
+  for key in ('discount', 'reward_scaling', 'episode_length'):  # any field counts
+    edited = _copy(tmp_path, key)
+    _edit_json(edited, lambda m, key=key: m['model'].update({key: m['model'][key] * 2 + 1}))
+    _refused(edited, 'meta hash mismatch')
 
 
 def test_saved_export_round_trips_its_hash(tmp_path):
@@ -322,7 +352,7 @@ def interrupted_run(tmp_path_factory, run_env):
   deadline = time.time() + 120
   for line in proc.stdout:
     lines.append(line)
-    if line.startswith('[point-mass]') or time.time() > deadline:
+    if line.startswith('[point-mass] env_steps=') or time.time() > deadline:
       proc.send_signal(signal.SIGINT)
       break
   try:
@@ -337,7 +367,7 @@ def interrupted_run(tmp_path_factory, run_env):
 
 def test_sigint_saves_a_resumable_checkpoint(interrupted_run):
   out, code, stdout, stderr, _ = interrupted_run
-  assert any(line.startswith('[point-mass]') for line in stdout.splitlines()), stdout
+  assert any(line.startswith('[point-mass] env_steps=') for line in stdout.splitlines()), stdout
   assert code == 128 + signal.SIGINT, (code, stderr[-2000:])
   assert 'Traceback' not in stderr and 'KeyboardInterrupt' not in stderr, stderr[-2000:]
   last = stderr.strip().splitlines()[-1]
@@ -366,12 +396,17 @@ def test_resume_continues_and_appends_metrics(interrupted_run, run_env):
   meta = train.read_run_config(out)
   rows = _metric_rows(out)
   assert rows[0].startswith('env_steps,') and len(rows) >= 2
-  # A row past the checkpoint, as a hard kill (SIGKILL) mid-run leaves: it stays.
+  # A row past the checkpoint and a row cut short, as a hard kill (SIGKILL) mid-run leaves, and
+  # the temporary directories of a save cut short: all dropped on resume.
   late = rows[-1].split(',')
   late[:2] = [str(meta['env_steps'] + 400), f'{meta["epoch"] + 1}.0']
   with open(os.path.join(out, 'metrics.csv'), 'a') as f:
-    f.write(','.join(late) + '\r\n')
-  before = _metric_rows(out)
+    f.write(','.join(late) + '\r\n' + ','.join(late)[:9])
+  partial = [os.path.join(out, 'state', f'{meta["epoch"] + 1}.orbax-checkpoint-tmp-1234'),
+             os.path.join(out, 'model.tmp-999999999')]
+  for directory in partial:
+    os.makedirs(directory)
+  before = rows
   # Two more epochs of 400 env steps.
   total = meta['env_steps'] + 800
   proc = subprocess.run(_train_cmd(out, '--steps', str(total), '--resume'), capture_output=True,
@@ -381,10 +416,11 @@ def test_resume_continues_and_appends_metrics(interrupted_run, run_env):
           in proc.stdout), proc.stdout
   assert 'FINISHED' in proc.stdout
   after = _metric_rows(out)
-  assert after[:len(before)] == before  # appended, not rewritten
+  assert after[:len(before)] == before  # the rows up to the checkpoint stay as they were
   new = after[len(before):]
   assert [int(r.split(',')[1].split('.')[0]) for r in new] == [meta['epoch'] + 1,
                                                                 meta['epoch'] + 2]
+  assert not any(os.path.exists(d) for d in partial)
   assert train.read_run_config(out)['epoch'] == meta['epoch'] + 2
 
 

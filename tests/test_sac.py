@@ -134,6 +134,11 @@ def test_checkpoint_errors(env, trained, tmp_path):
   meta['model']['critic_hidden'] = [64, 64]
   with open(config_path, 'w') as f:
     json.dump(meta, f)
+  with pytest.raises(ValueError, match='changed after it was written'):  # the meta hash
+    checkpoint.load_actor_critic(bad, env=env)
+  meta[checkpoint.META_HASH_KEY] = checkpoint.meta_hash(meta)  # an edit recorded as intended
+  with open(config_path, 'w') as f:
+    json.dump(meta, f)
   with pytest.raises(ValueError, match='has shape .* needs'):
     checkpoint.load_actor_critic(bad, env=env)
   meta['format'] = 'something-else'

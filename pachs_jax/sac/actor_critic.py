@@ -11,6 +11,7 @@ import jax.numpy as jnp
 from brax.training.acme import running_statistics
 from flax import struct
 
+from pachs_jax.sac import digest
 from pachs_jax.sac import networks as sac_networks
 
 
@@ -74,8 +75,7 @@ class SacActorCritic:
   @property
   def fingerprint(self) -> str:
     """The config and a digest of the parameters: they fix what the networks compute."""
-    from pachs_jax.sac import checkpoint  # pylint: disable=import-outside-toplevel (a cycle)
-    return f'{self.config!r}:{checkpoint.params_hash(self.params)}'
+    return f'{self.config!r}:{digest.params_hash(self.params)}'
 
   def _normalizer(self) -> running_statistics.NestedMeanStd:
     return running_statistics.NestedMeanStd(mean=self.params.normalizer['mean'],

@@ -1,9 +1,11 @@
-"""Orbax checkpoints: the exported actor-critic the search loads, verified against the SHA-256 of
-its parameters, and full training states (layouts and errors: docs/sac.md)."""
+"""Orbax checkpoints: the exported actor-critic the search loads, verified against SHA-256
+digests of its parameters and of its metadata, and full training states (layouts and errors:
+docs/sac.md)."""
 
 from __future__ import annotations
 
 import dataclasses
+import errno
 import gc
 import hashlib
 import inspect
@@ -20,36 +22,47 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore as ts
 
+from pachs_jax import files
 from pachs_jax.envs import base
 from pachs_jax.sac import config as config_lib
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
+from pachs_jax.sac.digest import params_hash
 
 FORMAT = 'pachs_jax.actor_critic/1'
 CONFIG_FILE = 'actor_critic.json'
 PARAMS_DIR = 'params'
 MODEL_SUBDIR = 'model'  # where a training run directory keeps its exported actor-critic
 HASH_KEY = 'params_sha256'  # actor_critic.json entry: params_hash of the stored parameters
+# actor_critic.json entry: meta_hash of every other entry (the model config, params_sha256, ...)
+META_HASH_KEY = 'meta_sha256'
+VERIFY_COMMAND = 'python -m pachs_jax.sac.verify --add-hash'
 STATE_HASH_KEY = 'state_sha256'  # training checkpoint meta entry: params_hash of the state
 
 
 class CheckpointError(ValueError):
-  """A checkpoint that cannot be used: missing, incomplete, damaged or not what was asked for.
+  """A checkpoint that cannot be used: missing, incomplete, damaged or not what was asked for,
+  or one that cannot be written. The message is one line and names the checkpoint."""
 
-  The message is one line and names the checkpoint."""
+
+def meta_hash(meta: Dict[str, Any]) -> str:
+  """SHA-256 (hex) of the canonical JSON (sorted keys, no spaces) of `meta` without its
+  META_HASH_KEY entry: any change to the task, sizes or parameter hash changes it."""
+  rest = {k: v for k, v in meta.items() if k != META_HASH_KEY}
+  text = json.dumps(rest, sort_keys=True, separators=(',', ':'), ensure_ascii=True)
+  return hashlib.sha256(text.encode()).hexdigest()
 
 
-def params_hash(tree: Any) -> str:
-  """SHA-256 (hex) of a pytree's arrays: for each leaf in sorted key-path order its path,
-  dtype and shape, then its bytes (little-endian, C order). Equal trees hash equally however
-  they were built (dicts or FrozenDicts, device or host arrays)."""
-  leaves = [(jax.tree_util.keystr(k), v) for k, v in jax.tree_util.tree_leaves_with_path(tree)]
-  h = hashlib.sha256()
-  for name, leaf in sorted(leaves, key=lambda kv: kv[0]):
-    a = np.asarray(leaf)
-    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder('<'))
-    h.update(f'{name}|{a.dtype.str}|{a.shape}\n'.encode())
-    h.update(a.tobytes())
-  return h.hexdigest()
+def _full_disk(reason: str) -> bool:
+  """Whether an orbax / TensorStore failure reason says the disk is full (TensorStore reports
+  ENOSPC as RESOURCE_EXHAUSTED)."""
+  return any(k in reason for k in ('No space left', 'ENOSPC', 'RESOURCE_EXHAUSTED'))
+
+
+def _save_failure(what: str, error: BaseException) -> CheckpointError:
+  """The one-line CheckpointError of a failed write (a full disk names itself)."""
+  reason = 'no space left on device' if getattr(error, 'errno', None) == errno.ENOSPC else (
+      _reason(error))
+  return CheckpointError(f'cannot save {what}: {reason}')
 
 
 def _orbax_call(fn: Callable[[], Any]) -> Tuple[Any, Optional[str]]:
@@ -114,26 +127,74 @@ def save_actor_critic(path: str, actor_critic: SacActorCritic,
 
   path/actor_critic.json holds {'format', 'model': ModelConfig dict} plus `extra`; path/params
   the orbax tree {'normalizer': {'mean', 'std'}, 'policy', 'q'}, whose `params_hash` goes into
-  the JSON as 'params_sha256'. Returns the absolute path.
+  the JSON as 'params_sha256', and `meta_hash` of the JSON as 'meta_sha256'. Returns the
+  absolute path. A failed write (a full disk) raises CheckpointError and leaves `path` as it was,
+  with no temporary directory beside it.
   """
   path = os.path.abspath(path)
+  remove_stale_exports(path)
   tmp = f'{path}.tmp-{os.getpid()}'
-  shutil.rmtree(tmp, ignore_errors=True)
-  os.makedirs(tmp)
   tree = _params_tree(actor_critic)
-  checkpointer = ocp.StandardCheckpointer()
-  checkpointer.save(os.path.join(tmp, PARAMS_DIR), tree)
-  checkpointer.wait_until_finished()
   meta = {'format': FORMAT, 'model': config_lib.config_to_dict(actor_critic.config),
           HASH_KEY: params_hash(tree)}
-  meta.update({k: v for k, v in (extra or {}).items() if k not in meta})
-  _write_json(os.path.join(tmp, CONFIG_FILE), meta)
+  meta.update({k: v for k, v in (extra or {}).items() if k not in (*meta, META_HASH_KEY)})
+  meta[META_HASH_KEY] = meta_hash(meta)
   old = f'{path}.old-{os.getpid()}'
-  if os.path.exists(path):
-    os.rename(path, old)
-  os.rename(tmp, path)
+  try:
+    os.makedirs(tmp)
+    checkpointer = ocp.StandardCheckpointer()
+    _, failure = _orbax_call(lambda: _save_and_wait(checkpointer, os.path.join(tmp, PARAMS_DIR),
+                                                    tree))
+    if failure is not None:
+      raise OSError(errno.ENOSPC if _full_disk(failure) else errno.EIO, failure)
+    files.write_json(os.path.join(tmp, CONFIG_FILE), meta)
+    if os.path.exists(path):
+      os.rename(path, old)
+    os.rename(tmp, path)
+    files.fsync_directory(os.path.dirname(path))
+  except OSError as e:
+    shutil.rmtree(tmp, ignore_errors=True)
+    if os.path.exists(old) and not os.path.exists(path):
+      os.rename(old, path)
+    raise _save_failure(f'the actor-critic in {path}', e) from None
   shutil.rmtree(old, ignore_errors=True)
   return path
+
+
+def _save_and_wait(checkpointer: ocp.StandardCheckpointer, directory: str, tree: Any) -> None:
+  checkpointer.save(directory, tree)
+  checkpointer.wait_until_finished()
+
+
+def remove_stale_exports(path: str) -> None:
+  """Removes what an interrupted `save_actor_critic(path)` of a process no longer running left
+  beside `path` (`path`.tmp-PID, `path`.old-PID; an .old- one is put back when `path` is
+  missing)."""
+  parent, name = os.path.split(os.path.abspath(path))
+  if not os.path.isdir(parent):
+    return
+  for entry in sorted(os.listdir(parent)):
+    for kind in ('.tmp-', '.old-'):
+      pid = entry[len(name) + len(kind):] if entry.startswith(name + kind) else ''
+      if not pid.isdigit() or _process_alive(int(pid)):
+        continue
+      stale = os.path.join(parent, entry)
+      if kind == '.old-' and not os.path.exists(os.path.join(parent, name)):
+        os.rename(stale, os.path.join(parent, name))
+      else:
+        shutil.rmtree(stale, ignore_errors=True)
+
+
+def _process_alive(pid: int) -> bool:
+  if pid == os.getpid():
+    return False  # this process is not saving that path now
+  try:
+    os.kill(pid, 0)
+  except ProcessLookupError:
+    return False
+  except PermissionError:
+    return True
+  return True
 
 
 def _resolve_path(path: str) -> str:
@@ -182,11 +243,23 @@ def _read_model_config(path: str, require_hash: bool = True
     config.networks()  # an unknown activation or bad widths fail here, not at first use
   except (TypeError, ValueError, KeyError, AttributeError) as e:
     raise CheckpointError(f'{where}: invalid "model" config ({_reason(e)})') from None
-  if require_hash and not isinstance(meta.get(HASH_KEY), str):
-    raise CheckpointError(f'{where} has no "{HASH_KEY}" (exported before parameter hashes); '
-                          'if you trust it, run: python -m pachs_jax.sac.verify --add-hash '
-                          f'{path}')
+  if require_hash:
+    _check_meta_hash(path, where, config, meta)
   return config, meta
+
+
+def _check_meta_hash(path: str, where: str, config: ModelConfig, meta: Dict[str, Any]) -> None:
+  """CheckpointError unless meta records both hashes and its meta hash matches its entries."""
+  missing = [k for k in (HASH_KEY, META_HASH_KEY) if not isinstance(meta.get(k), str)]
+  if missing:
+    before = 'metadata hashes' if missing == [META_HASH_KEY] else 'hashes'
+    raise CheckpointError(f'{where} has no "{missing[0]}" (written before {before}, so its task '
+                          f'and sizes are unverified); if you trust it, run: {VERIFY_COMMAND} '
+                          f'{path}')
+  if meta_hash(meta) != meta[META_HASH_KEY]:
+    raise CheckpointError(f'{where} changed after it was written (meta hash mismatch; it now '
+                          f'names task {config.task!r}); if that edit is intended, record it '
+                          f'with: {VERIFY_COMMAND} {path}')
 
 
 def _expected_params(config: ModelConfig) -> Dict[str, Any]:
@@ -286,8 +359,8 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
   """Loads an exported actor-critic (or a run directory's latest export).
 
   With `env` (or `task`), checks that the checkpoint was trained on that task and, for `env`,
-  that its observation and action sizes match. Any problem (also a parameter hash that does
-  not match the one in actor_critic.json) raises CheckpointError, a ValueError.
+  that its observation and action sizes match. Any problem (also a parameter or metadata hash
+  that does not match the one in actor_critic.json) raises CheckpointError, a ValueError.
   """
   path = _resolve_path(path)
   config, meta = _read_model_config(path)
@@ -314,9 +387,11 @@ def load_actor_critic(path: str, env: Optional[base.Env] = None,
   return SacActorCritic(params=params, config=config)
 
 
-def add_params_hash(path: str) -> str:
-  """Records the parameter hash of an export written before hashes (trusting its files as they
-  are) and returns it; an export that already records one must match it."""
+def add_hashes(path: str) -> str:
+  """Records the parameter hash and the metadata hash of an export written before them, or
+  whose actor_critic.json was edited on purpose (trusting its files as they are), and returns
+  the metadata hash. A parameter hash already recorded must match the parameters (damaged
+  weights are not blessed)."""
   path = _resolve_path(path)
   config, meta = _read_model_config(path, require_hash=False)
   digest = params_hash(_restore_params(path, config))
@@ -324,24 +399,21 @@ def add_params_hash(path: str) -> str:
     raise CheckpointError(f'checkpoint {path}: params hash mismatch (file damaged?); the '
                           'recorded hash is left as it is')
   head = {k: meta[k] for k in ('format', 'model')}
-  meta = dict(head, **{HASH_KEY: digest}, **{k: v for k, v in meta.items() if k not in head})
-  _write_json(os.path.join(path, CONFIG_FILE), meta)
-  return digest
-
-
-def _write_json(file: str, data: Any) -> None:
-  """Writes `data` as indented JSON to `file` atomically (a temporary file, then a rename)."""
-  tmp = f'{file}.tmp-{os.getpid()}'
-  with open(tmp, 'w') as f:
-    json.dump(data, f, indent=2)
-    f.write('\n')
-  os.replace(tmp, file)
+  rest = {k: v for k, v in meta.items() if k not in (*head, HASH_KEY, META_HASH_KEY)}
+  meta = dict(head, **{HASH_KEY: digest}, **rest)
+  meta[META_HASH_KEY] = meta_hash(meta)
+  try:
+    files.write_json(os.path.join(path, CONFIG_FILE), meta)
+  except files.WriteError as e:
+    raise CheckpointError(f'checkpoint {path}: {e}') from None
+  return meta[META_HASH_KEY]
 
 
 # ------------------------------------------------------------------ training states ----
 
 class TrainingCheckpoints:
-  """Full training states of one run, numbered by epoch; keeps the last `keep`."""
+  """Full training states of one run, numbered by epoch; keeps the last `keep`. Opening it
+  removes the temporary directories of a save that a kill interrupted."""
 
   def __init__(self, directory: str, keep: int = 3):
     if keep < 1:
@@ -350,7 +422,15 @@ class TrainingCheckpoints:
     self._manager = ocp.CheckpointManager(
         self.directory,
         options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True,
-                                             enable_async_checkpointing=False))
+                                             enable_async_checkpointing=False,
+                                             cleanup_tmp_directories=True))
+    self._remove_partial_saves()
+
+  def _remove_partial_saves(self) -> None:
+    """Removes orbax's temporary step directories (a save cut short by a kill or an error)."""
+    for entry in os.listdir(self.directory):
+      if '.orbax-checkpoint-tmp' in entry:
+        shutil.rmtree(os.path.join(self.directory, entry), ignore_errors=True)
 
   def latest_epoch(self) -> Optional[int]:
     """The newest complete epoch saved, or None."""
@@ -358,11 +438,22 @@ class TrainingCheckpoints:
 
   def save(self, epoch: int, state: Any, meta: Dict[str, Any]) -> None:
     """Saves the state pytree and the JSON-ready meta dict, plus the state's `params_hash` as
-    'state_sha256', as step `epoch` (blocking)."""
+    'state_sha256', as step `epoch` (blocking).
+
+    A failed save (a full disk) raises a one-line CheckpointError and leaves no partial step
+    behind; the earlier checkpoints stay."""
     meta = dict(meta, **{STATE_HASH_KEY: params_hash(state)})
-    self._manager.save(int(epoch), args=ocp.args.Composite(
-        state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
-    self._manager.wait_until_finished()
+
+    def save():
+      self._manager.save(int(epoch), args=ocp.args.Composite(
+          state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
+      self._manager.wait_until_finished()
+
+    _, failure = _orbax_call(save)
+    if failure is not None:
+      self._remove_partial_saves()
+      raise CheckpointError(f'cannot save {self._where(epoch)}: '
+                            + ('no space left on device' if _full_disk(failure) else failure))
 
   def _where(self, epoch: int) -> str:
     return f'training checkpoint {os.path.join(self.directory, str(int(epoch)))}'

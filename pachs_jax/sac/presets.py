@@ -1,4 +1,5 @@
-"""Per-task SAC hyperparameters for a single H100/H200 (reasons: docs/sac.md)."""
+"""Per-task SAC hyperparameters for a single H100/H200, and smaller ones for a CPU (reasons:
+docs/sac.md)."""
 
 from __future__ import annotations
 
@@ -44,8 +45,20 @@ PRESETS: Dict[str, SACConfig] = {
 }
 
 
-def preset(task: str) -> SACConfig:
-  """The preset SACConfig of a task name."""
+# On a CPU (a few cores; PushT physics in MuJoCo C): epochs of seconds and evaluations of a few
+# rollouts, so that a run of a few minutes saves checkpoints and evaluates.
+_CPU_SIZES = dict(num_envs=64, batch_size=256, grad_updates_per_step=1, steps_per_epoch=10,
+                  replay_capacity=200_000, min_replay_size=1024, eval_instances=16)
+CPU_PRESETS: Dict[str, SACConfig] = {
+    task: dataclasses.replace(PRESETS[task], **_CPU_SIZES)
+    for task in ('pusht-fixed', 'pusht-obs', 'pusht-rand', 'shelf')}
+
+
+def preset(task: str, platform: str = 'gpu') -> SACConfig:
+  """The preset SACConfig of a task name for `platform` ('cpu': CPU_PRESETS where the task has
+  one; any other platform: PRESETS)."""
   if task not in PRESETS:
     raise ValueError(f'no SAC preset for task {task!r}; known: {sorted(PRESETS)}')
+  if platform == 'cpu':
+    return CPU_PRESETS.get(task, PRESETS[task])
   return PRESETS[task]

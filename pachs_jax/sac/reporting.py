@@ -8,6 +8,10 @@ import os
 import time
 from typing import Dict
 
+import tqdm
+
+from pachs_jax import files
+
 CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'success_rate',
                'episodes', 'reward_mean', 'critic_loss', 'actor_loss', 'alpha_loss', 'alpha',
                'buffer_size', 'eval_success_deterministic', 'eval_success_stochastic',
@@ -17,9 +21,9 @@ CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'succe
 class RunReporter:
   """Writes run_dir/metrics.csv, TensorBoard events (if tensorboardX is installed) and a tqdm bar.
 
-  metrics.csv is only ever appended to (a header first when it is new or empty): a resumed run
-  adds its rows after the earlier ones. Rows that a hard kill left after the checkpoint being
-  resumed stay, so an env_steps value may appear twice; the later row is the resumed run's.
+  metrics.csv gets one row per epoch (a header first when it is new or empty); a resumed run
+  adds its rows after the earlier ones, once the rows past the checkpoint it resumes (those of
+  a run killed before it saved them, or a row cut short) are dropped: each epoch has one row.
 
   progress: 'bar' (tqdm: env steps, env steps/s, episode return, success rate), 'lines' (a
     printed line at most every line_seconds and at every evaluation; for logs) or 'none'.
@@ -44,16 +48,12 @@ class RunReporter:
     self._last = 0
 
   def start(self, env_steps: int, total_env_steps: int) -> None:
+    """Opens the outputs of a run (re)starting at env_steps of total_env_steps."""
     os.makedirs(self.run_dir, exist_ok=True)
     new = not os.path.exists(self.csv_path) or os.path.getsize(self.csv_path) == 0
-    partial_row = False
     if not new:
-      with open(self.csv_path, 'rb') as f:
-        f.seek(-1, os.SEEK_END)
-        partial_row = f.read(1) != b'\n'  # a kill mid-row: start the next row on a new line
+      _keep_rows_up_to(self.csv_path, env_steps)
     self._csv_file = open(self.csv_path, 'a', newline='')
-    if partial_row:
-      self._csv_file.write('\r\n')
     self._csv = csv.DictWriter(self._csv_file, fieldnames=CSV_COLUMNS, extrasaction='ignore')
     if new:
       self._csv.writeheader()
@@ -64,7 +64,6 @@ class RunReporter:
       except ImportError:
         self._writer = None
     if self._progress == 'bar':
-      import tqdm  # pylint: disable=import-outside-toplevel
       self._bar = tqdm.tqdm(total=total_env_steps, initial=env_steps, unit='step',
                             unit_scale=True, desc=self._description, dynamic_ncols=True)
     self._last = env_steps
@@ -94,6 +93,13 @@ class RunReporter:
         self._last_line = now
     self._last = env_steps
 
+  def note(self, line: str) -> None:
+    """Prints a one-line note (above the bar when there is one; not with progress 'none')."""
+    if self._bar is not None:
+      self._bar.write(f'[{self._description}] {line}')
+    elif self._progress != 'none':
+      print(f'[{self._description}] {line}', flush=True)
+
   def close(self) -> None:
     if self._bar is not None:
       self._bar.close()
@@ -102,6 +108,28 @@ class RunReporter:
     if self._csv_file is not None:
       self._csv_file.close()
     self._bar = self._writer = self._csv_file = self._csv = None
+
+
+def _keep_rows_up_to(csv_path: str, env_steps: int) -> None:
+  """Rewrites csv_path (atomically) without the rows past env_steps and without rows cut short
+  (fewer fields than the header, or no line end); a file without them is left untouched."""
+  with open(csv_path, newline='') as f:
+    text = f.read()
+  lines = text.splitlines(keepends=True)
+  if not lines:
+    return
+  width = len(next(csv.reader([lines[0]])))
+  kept = [lines[0]]
+  for line in lines[1:]:
+    fields = next(csv.reader([line]), [])
+    try:
+      whole = line.endswith('\n') and len(fields) == width and float(fields[0]) <= env_steps
+    except ValueError:
+      whole = False
+    if whole:
+      kept.append(line)
+  if len(kept) != len(lines):
+    files.write_text(csv_path, ''.join(kept))
 
 
 def _summary_line(metrics: Dict[str, float]) -> str:

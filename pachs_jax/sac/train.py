@@ -16,6 +16,7 @@ from typing import Any, Dict, Optional, Protocol
 import jax
 import numpy as np
 
+from pachs_jax.envs import mujoco_c
 from pachs_jax.sac import checkpoint
 from pachs_jax.sac import evaluator
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
@@ -41,7 +42,9 @@ class RunDirError(ValueError):
 
 
 class Reporter(Protocol):
-  """Receives progress: start once, then one report per epoch, then close."""
+  """Receives progress: start once, then one report per epoch, then close; a reporter with a
+  `note(line)` method also gets one-line notes (what an epoch and an evaluation cost here, an
+  evaluation skipped for the time budget)."""
 
   def start(self, env_steps: int, total_env_steps: int) -> None:
     ...
@@ -217,26 +220,96 @@ def _host_metrics(metrics: Dict[str, Any]) -> Dict[str, float]:
   return m
 
 
+POLL_SECONDS = 0.05
+
+
+def wait_ready(tree: Any) -> Any:
+  """The tree once all its arrays are computed, waiting in short sleeps: signal handlers run
+  between them, and with one computation in flight at a time the next dispatch never queues
+  inside XLA (where a handler would wait for the queue)."""
+  leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array)]
+  while not all(x.is_ready() for x in leaves):
+    time.sleep(POLL_SECONDS)
+  return tree
+
+
+def evaluation_env(trainer: Trainer):
+  """The env of the evaluation rollouts: the trainer's, with MuJoCo C physics for PushT when
+  JAX runs on the CPU (`mujoco_c.make_backend` 'auto')."""
+  if isinstance(trainer.env, mujoco_c.MujocoCEnv):
+    return trainer.env
+  return mujoco_c.make_backend(trainer.env, 'auto')
+
+
+def evaluation_env_steps(trainer: Trainer) -> int:
+  """Env steps of one evaluation at most: a deterministic and a stochastic rollout of an
+  episode from each of eval_instances start nodes."""
+  return 2 * trainer.config.eval_instances * trainer.env.episode_length
+
+
 def _make_evaluation(trainer: Trainer):
   """fn(state) -> eval metrics over a fixed set of start nodes, or None when disabled."""
   count = trainer.config.eval_instances
   if count == 0:
     return None
-  env = trainer.env
+  env = evaluation_env(trainer)
   key = jax.random.fold_in(jax.random.PRNGKey(trainer.config.seed), 0x5EED)
-  nodes = env.initial_nodes(jax.random.split(key, count))
+  nodes = wait_ready(jax.jit(env.initial_nodes)(jax.random.split(key, count)))
   det = evaluator.make_rollout_fn(env, deterministic=True)
   sto = evaluator.make_rollout_fn(env, deterministic=False)
 
   def evaluate(state: TrainingState) -> Dict[str, float]:
     ac = actor_critic_from_state(trainer, state)
-    d = det(ac, nodes, key)
-    s = sto(ac, nodes, key)
+    d = wait_ready(det(ac, nodes, key))
+    s = wait_ready(sto(ac, nodes, key))
     return {'eval_success_deterministic': float(np.mean(d.success)),
             'eval_success_stochastic': float(np.mean(s.success)),
             'eval_cost_deterministic': float(np.mean(d.cost))}
 
   return evaluate
+
+
+class _Timing:
+  """What epochs, saves and evaluations have cost in this call (seconds)."""
+
+  def __init__(self, trainer: Trainer, evaluates: bool):
+    self.trainer = trainer
+    self.evaluates = evaluates
+    self.epochs: list = []
+    self.save_seconds = 0.0
+    self.evaluation_seconds: Optional[float] = None
+
+  def add_epoch(self, seconds: float, note, epoch: int) -> None:
+    self.epochs.append(seconds)
+    t = self.trainer
+    if len(self.epochs) == 1:
+      note(f'epoch {epoch}: {t.env_steps_per_epoch} env steps and '
+           f'{t.config.steps_per_epoch * t.config.grad_updates_per_step} gradient updates took '
+           f'{seconds:.1f} s here (compilation included)')
+    elif len(self.epochs) == 2:
+      line = f'an epoch takes about {seconds:.2g} s here'
+      if self.evaluates and self.evaluation_seconds is None:
+        line += f'; an evaluation about {self.evaluation_estimate():.0f} s (estimated)'
+      note(line)
+
+  def next_epoch(self) -> float:
+    """Seconds to budget for one more epoch and the save after it, with its evaluation once
+    two epochs tell the compilation from the work."""
+    recent = self.epochs[-1] if len(self.epochs) < 2 else min(self.epochs[-2:])
+    known = self.evaluation_seconds is not None or len(self.epochs) >= 2
+    return 1.2 * recent + self.save_seconds + (self.evaluation_estimate() if self.evaluates
+                                               and known else 0.0)
+
+  def evaluation_estimate(self) -> float:
+    """The last evaluation's time; before the first, its env steps at the fastest epoch's rate
+    plus the first epoch's compilation time (as a stand-in for the rollouts' own)."""
+    if self.evaluation_seconds is not None:
+      return self.evaluation_seconds
+    if not self.epochs:
+      return 0.0
+    fastest = min(self.epochs)
+    per_step = fastest / self.trainer.env_steps_per_epoch
+    return per_step * evaluation_env_steps(self.trainer) + (self.epochs[0] - fastest)
 
 
 def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool = False,
@@ -249,12 +322,15 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   resume: continue from run_dir's latest checkpoint; a run_dir without one is a RunDirError
     unless start_if_missing (then it starts a new run). Without resume, a run_dir that already
     holds checkpoints is a RunDirError.
-  max_minutes: wall-time budget of this call; it stops before an epoch that would overrun it,
-    checkpoints and returns (finished=False).
+  max_minutes: wall-time budget of this call, evaluations included: it stops before an epoch
+    that would overrun it (judged by the last epoch's time), checkpoints and returns
+    (finished=False); an evaluation that would overrun it is skipped (a note says so). The first
+    epoch (with its compilation) is the unit it cannot split.
   checkpoint_minutes / checkpoint_every_epochs: save when either is due (0 disables the latter);
-    the end of the call always saves.
-  handle_signals: (main thread) the first SIGINT or SIGTERM stops the run after the current
-    epoch; it saves that epoch like the time budget does and returns (finished=False,
+    the second epoch and the end of the call always save.
+  handle_signals: (main thread) the first SIGINT or SIGTERM (handled at once, also while
+    XLA computes: results are awaited in short sleeps) stops the run after the current epoch;
+    it saves that epoch like the time budget does and returns (finished=False,
     interrupted='SIGINT'/'SIGTERM'); a second signal ends the process at once (os._exit with
     128 + signal number, one line on stderr), without saving.
   Damaged checkpoints raise checkpoint.CheckpointError; both errors are ValueErrors.
@@ -296,57 +372,79 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
       state = ckpts.restore(latest, jax.eval_shape(trainer.init))
       epoch = latest
     else:
-      state = trainer.init()
+      init_start = time.time()
+      state = wait_ready(trainer.init())
+      init_seconds = time.time() - init_start
       epoch = 0
   except BaseException:
     ckpts.close()
     raise
   start_epoch = epoch
   num_epochs = trainer.num_epochs(total_env_steps)
-  evaluate = _make_evaluation(trainer)
   reporter_ = reporter
+  note = getattr(reporter_, 'note', None) or (lambda line: None)
+  if latest is None and trainer.prefill_env_steps:
+    note(f'prefill: {trainer.prefill_env_steps} random env steps in {init_seconds:.1f} s '
+         '(compilation included)')
+  evaluate = _make_evaluation(trainer)
   if reporter_ is not None:
     reporter_.start(trainer.env_steps(epoch), trainer.env_steps(num_epochs))
+  timing = _Timing(trainer, evaluate is not None)
 
   def save(state: TrainingState, epoch: int) -> Dict[str, float]:
+    """Saves, then evaluates when that fits in the time budget."""
     env_steps = trainer.env_steps(epoch)
     meta = {'format': TRAINING_FORMAT, 'task': env.name,
             'observation_size': env.observation_size, 'action_size': env.action_size,
             'sac_config': config_to_dict(config), 'epoch': epoch, 'env_steps': env_steps}
+    t = time.time()
     ckpts.save(epoch, state, meta)
     checkpoint.save_actor_critic(os.path.join(run_dir, checkpoint.MODEL_SUBDIR),
                                  actor_critic_from_state(trainer, state),
                                  extra={'sac_config': config_to_dict(config), 'epoch': epoch,
                                         'env_steps': env_steps})
-    return evaluate(state) if evaluate is not None else {}
+    timing.save_seconds = time.time() - t
+    if evaluate is None or stop.requested is not None:
+      return {}
+    estimate = timing.evaluation_estimate()
+    if deadline is not None and time.time() + estimate > deadline:
+      note(f'epoch {epoch}: evaluation skipped (about {estimate:.0f} s, past the time budget)')
+      return {}
+    t = time.time()
+    result = evaluate(state)
+    first = timing.evaluation_seconds is None
+    timing.evaluation_seconds = time.time() - t
+    if first:
+      note(f'an evaluation ({evaluation_env_steps(trainer)} env steps at most) took '
+           f'{timing.evaluation_seconds:.1f} s here (compilation included)')
+    return result
 
   saved_epoch, last_save_time = epoch, time.time()
-  epoch_seconds, save_seconds = 0.0, 0.0
   try:
     while epoch < num_epochs:
       now = time.time()
       if stop.requested is not None:
         stop.acknowledge()
         break
-      if (deadline is not None and epoch_seconds > 0
-          and now + 1.5 * epoch_seconds + save_seconds > deadline):
+      if deadline is not None and timing.epochs and now + timing.next_epoch() > deadline:
         break
       state, metrics = trainer.epoch(state)
       epoch += 1
-      metrics = _host_metrics(metrics)  # waits for the epoch
+      metrics = _host_metrics(wait_ready(metrics))
       epoch_seconds = time.time() - now
+      timing.add_epoch(epoch_seconds, note, epoch)
       metrics.update(epoch=float(epoch), sps=trainer.env_steps_per_epoch / epoch_seconds,
                      walltime=time.time() - start_time)
+      # The second epoch of a call saves too: from then on what a save and an evaluation cost
+      # here is measured, not guessed.
       due = ((checkpoint_every_epochs > 0 and epoch % checkpoint_every_epochs == 0)
              or time.time() - last_save_time >= 60.0 * checkpoint_minutes
-             or epoch == num_epochs or stop.requested is not None)
+             or epoch == num_epochs or stop.requested is not None or len(timing.epochs) == 2)
       if not due and deadline is not None:
-        due = time.time() + 1.5 * epoch_seconds + save_seconds > deadline
+        due = time.time() + timing.next_epoch() > deadline
       if due:
-        t = time.time()
         metrics.update(save(state, epoch))
         saved_epoch, last_save_time = epoch, time.time()
-        save_seconds = last_save_time - t
       if reporter_ is not None:
         reporter_.report(trainer.env_steps(epoch), metrics)
     if saved_epoch != epoch:

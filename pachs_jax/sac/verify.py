@@ -1,7 +1,7 @@
-"""Check actor-critic exports, or record the parameter hash of exports written before hashes.
+"""Check actor-critic exports, or record the hashes of exports written before them.
 
-python -m pachs_jax.sac.verify DIR...             load each (parameter hash included)
-python -m pachs_jax.sac.verify --add-hash DIR...  record the hash of the files as they are
+python -m pachs_jax.sac.verify DIR...             load each (parameter and metadata hashes)
+python -m pachs_jax.sac.verify --add-hash DIR...  record the hashes of the files as they are
 """
 
 from __future__ import annotations
@@ -17,16 +17,18 @@ def main(argv=None) -> int:
                               description=__doc__.split('\n')[0])
   p.add_argument('paths', nargs='+', metavar='DIR', help='actor-critic export or run directory')
   p.add_argument('--add-hash', action='store_true',
-                 help='record the hash of the parameters as they are (trusts the files)')
+                 help='record the hashes of the parameters and metadata as they are (trusts '
+                      'the files)')
   args = p.parse_args(argv)
   status = 0
   for path in args.paths:
     try:
       if args.add_hash:
-        print(f'{path}: {checkpoint.HASH_KEY} {checkpoint.add_params_hash(path)}')
+        print(f'{path}: {checkpoint.META_HASH_KEY} {checkpoint.add_hashes(path)}')
       else:
         ac = checkpoint.load_actor_critic(path)
-        print(f'{path}: ok (task {ac.config.task}, {checkpoint.HASH_KEY} verified)')
+        print(f'{path}: ok (task {ac.config.task}, {checkpoint.HASH_KEY} and '
+              f'{checkpoint.META_HASH_KEY} verified)')
     except checkpoint.CheckpointError as e:
       print(f'error: {e}', file=sys.stderr)
       status = 1
