@@ -396,6 +396,14 @@ def warp_physics(src: Sources) -> str:
   same_rows = [[label, solved(summary_of(same, planner)),
                 num(summary_of(same, planner)['batch_wall_s'])]
                for planner, label in (('pachs', 'PACHS'), ('parallel', 'parallel rollout'))]
+  pop = []
+  for name in ('open_loop_two-gaps_warp', 'open_loop_two-gaps_warp_k128',
+               'open_loop_two-gaps_warp_k256', 'open_loop_two-gaps_warp_k512'):
+    payload = src.load(f'engines/{name}.json')
+    row = summary_of(payload, 'pachs')
+    k = re.search(r'pop_size=(\d+)', payload['configs']['pachs']).group(1)
+    pop.append([k, solved(row), num(row['batch_wall_s']), num(row['evaluated_mean']),
+                num(row['cost_success_mean'])])
   start = src.load('engines/plan_startup_warp.json')
   walls = {}
   for r in start['walls']:
@@ -434,6 +442,9 @@ def warp_physics(src: Sources) -> str:
       table(['layout', 'planner', 'Warp', 'Warp wall', 'MJX-JAX', 'MJX-JAX wall'], suite),
       'MJX-JAX on two-gaps again, at the revision and on the machine of the Warp two-gaps row:',
       table(['planner', 'MJX-JAX', 'wall'], same_rows),
+      'PACHS on two-gaps with Warp physics and more edges per iteration (K; 150 runs, 100,000 '
+      'evaluations, batch wall in s):',
+      table(['K', 'solved', 'wall', 'mean evaluations', 'mean cost (solved)'], pop),
       '`pachs plan --task pusht-obs` on one GPU with Warp physics (`--backend auto` picks it), '
       'process wall in s:',
       table(['run', 'process wall'], plan_rows),
