@@ -65,28 +65,48 @@ def _floats(array: np.ndarray) -> list:
   return np.asarray(array).tolist()
 
 
+def _leaves(states) -> Dict[str, Any]:
+  """{key path: leaf} of a node pytree (a task's own node type, e.g. a Playground node)."""
+  flat, _ = jax.tree_util.tree_flatten_with_path(states)
+  return {jax.tree_util.keystr(path): leaf for path, leaf in flat}
+
+
 def to_json(plan: Plan) -> Dict[str, Any]:
   """A JSON-ready dict of a plan: length, cost, found, ends_at_goal, truncated, action_size A,
-  actions [L][A], goal [G] and states {qpos, qvel, ctrl, qacc_warmstart, t: [L + 1][...]}. Floats keep their
-  float32 values exactly (`from_json` restores them bit for bit)."""
-  return {'length': plan.length, 'cost': plan.cost, 'found': plan.found,
-          'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated,
-          'action_size': int(plan.actions.shape[1]), 'actions': _floats(plan.actions), 'goal': _floats(plan.states.goal[0]),
-          'states': {name: _floats(getattr(plan.states, name)) for name in NODE_FIELDS}}
+  actions [L][A] and the states [L + 1][...]: for a `base.NodeState`, goal [G] once and states
+  {qpos, qvel, ctrl, qacc_warmstart, t}; for another node type, states {key path: leaf} and
+  node_type. Floats keep their float32 values exactly (`from_json` restores them bit for bit)."""
+  out = {'length': plan.length, 'cost': plan.cost, 'found': plan.found,
+         'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated,
+         'action_size': int(plan.actions.shape[1]), 'actions': _floats(plan.actions)}
+  if isinstance(plan.states, base.NodeState):
+    out['goal'] = _floats(plan.states.goal[0])
+    out['states'] = {name: _floats(getattr(plan.states, name)) for name in NODE_FIELDS}
+  else:
+    out['node_type'] = type(plan.states).__qualname__
+    out['states'] = {path: _floats(leaf) for path, leaf in _leaves(plan.states).items()}
+  return out
 
 
-def from_json(data: Dict[str, Any]) -> Plan:
+def from_json(data: Dict[str, Any], like=None) -> Plan:
   """The Plan of a `to_json` dict (for example a row's 'plan' in `pachs plan --json`);
-  ValueError naming what is missing or of the wrong shape."""
+  like: a node of the task (any batch shape) for a plan of another node type than
+  `base.NodeState`. ValueError naming what is missing or of the wrong shape."""
   try:
-    fields = {name: np.asarray(data['states'][name], np.int32 if name == 't' else np.float32)
-              for name in NODE_FIELDS}
     actions = np.asarray(data['actions'], np.float32)
     if actions.size == 0:  # an empty plan: [0, A]
       actions = actions.reshape(0, int(data['action_size']))
-    goal = np.asarray(data['goal'], np.float32)
     flags = {k: bool(data[k]) for k in ('found', 'ends_at_goal', 'truncated')}
     cost = float(data['cost'])
+    if 'node_type' in data:
+      if like is None:
+        raise ValueError(f'a plan of {data["node_type"]} nodes needs like= (a node of its task)')
+      fields = {path: np.asarray(data['states'][path], leaf.dtype)
+                for path, leaf in _leaves(like).items()}
+    else:
+      fields = {name: np.asarray(data['states'][name], np.int32 if name == 't' else np.float32)
+                for name in NODE_FIELDS}
+      goal = np.asarray(data['goal'], np.float32)
   except (KeyError, TypeError) as err:
     raise ValueError(f'not a plan: missing or malformed entry {err}') from None
   count = actions.shape[0] + 1 if actions.ndim == 2 else None
@@ -94,7 +114,10 @@ def from_json(data: Dict[str, Any]) -> Plan:
   if count is None or wrong:
     raise ValueError(f'a plan needs actions [L, A] and states of L + 1 rows, got actions '
                      f'{actions.shape} and {", ".join(wrong) or "no states"}')
-  states = base.NodeState(goal=np.broadcast_to(goal, (count,) + goal.shape).copy(), **fields)
+  if 'node_type' in data:
+    states = jax.tree_util.tree_unflatten(jax.tree.structure(like), list(fields.values()))
+  else:
+    states = base.NodeState(goal=np.broadcast_to(goal, (count,) + goal.shape).copy(), **fields)
   return Plan(actions=actions, states=states, cost=cost, **flags)
 
 

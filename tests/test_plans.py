@@ -99,3 +99,25 @@ def test_bad_plans_are_refused():
   three_d = plans.from_json(good)
   with pytest.raises(ValueError, match='takes \\[L, 3\\]'):
     plans.replay(point_mass.PointMassEnv(point_mass.PointMassConfig(dim=3)), three_d)
+
+
+def test_a_plan_of_another_node_type_round_trips_through_json_with_like():
+  from flax import struct
+
+  @struct.dataclass
+  class Node:
+    pos: jax.Array
+    extra: dict
+
+  states = Node(pos=np.arange(6, dtype=np.float32).reshape(3, 2) / 7,
+                extra={'count': np.arange(3, dtype=np.int32)})
+  plan = plans.Plan(actions=np.full((2, 1), 0.3, np.float32), states=states, cost=1.5,
+                    found=True, ends_at_goal=True, truncated=False)
+  data = json.loads(json.dumps(plans.to_json(plan)))
+  assert data['node_type'].endswith('Node')
+  back = plans.from_json(data, like=states)
+  assert back.states.pos.tobytes() == states.pos.tobytes()
+  np.testing.assert_array_equal(back.states.extra['count'], states.extra['count'])
+  assert back.states.extra['count'].dtype == np.int32
+  with pytest.raises(ValueError, match='needs like='):
+    plans.from_json(data)
