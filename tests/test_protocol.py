@@ -149,13 +149,14 @@ def test_doc_task_trains_and_plans_end_to_end(doc, tmp_path):
 
 def test_missing_playground_extra_names_the_install_command(monkeypatch, capsys):
   """Without MuJoCo Playground, a playground task fails with one line giving the pip command,
-  from the library and from both commands; the core package never imports it."""
+  from the library and from both commands; the core package never imports it, and importing
+  it prints nothing (MJX itself imports warp-lang where it is installed: not checked here)."""
   import subprocess
   import sys
 
   from pachs_jax import cli
   code = ('import sys, pachs_jax.envs, pachs_jax.planner, pachs_jax.cli; '
-          'print(sorted(m for m in sys.modules if m.startswith(("mujoco_playground", "warp"))))')
+          'print(sorted(m for m in sys.modules if m.startswith("mujoco_playground")))')
   out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
   assert out.stdout.strip() == '[]', out.stdout
   monkeypatch.setitem(sys.modules, 'mujoco_playground', None)  # import raises ImportError

@@ -2,8 +2,6 @@
 `from_playground(env)` wraps a MuJoCo Playground env, `check_task(env)` checks a user's task
 (docs/own_task.md)."""
 
-# First, so that MJX is imported without its stdout line about a missing warp-lang.
-from pachs_jax.envs import warp_import  # pylint: disable=unused-import
 from pachs_jax.envs.base import EdgeOutcome, Env, NodeState, State
 from pachs_jax.envs.protocol import TaskError, check_task
 from pachs_jax.envs.registry import (SPECS, TASKS, TaskSpec, is_playground, make, spec)

@@ -9,9 +9,10 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-from pachs_jax.envs import base, coverage, kinematics, layouts, panda
+from pachs_jax.envs import base, coverage, kinematics, layouts, panda, warp_import
+
+mjx = warp_import.quiet_mjx()  # mujoco.mjx, without its stdout line about a missing warp-lang
 
 BASE_POS = (-0.615, 0.0, 0.0)
 FIXED_GOAL = (-0.156, -0.1, 5.0 * np.pi / 3.0)  # x (m), y (m), yaw (rad)

@@ -10,9 +10,10 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-from pachs_jax.envs import base, ik, kinematics, panda
+from pachs_jax.envs import base, ik, kinematics, panda, warp_import
+
+mjx = warp_import.quiet_mjx()  # mujoco.mjx, without its stdout line about a missing warp-lang
 
 HOME_QPOS = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 FAR_DISTANCE = 10.0  # m: the distance reported for a geom with no pair (never near the shelf)

@@ -6,6 +6,7 @@ here that expected line is dropped, and any other import message goes to stderr.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import sys
 
@@ -16,11 +17,10 @@ _EXPECTED = tuple(f'Failed to import {part}: {why}' for part in ('warp', 'mujoco
 INSTALL_HINT = "pip install -e '.[cuda]' (it brings warp-lang)"
 
 
-def _import_mjx() -> str:
-  """Imports mujoco.mjx (and its warp part); returns what the import printed, less the lines
-  that only say warp-lang is not installed; those other lines are written to stderr."""
-  if 'mujoco.mjx.warp' in sys.modules:
-    return ''
+@functools.cache
+def import_message() -> str:
+  """Imports `mujoco.mjx` (once) with its stdout caught: the lines that only say warp-lang is
+  not installed are dropped, any other line goes to stderr and is returned ('' for none)."""
   printed = io.StringIO()
   with contextlib.redirect_stdout(printed):
     import mujoco.mjx  # pylint: disable=g-import-not-at-top,unused-import
@@ -32,11 +32,15 @@ def _import_mjx() -> str:
   return '\n'.join(rest)
 
 
-IMPORT_MESSAGE = _import_mjx()
+def quiet_mjx():
+  """`mujoco.mjx`, imported through `import_message` (no stdout line about warp)."""
+  import_message()
+  return sys.modules['mujoco.mjx']
 
 
 def available() -> bool:
   """Whether MJX's Warp implementation (warp-lang and MJX's bundled MuJoCo Warp) imported."""
+  quiet_mjx()
   from mujoco.mjx import warp as mjx_warp  # pylint: disable=g-import-not-at-top
   return bool(mjx_warp.WARP_INSTALLED) and mjx_warp.mujoco_warp is not None
 
@@ -44,7 +48,8 @@ def available() -> bool:
 def require(what: str = "backend 'warp'") -> None:
   """Raises ImportError, one line naming the extra to install, unless `available()`."""
   if not available():
-    detail = f' (import said: {IMPORT_MESSAGE.splitlines()[0]})' if IMPORT_MESSAGE else ''
+    message = import_message()
+    detail = f' (import said: {message.splitlines()[0]})' if message else ''
     raise ImportError(f'{what} needs MuJoCo Warp, which is not installed: {INSTALL_HINT}'
                       f'{detail}')
 

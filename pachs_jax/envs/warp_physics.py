@@ -7,9 +7,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
 from pachs_jax.envs import base, pusht, warp_import
+
+mjx = warp_import.quiet_mjx()  # mujoco.mjx, without its stdout line about a missing warp-lang
 
 
 def rebuild(host_data):
