@@ -233,8 +233,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     def advance(state, iterations):
       """One chunk of at most `iterations` in the loop of the live instances' size."""
       size = search.size_for(state) if shrink else first
-      return _ready(programs, ('loop', size), waiting)(state, jax.device_put(np.int32(iterations)),
-                                                      shrinking)
+      count = jax.device_put(np.int32(iterations))
+      return _ready(programs, ('loop', size), waiting)(state, count, shrinking)
 
     def on_chunk(state, elapsed_s):
       active = np.asarray(state.active)[:num_instances]
