@@ -34,8 +34,9 @@ class ChunkSizes:
 
   def next(self, iterations: int, took_s: float) -> int:
     """The next chunk's iterations after one of `iterations` that took took_s seconds."""
-    wanted = self.target_s * iterations / max(took_s, 1e-9)
-    return int(max(1, min(wanted, iterations * self.growth, self.most)))
+    wanted = min(self.target_s * iterations / max(took_s, 1e-9), iterations * self.growth,
+                 self.most)
+    return max(1, int(round(wanted)))
 
 
 class Run(NamedTuple):

@@ -170,6 +170,9 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
   starts_all = planner.canonical_instances(env, num_available)
   starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
+  core = pachs.make_search(env, model, config)
+  if devices is None:  # the memory the search needs, before the 'planning' line
+    programs.check_memory(env, model, starts, config, core)
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
   where = jax.devices()[0].platform
   if devices is not None:
@@ -185,7 +188,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     line = progress.ProgressLine()
     # one-shot: the whole search in the loop of the live instances' physics size (no further
     # loop to compile or load; docs/startup_and_caching.md)
-    search = programs.Programs(pachs.make_search(env, model, config), prefetch=prefetch)
+    search = programs.Programs(core, prefetch=prefetch)
     try:
       result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
                              search=search, shrink=False,

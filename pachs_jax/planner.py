@@ -169,8 +169,8 @@ class Planner:
     return jax.tree.map(lambda x: x[index], self._canonical)
 
   def plan(self, instances: Optional[Sequence[int]] = None, start_nodes=None, seed: int = 0,
-           time_limit_s: Optional[float] = None,
-           stop: Optional[Callable[[], bool]] = None) -> SearchResult:
+           time_limit_s: Optional[float] = None, stop: Optional[Callable[[], bool]] = None,
+           progress: Optional[Callable[[programs.Progress], None]] = None) -> SearchResult:
     """Plans the canonical `instances` (indices) or the given start_nodes [I]; returns the
     SearchResult [I] (wall_time_s without compilation).
 
@@ -178,7 +178,7 @@ class Planner:
     (about 0.3 s each); once it returns True, the instances still searching report
     'interrupted' with their real-time answer. Ctrl-C (SIGINT in the main thread) during the
     search does the same; before the search (while compiling) and a second Ctrl-C raise
-    KeyboardInterrupt as usual.
+    KeyboardInterrupt as usual. progress: called with a `programs.Progress` after each chunk.
     """
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
@@ -189,7 +189,8 @@ class Planner:
       asked = interrupted if stop is None else (lambda: interrupted() or bool(stop()))
       try:
         return programs.plan(self.env, self.model, start_nodes, self.config, key,
-                             time_limit_s=time_limit_s, search=self.search, stop=asked)
+                             time_limit_s=time_limit_s, search=self.search, stop=asked,
+                             progress=progress)
       except signals.StoppedBeforeSearch:
         if interrupted():
           raise KeyboardInterrupt from None

@@ -95,6 +95,21 @@ def check_model(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Node
   check_model_outputs(env.name, *(np.asarray(x)[:num] for x in outputs))
 
 
+def check_memory(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
+                 config: SearchConfig, search: Optional[Search] = None,
+                 padded: Optional[int] = None, need: Optional[int] = None) -> int:
+  """`memory.check_fits` of the search of start_nodes [I] padded to `plan`'s bucket (padded:
+  that count when known), its state (need: its bytes when known, else traced without compiling)
+  and one iteration's working set: ValueError before any work when they do not fit."""
+  if padded is None:
+    num = jax.tree.leaves(start_nodes)[0].shape[0]
+    padded = bucket_size(num, 1 if jax.default_backend() == 'cpu' else 32)
+  search = make_search(env, actor_critic, config) if search is None else search
+  return memory.check_fits(functools.partial(make_search, env, actor_critic), search,
+                           start_nodes, padded, need=need,
+                           working=memory.iteration_bytes(env, config, padded))
+
+
 def _ready(programs: dict, name, waiting: Optional[dict] = None):
   """programs[name], waiting for (and then storing) one still being compiled in a thread; the
   time waited (s) is added to waiting['s'] when given."""
@@ -217,9 +232,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     _wait(checked, stop)  # a bad model's error before anything runs
     if new:
       programs['result'] = _wait(result, stop)
-      memory.check_fits(functools.partial(make_search, env, actor_critic), search,
-                        start_nodes, padded, need=memory.tree_bytes(
-                            (programs['init'].out_shapes, programs['result'].out_shapes)))
+      check_memory(env, actor_critic, start_nodes, config, search, padded,
+                   need=memory.tree_bytes((programs['init'].out_shapes,
+                                           programs['result'].out_shapes)))
     for size in reachable[:1] if time_limit_s is None else reachable:
       if isinstance(programs[('loop', size)], concurrent.futures.Future):
         programs[('loop', size)] = _wait(programs[('loop', size)], stop)

@@ -20,9 +20,9 @@ def describe(finished: int, instances: int, evaluations: int, budget: int,
 
 class ProgressLine:
   """Reports `programs.Progress` values (call it with one) once the search has run after_s
-  seconds: on a terminal one line rewritten at each report (`close` clears it), elsewhere a line
-  every every_s seconds. stream: where (default stderr); tty: whether it is a terminal (None:
-  asks the stream)."""
+  seconds: on a terminal one line rewritten at each report (`close` clears it), elsewhere (a
+  log) a line then and one every every_s seconds after. stream: where (default stderr); tty:
+  whether it is a terminal (None: asks the stream)."""
 
   def __init__(self, stream: Optional[TextIO] = None, after_s: float = 2.0,
                every_s: float = 10.0, tty: Optional[bool] = None):
@@ -35,7 +35,7 @@ class ProgressLine:
 
   def __call__(self, progress) -> None:
     elapsed = progress.elapsed_s
-    if elapsed < (self.after_s if self.tty else self.every_s):
+    if elapsed < self.after_s:
       return
     text = describe(progress.finished, progress.instances, progress.evaluations,
                     progress.budget, elapsed)
