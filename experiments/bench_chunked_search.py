@@ -20,9 +20,9 @@ from pachs_jax import planner, programs  # noqa: E402
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__)
   parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--instances', default='0-29')
+  parser.add_argument('--instances', default='0-7')
   parser.add_argument('--budget', type=int, default=20000)
-  parser.add_argument('--rounds', type=int, default=5)
+  parser.add_argument('--rounds', type=int, default=8)
   parser.add_argument('--out', default='experiments/results/bench_chunked_search_cpu')
   args = parser.parse_args()
   plans = planner.Planner(args.task, budget=args.budget, cache=False)

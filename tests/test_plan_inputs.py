@@ -205,3 +205,28 @@ def test_a_k_whose_iteration_cannot_fit_is_refused_before_tracing(monkeypatch):
                      'iteration for 4 instances per device, but the machine has 1 GB of RAM: '
                      'lower -K or -N'):
     memory.check_fits(None, search, None, 4, working=working)
+
+
+# -- the compilation cache: garbage entries are replaced -----------------------------------------
+
+def test_garbage_cache_entries_are_removed_and_good_ones_kept(tmp_path):
+  import zlib
+  from jax._src import compilation_cache as jax_cache
+  from pachs_jax import compile_cache
+  good = tmp_path / 'jit_good-0123-cache'
+  try:
+    good.write_bytes(jax_cache.compress_executable(b'an executable'))
+  except AttributeError:  # a JAX without compress_executable: its default, zlib
+    good.write_bytes(zlib.compress(b'an executable'))
+  bad = tmp_path / 'jit_bad-4567-cache'
+  bad.write_bytes(b'\x00garbage')
+  cut = tmp_path / 'jit_cut-89ab-cache'
+  cut.write_bytes(good.read_bytes()[:-4])
+  other = tmp_path / 'jit_bad-4567-atime'
+  other.write_bytes(b'\x00')
+  assert sorted(compile_cache.drop_unreadable_entries(str(tmp_path))) == [bad.name, cut.name]
+  assert good.exists() and other.exists() and not bad.exists() and not cut.exists()
+  listed = (tmp_path / compile_cache.CHECKED).read_text().split()
+  assert listed[0] == good.name
+  # a checked entry is not read again: damage that keeps its size and time goes unseen
+  assert compile_cache.drop_unreadable_entries(str(tmp_path)) == []
