@@ -67,11 +67,13 @@ def test_a_signal_during_the_search_keeps_the_rows(tmp_path, cache_dir, signame,
   assert f'pachs plan: {signame}: stopping after the current chunk' in err
   assert 'Traceback' not in err
   table = [line.split() for line in out.splitlines() if line.split()[:1] in (['2'], ['3'])]
-  assert [row[6] for row in table] == ['interrupted', 'interrupted']
-  assert 'interrupted: 2 of 2 instances stopped early' in out
   saved = json.loads(rows.read_text())
+  stops = [r['stop'] for r in saved['rows']]
+  # instance 2 searches for minutes; instance 3 may find its goal within seconds
+  assert stops[0] == 'interrupted' and stops[1] in ('interrupted', 'goal')
+  assert [row[6] for row in table] == stops
+  assert f'interrupted: {stops.count("interrupted")} of 2 instances stopped early' in out
   assert saved['interrupted'] is True
-  assert [r['stop'] for r in saved['rows']] == ['interrupted', 'interrupted']
   for row in saved['rows']:  # the anytime answer: a path to the best state so far
     assert 0 < row['evaluated'] < 200000 and row['path_length'] > 0
     assert len(row['plan']['actions']) == row['path_length']
