@@ -149,12 +149,9 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   num_available = envs.spec(args.task).num_instances
   mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
   cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
+  few = args.instances is None and on_cpu and cpu_instances != 'all' and num_available > 1
   if args.instances is None:
     args.instances = cpu_instances if on_cpu else 'all'
-    if args.instances != 'all' and num_available > 1:
-      say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
-          f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
-          'more', flush=True)
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
@@ -168,6 +165,10 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
                else 'MJX on the CPU (slow: milliseconds per world and step)')
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
+  if few:
+    say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
+        f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
+        'more', flush=True)
   starts_all = planner.canonical_instances(env, num_available)
   starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
   core = pachs.make_search(env, model, config)

@@ -230,3 +230,16 @@ def test_garbage_cache_entries_are_removed_and_good_ones_kept(tmp_path):
   assert listed[0] == good.name
   # a checked entry is not read again: damage that keeps its size and time goes unseen
   assert compile_cache.drop_unreadable_entries(str(tmp_path)) == []
+
+
+def test_shelf_on_a_cpu_says_that_it_plans_instance_0_only(monkeypatch, capsys):
+  def stop_here(*args, **kwargs):
+    raise ValueError('stopped before planning')
+  monkeypatch.setattr(programs, 'plan', stop_here)
+  with pytest.raises(SystemExit):
+    cli.main(['plan', '--task', 'shelf', '--no-cache'])
+  out = capsys.readouterr()
+  assert ('note: on this CPU (MJX physics) only instance 0 of 0-99 is planned; --instances 0-99 '
+          '(or all) plans more') in out.out.splitlines()
+  assert 'planning shelf instances 0 ' in out.out
+  assert 'stopped before planning' in out.err
