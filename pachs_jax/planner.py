@@ -132,7 +132,9 @@ def canonical_instances(env, num: int):
 class Planner:
   """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
   kept warm between calls (compiled once per padded instance count and physics batch size,
-  see `programs.plan`).
+  see `programs.plan`). Instance counts are padded to the next power of two, at least 32 on an
+  accelerator but 1 on a CPU, where padded instances cost their full physics: there a new
+  bucket (1, 2, 4, ...) compiles once (docs/startup_and_caching.md has the measured trade-off).
 
   task: a task name (`envs.TASKS`, 'playground:NAME') or a user's `envs.Env` (checked with
   `envs.check_task`); checkpoint: a model directory (None: the shipped one);
