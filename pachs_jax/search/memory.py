@@ -121,21 +121,21 @@ def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_in
                device=None, need: Optional[int] = None, working: int = 0) -> int:
   """Returns the device bytes of a PACHS search of num_instances (padded) instances, its state
   and one iteration's working set; ValueError when they exceed the device's memory
-  (`device_memory`), naming K and N when the working set alone does not fit, else the largest
-  budget (max_evaluations) that fits. search_for(config) -> the search of another budget (e.g.
+  (`device_memory`), naming K and N when the working set is the larger part, else the largest
+  budget (max_evaluations) that fits beside the working set. search_for(config) -> the search of another budget (e.g.
   `make_search` with env and model bound). need: the state's bytes when the caller knows them
   (None: traced with `search_bytes`). working: one iteration's bytes (`iteration_bytes`).
   Compiles nothing."""
   config = search.config
   available, where = device_memory(device)
-  if working > available // 2:
+  need = search_bytes(search, start_nodes, num_instances) if need is None else need
+  if need + working <= available:
+    return need + working
+  if working >= need:  # K and N, not the budget, are what does not fit
     raise ValueError(f'K={config.pop_size} (pop_size) and N={config.num_actions} need at least '
                      f'{_gb(working)} per iteration for {num_instances} '
                      f'instance{"s" * (num_instances > 1)} per device, but {where}: lower -K or '
                      '-N, or plan fewer instances at once')
-  need = search_bytes(search, start_nodes, num_instances) if need is None else need
-  if need + working <= available:
-    return need + working
   available -= working
 
   def bytes_at(budget):
