@@ -64,18 +64,23 @@ def checkpoint_path(task: str) -> str:
   return os.path.join(CHECKPOINT_DIR, envs.spec(task).model_task.replace(':', '-'))
 
 
-def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
-  """The env of a task name with the chosen physics backend, or a user's Env (checked with
-  `envs.check_task`; MJX physics only)."""
-  if isinstance(task, envs.Env):
-    if backend == 'mujoco-c':
-      raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
-                       "runs its own transition (use backend 'mjx' or 'auto')")
-    envs.check_task(task)
-    return task
+def _check_backend(task, backend: str) -> None:
+  """ValueError when the MuJoCo C backend is asked of a task it does not simulate."""
+  if isinstance(task, envs.Env) and backend == 'mujoco-c':
+    raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
+                     "runs its own transition (use backend 'mjx' or 'auto')")
   if envs.is_playground(task) and backend == 'mujoco-c':
     raise ValueError(f"--backend mujoco-c simulates the PushT tasks only; {task} runs in MJX "
                      "(use --backend mjx or auto)")
+
+
+def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
+  """The env of a task name with the chosen physics backend, or a user's Env (checked with
+  `envs.check_task`; MJX physics only)."""
+  _check_backend(task, backend)
+  if isinstance(task, envs.Env):
+    envs.check_task(task)
+    return task
   return mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
 
 
@@ -92,6 +97,7 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   """
   if path is not None and not (isinstance(path, (str, os.PathLike)) and os.fspath(path)):
     raise ValueError(f'checkpoint must name a model directory, got {path!r}')
+  _check_backend(task, backend)
   if isinstance(task, envs.Env):
     if path is None:
       raise ValueError(f'task {task.name!r} has no shipped model: give the checkpoint of a '

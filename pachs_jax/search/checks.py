@@ -114,9 +114,10 @@ def conform_start_nodes(start_nodes: base.NodeState, env: base.Env) -> base.Node
     return start_nodes  # check_start_nodes names the mismatch
   changes = {}
   for field in dataclasses.fields(spec):
-    want = np.dtype(getattr(spec, field.name).dtype)
-    x = getattr(start_nodes, field.name)
-    have = np.dtype(jnp.result_type(x))
+    want, x = getattr(spec, field.name), getattr(start_nodes, field.name)
+    if not hasattr(want, 'dtype') or not hasattr(x, 'dtype'):
+      continue  # a field that is itself a pytree (a Playground env's info): left as given
+    want, have = np.dtype(want.dtype), np.dtype(x.dtype)
     if have == want:
       continue
     safe = (np.can_cast(have, want, 'same_kind')
