@@ -263,8 +263,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                                timing=programs.setdefault('timing', {}), stop=stop,
                                sizes=sizes, on_chunk=progress and on_chunk)
     out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
-    for size in reachable:  # nothing left compiling once plan returns
-      _ready(programs, ('loop', size), waiting)
+    if stop is None or not stop():  # nothing left compiling once plan returns (a stopped
+      for size in reachable:        # plan returns at once; the next call waits for them)
+        _ready(programs, ('loop', size), waiting)
   except BaseException:
     for name in [name for name, p in programs.items()
                  if isinstance(p, concurrent.futures.Future)]:
