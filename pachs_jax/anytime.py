@@ -1,11 +1,14 @@
-"""The wall-clock rule of the anytime planners: advance in jitted steps until every instance has
-stopped or the next step and the result would end past the time limit; `timed_result` also times
-the run and marks the instances the clock stopped."""
+"""The host loop of the planners: advance in jitted chunks (sized to a fraction of a second)
+until every instance has stopped, the next chunk and the result would end past the time limit,
+or the caller asks to stop; `timed_result` also times the run and marks the instances the clock
+or the request stopped."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -13,41 +16,96 @@ import numpy as np
 from pachs_jax.search.result import SearchResult, StopReason
 
 
+@dataclasses.dataclass(frozen=True)
+class ChunkSizes:
+  """How many loop iterations each jitted chunk runs: `first`, then as many as took about
+  `target_s` seconds at the last chunk's pace, at most `growth` times the last count and at most
+  `most` (a traced count: no chunk size compiles anew)."""
 
-def run_until(advance: Callable[[Any], Any], state: Any, time_limit_s: Optional[float],
-              start: Optional[float] = None, reserve_s: float = 0.0) -> Tuple[Any, bool]:
+  first: int = 2
+  target_s: float = 0.3
+  growth: float = 4.0
+  most: int = 2**30
+
+  @classmethod
+  def fixed(cls, iterations: int) -> 'ChunkSizes':
+    """Every chunk runs `iterations`."""
+    return cls(first=iterations, target_s=math.inf, growth=1.0, most=iterations)
+
+  def next(self, iterations: int, took_s: float) -> int:
+    """The next chunk's iterations after one of `iterations` that took took_s seconds."""
+    wanted = min(self.target_s * iterations / max(took_s, 1e-9), iterations * self.growth,
+                 self.most)
+    return max(1, int(round(wanted)))
+
+
+class Run(NamedTuple):
+  """What `run_until` ended with: the state, whether any instance is still active, and whether
+  the caller's `stop` ended it."""
+
+  state: Any
+  active: bool
+  stopped: bool
+
+
+def run_until(advance: Callable[..., Any], state: Any, time_limit_s: Optional[float],
+              start: Optional[float] = None, reserve_s: float = 0.0,
+              stop: Optional[Callable[[], bool]] = None, sizes: Optional[ChunkSizes] = None,
+              on_chunk: Optional[Callable[[Any, float], None]] = None) -> Run:
   """Calls state = advance(state) (a jitted chunk of a planner whose state has an [I] bool
-  `active`) until no instance is active, or, with a time limit (s, counted from `start`, a
-  `time.perf_counter()` value, default this call), until the next call, timed as the last one,
-  followed by reserve_s would end past it; at least one call. Returns (state, any instance
-  still active)."""
+  `active`; with `sizes`, advance(state, iterations)) until no instance is active, `stop()`
+  turns True (checked before each chunk), or, with a time limit (s, counted from `start`, a
+  `time.perf_counter()` value, default this call), until the next chunk, at the last one's
+  pace, followed by reserve_s would end past it (then at least one chunk runs; with `sizes` the
+  last chunk is cut to what fits). on_chunk(state, seconds since start) follows each chunk."""
   start = time.perf_counter() if start is None else start
+  iterations = None if sizes is None else sizes.first
   while True:
+    if stop is not None and stop():
+      return Run(state, bool(np.asarray(state.active).any()), True)
     began = time.perf_counter()
-    state = advance(state)
+    state = advance(state) if sizes is None else advance(state, iterations)
     active = bool(np.asarray(state.active).any())
     now = time.perf_counter()
-    if (not active or time_limit_s is None
-        or now - start + (now - began) + reserve_s > time_limit_s):
-      return state, active
+    if on_chunk is not None:
+      on_chunk(state, now - start)
+    if not active:
+      return Run(state, False, False)
+    took = now - began
+    left = math.inf if time_limit_s is None else time_limit_s - (now - start) - reserve_s
+    if sizes is None:
+      if took > left:
+        return Run(state, True, False)
+      continue
+    upcoming = sizes.next(iterations, took)
+    if left < math.inf:
+      upcoming = min(upcoming, int(left * iterations / max(took, 1e-9)))
+      if upcoming < 1:
+        return Run(state, True, False)
+    iterations = upcoming
 
 
-def timed_result(advance: Callable[[Any], Any], state: Any,
+def timed_result(advance: Callable[..., Any], state: Any,
                  result: Callable[[Any], SearchResult], time_limit_s: Optional[float],
                  start: Optional[float] = None,
-                 timing: Optional[Dict[str, float]] = None) -> SearchResult:
-  """result(state) after `run_until`, with wall_time_s (s from `start`, default this call, to
-  the result; programs compiled beforehand) and TIME_LIMIT for the instances still running when
-  the clock stopped them. The limit covers the result too: timing['result_s'], the last
-  result's time (s; updated here), is held in reserve."""
+                 timing: Optional[Dict[str, float]] = None,
+                 stop: Optional[Callable[[], bool]] = None, sizes: Optional[ChunkSizes] = None,
+                 on_chunk: Optional[Callable[[Any, float], None]] = None) -> SearchResult:
+  """result(state) after `run_until` (advance, stop, sizes and on_chunk as there), with
+  wall_time_s (s from `start`, default this call, to the result; programs compiled beforehand),
+  TIME_LIMIT for the instances still running when the clock stopped them and INTERRUPTED for
+  those still running when `stop` did. The limit covers the result too: timing['result_s'], the
+  last result's time (s; updated here), is held in reserve."""
   start = time.perf_counter() if start is None else start
   timing = {} if timing is None else timing
-  state, active = run_until(advance, state, time_limit_s, start, timing.get('result_s', 0.0))
+  state, active, stopped = run_until(advance, state, time_limit_s, start,
+                                     timing.get('result_s', 0.0), stop, sizes, on_chunk)
   finishing = time.perf_counter()
   out = jax.block_until_ready(result(state))
   now = time.perf_counter()
   timing['result_s'] = now - finishing
   if active:
-    out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING,
-                                            StopReason.TIME_LIMIT, out.stop_reason))
+    reason = StopReason.INTERRUPTED if stopped else StopReason.TIME_LIMIT
+    out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING, reason,
+                                            out.stop_reason))
   return out.replace(wall_time_s=np.float32(now - start))

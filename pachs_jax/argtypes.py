@@ -58,3 +58,15 @@ def integer(low: Optional[int] = None, high: Optional[int] = None,
 
 positive_int = integer(1, bounds='must be a positive integer', quoted=True)
 seed = integer(-2**63, 2**63, 'must fit in 64 bits (-2**63 .. 2**63 - 1)')  # a PRNG key's
+
+
+def path(what: str) -> Callable[[str], str]:
+  """An argument type: a path that is not empty (an empty one would silently mean 'none');
+  what names the thing it names in the error ('a file', 'a directory')."""
+
+  def parse(text: str) -> str:
+    if not text.strip():
+      raise argparse.ArgumentTypeError(f'must name {what}, got an empty string')
+    return text
+
+  return parse

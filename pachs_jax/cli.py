@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from pachs_jax import argtypes, flags
+from pachs_jax import argtypes, flags, signals
 
 
 def check_output_path(flag: str, path: str) -> None:
@@ -118,8 +118,9 @@ def _plan_devices(args: argparse.Namespace):
   return local[:args.devices]
 
 
-def _plan(args: argparse.Namespace, prefetch=None) -> int:
-  """`pachs plan`; prefetch: the command line's `compile_cache.Prefetch` (None: none)."""
+def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
+  """`pachs plan`; prefetch: the command line's `compile_cache.Prefetch` (None: none); guard:
+  the command's `signals.SignalGuard` (None: signals as Python handles them)."""
 
   # every output path first: nothing is planned for results that could not be written
   from pachs_jax import outputs
@@ -136,7 +137,7 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
   import jax
   import numpy as np
 
-  from pachs_jax import compile_cache, envs, planner
+  from pachs_jax import compile_cache, envs, planner, progress
   if not args.no_cache:
     compile_cache.enable()
   from pachs_jax import programs, sharding
@@ -148,6 +149,7 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
   num_available = envs.spec(args.task).num_instances
   mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
   cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
+  few = args.instances is None and on_cpu and cpu_instances != 'all' and num_available > 1
   if args.instances is None:
     args.instances = cpu_instances if on_cpu else 'all'
   if args.instances == 'all':
@@ -163,8 +165,15 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
                else 'MJX on the CPU (slow: milliseconds per world and step)')
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
+  if few:
+    say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
+        f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
+        'more', flush=True)
   starts_all = planner.canonical_instances(env, num_available)
   starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
+  core = pachs.make_search(env, model, config)
+  if devices is None:  # the memory the search needs, before the 'planning' line
+    programs.check_memory(env, model, starts, config, core)
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
   where = jax.devices()[0].platform
   if devices is not None:
@@ -177,11 +186,19 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
   start = time.perf_counter()
   key = jax.random.PRNGKey(args.seed)
   if devices is None:
+    line = progress.ProgressLine()
     # one-shot: the whole search in the loop of the live instances' physics size (no further
     # loop to compile or load; docs/startup_and_caching.md)
-    search = programs.Programs(pachs.make_search(env, model, config), prefetch=prefetch)
-    result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
-                           search=search, shrink=False)
+    search = programs.Programs(core, prefetch=prefetch)
+    try:
+      result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
+                             search=search, shrink=False,
+                             progress=line if jax.process_index() == 0 else None,
+                             # once the search runs, a first signal stops it at its next
+                             # chunk and the command keeps what it found
+                             stop=guard and guard.stop, started=guard and guard.keep)
+    finally:
+      line.close()
   else:
     result = sharding.plan_sharded(env, model, starts, config, key,
                                    mesh=sharding.instance_mesh(devices))
@@ -194,13 +211,17 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
   found = sum(r['found'] for r in rows)
   print(f'found {found}/{len(rows)}; search time {float(result.wall_time_s):.2f} s '
         f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
+  interrupted = sum(r['stop'] == 'interrupted' for r in rows)
+  if interrupted:
+    print(f'interrupted: {interrupted} of {len(rows)} instances stopped early (stop '
+          '\'interrupted\', each with the path to its best state so far)', flush=True)
   # the JSON first (a failed drawing loses no result), each output on its own
   writes = []
   if args.json:
     saved = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
              'config': repr(config), 'rows': rows,
              'devices': 1 if devices is None else len(devices),
-             'search_time_s': float(result.wall_time_s)}
+             'search_time_s': float(result.wall_time_s), 'interrupted': bool(interrupted)}
 
     def write_json():
       outputs.write_json(args.json, outputs.json_document(saved, result, instances))
@@ -216,19 +237,43 @@ def _plan(args: argparse.Namespace, prefetch=None) -> int:
       path, note = outputs.write_animation(args.animate, env, result, instances, shown)
       print(f'animated instance {shown} to {path}' + (f' ({note})' if note else ''))
     writes.append(('--animate', args.animate, animate))
-  return _write_outputs('pachs plan', writes)
+  code = _write_outputs('pachs plan', writes)
+  return code or (guard.exit_code if guard is not None else 0)
 
 
 def main(argv=None) -> int:
-  """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code."""
+  """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code.
+
+  SIGINT or SIGTERM (in the main thread): during start-up one line and 128 + the signal's
+  number; during `pachs plan`'s search the first one stops it at its next chunk and the
+  command writes what it has (the unfinished instances marked 'interrupted'), a second one
+  exits at once.
+  """
   words = sys.argv[1:] if argv is None else list(argv)
+  command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo']) else 'pachs'
+  with signals.SignalGuard(command) as guard:
+    try:
+      return _main_prefetching(words, guard)
+    except signals.Interrupted as err:
+      name = 'start-up' if words[:1] == ['plan'] else 'the command'
+      print(f'{command}: {signal_name(err.signum)}: stopped during {name}; nothing written',
+            file=sys.stderr, flush=True)
+      return err.exit_code
+
+
+def signal_name(signum: int) -> str:
+  """'SIGINT' for 2."""
+  return signals.signal.Signals(signum).name
+
+
+def _main_prefetching(words, guard) -> int:
   # `pachs plan`: the executables this command used last time load beside the imports and model
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
     from pachs_jax import compile_cache
     with compile_cache.prefetching(words) as prefetch:
-      return _main(words, prefetch)
-  return _main(words)
+      return _main(words, prefetch, guard)
+  return _main(words, guard=guard)
 
 
 def run() -> None:
@@ -244,7 +289,7 @@ def run() -> None:
   os._exit(code)
 
 
-def _main(words, prefetch=None) -> int:
+def _main(words, prefetch=None, guard=None) -> int:
   if any(w == '--gif' or w.startswith('--gif=') for w in words):
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
@@ -259,8 +304,9 @@ def _main(words, prefetch=None) -> int:
   demo.add_argument('--instance', type=int, default=0, help='index into the canonical set')
   demo.add_argument('--steps', type=argtypes.positive_int, default=300,
                     help='control steps (20 Hz), at most 2000')
-  demo.add_argument('--out', default='demo.png')
-  demo.add_argument('--gif', default=None, help='also render a MuJoCo GIF (needs OpenGL)')
+  demo.add_argument('--out', default='demo.png', type=argtypes.path('a file'))
+  demo.add_argument('--gif', default=None, type=argtypes.path('a file'),
+                    help='also render a MuJoCo GIF (needs OpenGL)')
   demo.set_defaults(func=_demo)
   plan = sub.add_parser('plan', help='plan with the shipped model of a task (PACHS)')
   plan.add_argument('--task', '--env', dest='task', default='pusht-obs',
@@ -291,18 +337,20 @@ def _main(words, prefetch=None) -> int:
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "
                          "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
-  plan.add_argument('--checkpoint', default=None, help='another actor-critic directory')
+  plan.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),
+                    help='another actor-critic directory')
   plan.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
                     '(Playground tasks: MJX only)')
-  plan.add_argument('--render', default=None,
+  plan.add_argument('--render', default=None, type=argtypes.path('a file'),
                     help='draw one instance\'s plan (PNG; the extension names the format)')
-  plan.add_argument('--animate', default=None,
+  plan.add_argument('--animate', default=None, type=argtypes.path('a file'),
                     help='write a GIF of one instance\'s plan executing (PushT, shelf)')
   plan.add_argument('--show-instance', '--animate-instance', dest='show_instance', type=int,
                     default=None, help='the instance --render and --animate show (default: '
                     'the first planned)')
-  plan.add_argument('--json', default=None, help='write the result rows, each with its '
+  plan.add_argument('--json', default=None, type=argtypes.path('a file'),
+                    help='write the result rows, each with its '
                     'instance\'s plan (actions, states; pachs_jax.plans.from_json), as JSON')
   plan.add_argument('--no-cache', action='store_true',
                     help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
@@ -315,7 +363,7 @@ def _main(words, prefetch=None) -> int:
   if args.command == 'plan' and args.layout is not None and args.task != 'pusht-obs':
     plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
   try:
-    return args.func(args, prefetch) if args.command == 'plan' else args.func(args)
+    return args.func(args, prefetch, guard) if args.command == 'plan' else args.func(args)
   except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
         else f'{err.strerror}: {err.filename}' if err.filename else err.strerror

@@ -55,7 +55,57 @@ def enable(path: Optional[str] = None) -> Optional[str]:
   jax.config.update('jax_compilation_cache_dir', path)
   jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)
   jax.config.update('jax_persistent_cache_min_entry_size_bytes', 0)
+  threading.Thread(target=drop_unreadable_entries, args=(path,), name='cache-check',
+                   daemon=True).start()
   return path
+
+
+CHECKED = 'pachs_checked.txt'  # the entries `drop_unreadable_entries` has read: name size mtime
+
+
+def drop_unreadable_entries(path: str) -> List[str]:
+  """Removes the entries of JAX's persistent compilation cache at path that do not decompress
+  (garbage, a write cut short): JAX warns about such an entry on every run and never replaces
+  it; removed, it is compiled and written anew. Entries read once are listed in path/CHECKED
+  (name, size, mtime) and not read again. Returns the names removed; errors are ignored (the
+  cache only saves time)."""
+  try:
+    from jax._src import compilation_cache as jax_cache  # how JAX compresses its entries
+    decompress = jax_cache.decompress_executable
+  except (ImportError, AttributeError):
+    return []
+  index = os.path.join(path, CHECKED)
+  try:
+    with open(index) as f:
+      checked = set(f.read().splitlines())
+  except OSError:
+    checked = set()
+  kept, removed = [], []
+  try:
+    entries = sorted(os.scandir(path), key=lambda e: e.name)
+  except OSError:
+    return []
+  for entry in entries:
+    if not entry.name.endswith('-cache') or not entry.is_file():
+      continue
+    try:
+      stat = entry.stat()
+      line = f'{entry.name} {stat.st_size} {stat.st_mtime_ns}'
+      if line not in checked:
+        with open(entry.path, 'rb') as f:
+          decompress(f.read())
+      kept.append(line)
+    except OSError:
+      continue
+    except Exception:  # pylint: disable=broad-except  (any decompression error)
+      try:
+        os.remove(entry.path)
+        removed.append(entry.name)
+      except OSError:
+        pass
+  if set(kept) != checked:
+    _write(index, ''.join(f'{line}\n' for line in kept).encode())
+  return removed
 
 
 @dataclasses.dataclass

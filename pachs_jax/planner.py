@@ -4,12 +4,12 @@ docs/task_defaults.md), its shipped actor-critic, and a result table."""
 from __future__ import annotations
 
 import os
-from typing import List, Optional, Sequence
+from typing import Callable, List, Optional, Sequence
 
 import jax
 import numpy as np
 
-from pachs_jax import compile_cache, envs, programs
+from pachs_jax import compile_cache, envs, programs, signals
 from pachs_jax.envs import mujoco_c, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
@@ -64,18 +64,23 @@ def checkpoint_path(task: str) -> str:
   return os.path.join(CHECKPOINT_DIR, envs.spec(task).model_task.replace(':', '-'))
 
 
-def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
-  """The env of a task name with the chosen physics backend, or a user's Env (checked with
-  `envs.check_task`; MJX physics only)."""
-  if isinstance(task, envs.Env):
-    if backend == 'mujoco-c':
-      raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
-                       "runs its own transition (use backend 'mjx' or 'auto')")
-    envs.check_task(task)
-    return task
+def _check_backend(task, backend: str) -> None:
+  """ValueError when the MuJoCo C backend is asked of a task it does not simulate."""
+  if isinstance(task, envs.Env) and backend == 'mujoco-c':
+    raise ValueError(f"backend 'mujoco-c' simulates the PushT tasks only; task {task.name!r} "
+                     "runs its own transition (use backend 'mjx' or 'auto')")
   if envs.is_playground(task) and backend == 'mujoco-c':
     raise ValueError(f"--backend mujoco-c simulates the PushT tasks only; {task} runs in MJX "
                      "(use --backend mjx or auto)")
+
+
+def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str]):
+  """The env of a task name with the chosen physics backend, or a user's Env (checked with
+  `envs.check_task`; MJX physics only)."""
+  _check_backend(task, backend)
+  if isinstance(task, envs.Env):
+    envs.check_task(task)
+    return task
   return mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
 
 
@@ -90,18 +95,25 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   layout: pusht-obs's obstacle layout (`envs.layouts.LAYOUTS`; None: the default).
   Raises FileNotFoundError for a missing checkpoint, ValueError for one of another task or size.
   """
-  env = _make_env(task, backend, nthread, layout)
+  if path is not None and not (isinstance(path, (str, os.PathLike)) and os.fspath(path)):
+    raise ValueError(f'checkpoint must name a model directory, got {path!r}')
+  _check_backend(task, backend)
   if isinstance(task, envs.Env):
     if path is None:
       raise ValueError(f'task {task.name!r} has no shipped model: give the checkpoint of a '
                        'model trained on it')
-    model_task = task = task.name
+    model_task = task.name
   else:
     model_task = envs.spec(task).model_task
-  path = path or checkpoint_path(task)
+  # the checkpoint before the env (a Playground env takes long to build)
+  path = path or checkpoint_path(model_task if isinstance(task, envs.Env) else task)
   if not os.path.exists(path):
+    flag = '--env' if envs.is_playground(model_task) else '--task'
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
-                            f'--task {model_task}')
+                            f'{flag} {model_task}')
+  env = _make_env(task, backend, nthread, layout)
+  if isinstance(task, envs.Env):
+    task = task.name
   model = checkpoint_lib.load_actor_critic(path)
   allowed = {task, model_task}
   if model.config.task not in allowed:
@@ -126,7 +138,9 @@ def canonical_instances(env, num: int):
 class Planner:
   """Build once, plan many: a task's env, model and SearchConfig with its compiled programs
   kept warm between calls (compiled once per padded instance count and physics batch size,
-  see `programs.plan`).
+  see `programs.plan`). Instance counts are padded to the next power of two, at least 32 on an
+  accelerator but 1 on a CPU, where padded instances cost their full physics: there a new
+  bucket (1, 2, 4, ...) compiles once (docs/startup_and_caching.md has the measured trade-off).
 
   task: a task name (`envs.TASKS`, 'playground:NAME') or a user's `envs.Env` (checked with
   `envs.check_task`); checkpoint: a model directory (None: the shipped one);
@@ -155,40 +169,92 @@ class Planner:
     self._canonical = None
 
   def canonical(self, instances: Sequence[int]):
-    """NodeState [len(instances)] of the task's canonical instances (generated once)."""
+    """NodeState [len(instances)] of the task's canonical instances (generated once);
+    ValueError unless instances are indices in 0..available - 1 (`check_indices`)."""
+    index = check_indices(instances, self._num_instances)
     if self._canonical is None:
       self._canonical = canonical_instances(self.env, self._num_instances)
-    index = np.asarray(instances)
     return jax.tree.map(lambda x: x[index], self._canonical)
 
   def plan(self, instances: Optional[Sequence[int]] = None, start_nodes=None, seed: int = 0,
-           time_limit_s: Optional[float] = None) -> SearchResult:
+           time_limit_s: Optional[float] = None, stop: Optional[Callable[[], bool]] = None,
+           progress: Optional[Callable[[programs.Progress], None]] = None) -> SearchResult:
     """Plans the canonical `instances` (indices) or the given start_nodes [I]; returns the
-    SearchResult [I] (wall_time_s without compilation)."""
+    SearchResult [I] (wall_time_s without compilation).
+
+    seed: an integer in -2**63 .. 2**63 - 1. stop: checked between chunks of the search
+    (about 0.3 s each); once it returns True, the instances still searching report
+    'interrupted' with their real-time answer. Ctrl-C (SIGINT in the main thread) during the
+    search does the same; before the search (while compiling) and a second Ctrl-C raise
+    KeyboardInterrupt as usual. progress: called with a `programs.Progress` after each chunk.
+    """
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
+    key = jax.random.PRNGKey(check_seed(seed))
     if start_nodes is None:
       start_nodes = self.canonical(instances)
-    return programs.plan(self.env, self.model, start_nodes, self.config,
-                         jax.random.PRNGKey(seed), time_limit_s=time_limit_s, search=self.search)
+    with signals.interrupt_requests() as interrupted:
+      asked = interrupted if stop is None else (lambda: interrupted() or bool(stop()))
+      try:
+        return programs.plan(self.env, self.model, start_nodes, self.config, key,
+                             time_limit_s=time_limit_s, search=self.search, stop=asked,
+                             progress=progress)
+      except signals.StoppedBeforeSearch:
+        if interrupted():
+          raise KeyboardInterrupt from None
+        raise
+
+
+def check_indices(instances, available: int) -> np.ndarray:
+  """[I] int64 canonical indices; ValueError unless instances is a non-empty sequence of
+  integers in 0..available - 1 (no wrap-around of negative indices)."""
+  shown = repr(instances) if len(repr(instances)) < 60 else repr(instances)[:56] + ' ...'
+  try:
+    values = np.asarray(instances)
+  except Exception:  # pylint: disable=broad-except  (ragged or odd objects)
+    values = np.asarray([], dtype=object)
+  if values.ndim != 1 or values.size == 0:
+    raise ValueError(f'instances must be a non-empty list of canonical indices in '
+                     f'0..{available - 1}, got {shown}')
+  if values.dtype == bool or not np.issubdtype(values.dtype, np.integer):
+    raise ValueError(f'instances must be integers (canonical indices in 0..{available - 1}), '
+                     f'got {shown}')
+  bad = values[(values < 0) | (values >= available)]
+  if bad.size:
+    raise ValueError(f'instances must lie in 0..{available - 1}, got {int(bad[0])} in {shown}')
+  return values.astype(np.int64)
+
+
+def check_seed(seed) -> int:
+  """seed as an int; ValueError unless it is an integer in -2**63 .. 2**63 - 1 (a PRNG key's
+  64 bits)."""
+  if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+    raise ValueError(f'seed must be an integer, got {seed!r}')
+  if not -2**63 <= int(seed) < 2**63:
+    raise ValueError(f'seed must fit in 64 bits (-2**63 .. 2**63 - 1), got {seed}')
+  return int(seed)
 
 
 def parse_instances(text: str, available: int) -> List[int]:
   """'0-29' or '0,3,5' or '7' -> sorted instance indices, checked against `available`."""
-  out = set()
+  ranges = []
   try:
     for part in text.split(','):
       if '-' in part:
         lo, hi = (int(x) for x in part.split('-'))
-        out.update(range(lo, hi + 1))
       else:
-        out.add(int(part))
+        lo = hi = int(part)
+      ranges.append((lo, hi))
   except ValueError:
     raise ValueError(f"instances must look like '0-29' or '0,3,5', got {text!r}") from None
-  bad = [i for i in out if not 0 <= i < available]
-  if not out or bad:
+  # bounds first: no range is built beyond the available instances
+  if not ranges or any(not 0 <= lo < available or not 0 <= hi < available
+                       for lo, hi in ranges):
     raise ValueError(f'instances must lie in 0..{available - 1}, got {text!r}')
-  return sorted(out)
+  empty = [f'{lo}-{hi}' for lo, hi in ranges if lo > hi]
+  if empty:
+    raise ValueError(f'instances: the range {empty[0]} is empty (write low-high), got {text!r}')
+  return sorted({i for lo, hi in ranges for i in range(lo, hi + 1)})
 
 
 def result_rows(result: SearchResult, instances: Sequence[int]) -> List[dict]:

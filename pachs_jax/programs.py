@@ -8,7 +8,7 @@ import concurrent.futures
 import dataclasses
 import functools
 import time
-from typing import Optional
+from typing import Callable, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -16,9 +16,11 @@ import numpy as np
 
 from pachs_jax import anytime
 from pachs_jax import compile_cache
+from pachs_jax import signals
 from pachs_jax.envs import base
 from pachs_jax.search import memory
-from pachs_jax.search.checks import check_model_outputs, check_start_nodes, instance_keys
+from pachs_jax.search.checks import (check_model_outputs, check_start_nodes, conform_start_nodes,
+                                     instance_keys)
 from pachs_jax.search.config import SearchConfig, next_pow2
 from pachs_jax.search.model import ActorCritic, output_checks
 from pachs_jax.search.pachs import Search, make_search
@@ -93,6 +95,21 @@ def check_model(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Node
   check_model_outputs(env.name, *(np.asarray(x)[:num] for x in outputs))
 
 
+def check_memory(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
+                 config: SearchConfig, search: Optional[Search] = None,
+                 padded: Optional[int] = None, need: Optional[int] = None) -> int:
+  """`memory.check_fits` of the search of start_nodes [I] padded to `plan`'s bucket (padded:
+  that count when known), its state (need: its bytes when known, else traced without compiling)
+  and one iteration's working set: ValueError before any work when they do not fit."""
+  if padded is None:
+    num = jax.tree.leaves(start_nodes)[0].shape[0]
+    padded = bucket_size(num, 1 if jax.default_backend() == 'cpu' else 32)
+  search = make_search(env, actor_critic, config) if search is None else search
+  return memory.check_fits(functools.partial(make_search, env, actor_critic), search,
+                           start_nodes, padded, need=need,
+                           working=memory.iteration_bytes(env, config, padded))
+
+
 def _ready(programs: dict, name, waiting: Optional[dict] = None):
   """programs[name], waiting for (and then storing) one still being compiled in a thread; the
   time waited (s) is added to waiting['s'] when given."""
@@ -104,17 +121,49 @@ def _ready(programs: dict, name, waiting: Optional[dict] = None):
   return programs[name]
 
 
+class Progress(NamedTuple):
+  """Where a search stands after a chunk: instances finished of all, edge evaluations done
+  (finished instances counted at their full budget) of the total budget, seconds searched."""
+
+  finished: int
+  instances: int
+  evaluations: int
+  budget: int
+  elapsed_s: float
+
+
+def _wait(future: concurrent.futures.Future, stop: Optional[Callable[[], bool]]):
+  """future.result(), checking stop() every 0.1 s (`signals.StoppedBeforeSearch` once it turns
+  True)."""
+  while True:
+    if stop is not None and stop():
+      raise signals.StoppedBeforeSearch('stopped while the programs compiled')
+    try:
+      return future.result(timeout=None if stop is None else 0.1)
+    except concurrent.futures.TimeoutError:
+      continue
+
+
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
-         chunk_iterations: int = 32, search=None, min_bucket: Optional[int] = None,
-         shrink: bool = True) -> SearchResult:
+         chunk_iterations: Optional[int] = None, search=None,
+         min_bucket: Optional[int] = None, shrink: bool = True,
+         stop: Optional[Callable[[], bool]] = None,
+         progress: Optional[Callable[[Progress], None]] = None,
+         started: Optional[Callable[[], object]] = None) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
-  time_limit_s: None runs to the end; otherwise jitted chunks of `chunk_iterations` run (at
-    least one) while the next chunk and the result, timed as their last runs, would end within
-    the limit (s), and instances still searching then report TIME_LIMIT with the path to their
-    real-time answer.
+  The search runs in jitted chunks (`anytime.ChunkSizes`: about 0.3 s each; chunk_iterations:
+    a fixed count per chunk instead), which leave the result unchanged.
+  time_limit_s: None runs to the end; otherwise chunks run (at least one) while the next chunk
+    and the result, timed as their last runs, would end within the limit (s), and instances
+    still searching then report TIME_LIMIT with the path to their real-time answer.
+  stop: checked between chunks (and while programs compile); once True, instances still
+    searching report INTERRUPTED with their real-time answer
+    (`signals.StoppedBeforeSearch` when the search has not begun). started: called once when
+    the search begins (after compiling; e.g. `SignalGuard.keep`). progress: called with a
+    `Progress` after each chunk.
     The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
     leaves them out: init, result and the loop of the live instances' physics size before the
     clock starts; the loops of the smaller sizes the search can reach also before it with a
@@ -129,8 +178,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   """
   if time_limit_s is not None and not time_limit_s > 0:
     raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-  if chunk_iterations < 1:
-    raise ValueError(f'chunk_iterations must be >= 1, got {chunk_iterations}')
+  if chunk_iterations is not None and not (isinstance(chunk_iterations, int)
+                                           and chunk_iterations >= 1):
+    raise ValueError(f'chunk_iterations must be an int >= 1 or None, got {chunk_iterations!r}')
   if search is None:
     search = make_search(env, actor_critic, config)
   if not isinstance(search, Programs):
@@ -138,6 +188,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if search.config != config:
     raise ValueError('search was built with another config')
   owner, search = search, search.search
+  start_nodes = conform_start_nodes(start_nodes, env)
   num_instances = check_start_nodes(start_nodes, env)
   fingerprint = program_fingerprint(env, actor_critic, config)
   stored = lambda name: fingerprint and f'{fingerprint} {name}'
@@ -146,9 +197,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
   padded = bucket_size(num_instances, min_bucket)
+  sizes = (anytime.ChunkSizes() if chunk_iterations is None
+           else anytime.ChunkSizes.fixed(chunk_iterations))
   # host values placed with device_put: jnp.asarray of a host scalar compiles a program of its own
-  steps = jax.device_put(np.int32(chunk_iterations if time_limit_s is not None
-                                  else np.iinfo(np.int32).max))
+  steps = jax.device_put(np.int32(sizes.first))  # (the loops take the count traced)
   # the loops of the sizes this search can reach (lanes only shrink from the live instances')
   first = search.size_of(num_instances, padded)
   reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
@@ -177,30 +229,43 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                     donate_argnums=0),
             (programs['init'].out_shapes, steps, shrinking), stored(f'loop size={size}'),
             donate_argnums=(0,))
-    checked.result()  # a bad model's error before anything runs
+    _wait(checked, stop)  # a bad model's error before anything runs
     if new:
-      programs['result'] = result.result()
-      memory.check_fits(functools.partial(make_search, env, actor_critic), search,
-                        start_nodes, padded, need=memory.tree_bytes(
-                            (programs['init'].out_shapes, programs['result'].out_shapes)))
+      programs['result'] = _wait(result, stop)
+      check_memory(env, actor_critic, start_nodes, config, search, padded,
+                   need=memory.tree_bytes((programs['init'].out_shapes,
+                                           programs['result'].out_shapes)))
     for size in reachable[:1] if time_limit_s is None else reachable:
-      _ready(programs, ('loop', size))
+      if isinstance(programs[('loop', size)], concurrent.futures.Future):
+        programs[('loop', size)] = _wait(programs[('loop', size)], stop)
+    if stop is not None and stop():
+      raise signals.StoppedBeforeSearch('stopped while the programs compiled')
     waiting = {'s': 0.0}  # for the smaller loops during the search
     state = programs['init'](start_nodes, keys, live)
+    if started is not None:
+      started()
 
-    def advance(state):
-      """One chunk (time limit) or the whole search: the loop of each size in turn."""
-      while True:
-        size = search.size_for(state) if shrink else first
-        state = _ready(programs, ('loop', size), waiting)(state, steps, shrinking)
-        if time_limit_s is not None or not np.asarray(state.active).any():
-          return state
+    def advance(state, iterations):
+      """One chunk of at most `iterations` in the loop of the live instances' size."""
+      size = search.size_for(state) if shrink else first
+      count = jax.device_put(np.int32(iterations))
+      return _ready(programs, ('loop', size), waiting)(state, count, shrinking)
+
+    def on_chunk(state, elapsed_s):
+      active = np.asarray(state.active)[:num_instances]
+      done = np.asarray(state.evaluated)[:num_instances]
+      budget = config.max_evaluations
+      progress(Progress(int(np.sum(~active)), num_instances,
+                        int(np.sum(np.where(active, np.minimum(done, budget), budget))),
+                        budget * num_instances, elapsed_s))
 
     out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
-                               timing=programs.setdefault('timing', {}))
+                               timing=programs.setdefault('timing', {}), stop=stop,
+                               sizes=sizes, on_chunk=progress and on_chunk)
     out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
-    for size in reachable:  # nothing left compiling once plan returns
-      _ready(programs, ('loop', size), waiting)
+    if stop is None or not stop():  # nothing left compiling once plan returns (a stopped
+      for size in reachable:        # plan returns at once; the next call waits for them)
+        _ready(programs, ('loop', size), waiting)
   except BaseException:
     for name in [name for name, p in programs.items()
                  if isinstance(p, concurrent.futures.Future)]:

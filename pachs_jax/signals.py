@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
 import threading
-from typing import Callable, Optional
+from typing import Callable, Iterator, Optional
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-class Interrupted(Exception):
-  """A signal arrived before there was anything to keep (raised in the main thread)."""
+class Interrupted(BaseException):
+  """A signal arrived before there was anything to keep (raised in the main thread; a
+  BaseException, as KeyboardInterrupt, so that no `except Exception` swallows it)."""
 
   def __init__(self, signum: int):
     super().__init__(f'interrupted by {signal.Signals(signum).name}')
@@ -22,6 +24,11 @@ class Interrupted(Exception):
   def exit_code(self) -> int:
     """128 + the signal number (130 for SIGINT, 143 for SIGTERM), as a shell reports it."""
     return 128 + self.signum
+
+
+class StoppedBeforeSearch(Exception):
+  """A `stop` callable turned True before the work began (e.g. while its programs compiled):
+  there is nothing to keep."""
 
 
 class SignalGuard:
@@ -79,3 +86,27 @@ class SignalGuard:
   def exit_code(self) -> int:
     """0 without a signal, else 128 + its number."""
     return 0 if self.requested is None else 128 + self.requested
+
+
+@contextlib.contextmanager
+def interrupt_requests() -> Iterator[Callable[[], bool]]:
+  """Ctrl-C as a request inside a Python call (`Planner.plan`): yields `stop`, which turns True
+  at the first SIGINT in the block; a second SIGINT raises KeyboardInterrupt as usual. Only in
+  the main thread and where SIGINT has Python's default handler (elsewhere stop stays False and
+  nothing is installed); the handler is restored on leaving."""
+  requested = []
+
+  def handle(signum, frame):
+    del signum, frame
+    if requested:
+      raise KeyboardInterrupt
+    requested.append(True)
+
+  install = (threading.current_thread() is threading.main_thread()
+             and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+  previous = signal.signal(signal.SIGINT, handle) if install else None
+  try:
+    yield lambda: bool(requested)
+  finally:
+    if install:
+      signal.signal(signal.SIGINT, previous)

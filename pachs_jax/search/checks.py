@@ -105,9 +105,40 @@ def check_start_nodes(start_nodes: base.NodeState, env: base.Env) -> int:
   return sizes.pop()
 
 
+def conform_start_nodes(start_nodes: base.NodeState, env: base.Env) -> base.NodeState:
+  """start_nodes with each field cast to the dtype of env's NodeState where that keeps its
+  kind (int32 qpos -> float32, float64 -> float32); ValueError naming the field and both
+  dtypes otherwise (e.g. float t). Fields of the right dtype are returned as given."""
+  spec = node_spec(env)
+  if not dataclasses.is_dataclass(start_nodes) or type(start_nodes) is not type(spec):
+    return start_nodes  # check_start_nodes names the mismatch
+  changes = {}
+  for field in dataclasses.fields(spec):
+    want, x = getattr(spec, field.name), getattr(start_nodes, field.name)
+    if not hasattr(want, 'dtype') or not hasattr(x, 'dtype'):
+      continue  # a field that is itself a pytree (a Playground env's info): left as given
+    want, have = np.dtype(want.dtype), np.dtype(x.dtype)
+    if have == want:
+      continue
+    safe = (np.can_cast(have, want, 'same_kind')
+            or (np.issubdtype(have, np.integer) and np.issubdtype(want, np.floating)))
+    if not safe:
+      raise ValueError(f'start_nodes.{field.name} has dtype {have}, but the environment '
+                       f'{env.name} uses {want}: give {want} values')
+    changes[field.name] = jnp.asarray(x).astype(want)
+  return start_nodes.replace(**changes) if changes else start_nodes
+
+
+# The largest magnitude a start state's positions, velocities, controls and goal may have
+# (m, rad, m/s, rad/s): far beyond any task's workspace; larger values are no physical state.
+START_STATE_LIMIT = 1e6
+_BOUNDED_FIELDS = ('qpos', 'qvel', 'ctrl', 'goal')
+
+
 def check_finite_start_nodes(start_nodes: base.NodeState) -> None:
-  """ValueError naming the instances whose start state or goal holds a NaN or inf (host-side;
-  does nothing for traced or non-addressable arrays, e.g. under jit)."""
+  """ValueError naming the instances whose start state or goal holds a NaN or inf, or whose
+  qpos, qvel, ctrl or goal exceed `START_STATE_LIMIT` in magnitude (host-side; does nothing
+  for traced or non-addressable arrays, e.g. under jit)."""
   fields = [(f.name, getattr(start_nodes, f.name)) for f in dataclasses.fields(start_nodes)]
   if any(isinstance(x, jax.core.Tracer) or not getattr(x, 'is_fully_addressable', True)
          for _, x in fields):
@@ -126,6 +157,16 @@ def check_finite_start_nodes(start_nodes: base.NodeState) -> None:
     raise ValueError(f'start_nodes of instance{"s" * (len(index) > 1)} {_list(index)} are not '
                      f'finite (NaN or inf in {", ".join(names)}): the search needs finite start '
                      'states and goals')
+  for name, x in fields:
+    x = np.asarray(x)
+    if name not in _BOUNDED_FIELDS or not np.issubdtype(x.dtype, np.number):
+      continue
+    over = (np.abs(x.reshape(x.shape[0], -1)) > START_STATE_LIMIT).any(axis=1)
+    if over.any():
+      index = np.flatnonzero(over).tolist()
+      raise ValueError(f'start_nodes.{name} of instance{"s" * (len(index) > 1)} '
+                       f'{_list(index)} exceeds {START_STATE_LIMIT:.0e} in magnitude: no '
+                       'physical start state (positions in m or rad, velocities per second)')
 
 
 def _list(index, most: int = 10) -> str:

@@ -58,11 +58,27 @@ def _instance_specs(start_nodes: base.NodeState, num_instances: int):
 
 def search_bytes(search, start_nodes: base.NodeState, num_instances: int) -> int:
   """Device bytes of a PACHS search over num_instances instances shaped like start_nodes: its
-  state (`Search.init`, exact, traced without running) plus the SearchResult. The working set of
-  one iteration (one network and one physics batch of I x K) is not counted."""
+  state (`Search.init`, exact, traced without running) plus the SearchResult; one iteration's
+  working set is `iteration_bytes`'s."""
   nodes, keys = _instance_specs(start_nodes, num_instances)
   state = jax.eval_shape(search.init, nodes, keys)
   return tree_bytes(state) + tree_bytes(jax.eval_shape(search.result, state))
+
+
+def iteration_bytes(env: base.Env, config, num_instances: int) -> int:
+  """A lower bound of the device bytes one iteration works on beside the search state, for
+  num_instances instances: the expansion's network batch (I x K states: the state, its
+  observation, N sampled actions and their Q) and the evaluation's physics batch (I x K edges
+  of H transitions: a state, an action, a cost and flags per transition), each counted twice
+  (inputs and outputs). A physics engine's own buffers (MJX's per-world data) come on top."""
+  node = jax.eval_shape(env.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
+  node_bytes = tree_bytes(node)
+  lanes = num_instances * config.pop_size
+  steps = getattr(config, 'edge_steps', 1)
+  expansion = node_bytes + 4 * env.observation_size + config.num_actions * 4 * (
+      env.action_size + 1)
+  evaluation = steps * (node_bytes + 4 * env.action_size + 8)
+  return 2 * lanes * (expansion + evaluation)
 
 
 def largest_budget(bytes_at, budget: int, available: int, minimum: int = 1) -> int:
@@ -102,17 +118,25 @@ def _round_down(n: int) -> int:
 
 
 def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_instances: int,
-               device=None, need: Optional[int] = None) -> int:
-  """Returns the device bytes of a PACHS search of num_instances (padded) instances; ValueError
-  when they exceed the device's memory (`device_memory`), naming the largest budget
-  (max_evaluations) that fits. search_for(config) -> the search of another budget (e.g.
-  `make_search` with env and model bound). need: those bytes when the caller knows them
-  (None: traced with `search_bytes`). Compiles nothing."""
-  need = search_bytes(search, start_nodes, num_instances) if need is None else need
-  available, where = device_memory(device)
-  if need <= available:
-    return need
+               device=None, need: Optional[int] = None, working: int = 0) -> int:
+  """Returns the device bytes of a PACHS search of num_instances (padded) instances, its state
+  and one iteration's working set; ValueError when they exceed the device's memory
+  (`device_memory`), naming K and N when the working set is the larger part, else the largest
+  budget (max_evaluations) that fits beside the working set. search_for(config) -> the search of another budget (e.g.
+  `make_search` with env and model bound). need: the state's bytes when the caller knows them
+  (None: traced with `search_bytes`). working: one iteration's bytes (`iteration_bytes`).
+  Compiles nothing."""
   config = search.config
+  available, where = device_memory(device)
+  need = search_bytes(search, start_nodes, num_instances) if need is None else need
+  if need + working <= available:
+    return need + working
+  if working >= need:  # K and N, not the budget, are what does not fit
+    raise ValueError(f'K={config.pop_size} (pop_size) and N={config.num_actions} need at least '
+                     f'{_gb(working)} per iteration for {num_instances} '
+                     f'instance{"s" * (num_instances > 1)} per device, but {where}: lower -K or '
+                     '-N, or plan fewer instances at once')
+  available -= working
 
   def bytes_at(budget):
     if budget == config.max_evaluations:

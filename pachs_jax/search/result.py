@@ -18,8 +18,10 @@ class StopReason:
   OPEN_EMPTY = 4  # OPEN held no edge: every reachable lattice cell was expanded
   CAPACITY = 5  # the heap, node pool or lattice table overflowed (see the overflow counts)
   TIME_LIMIT = 6  # the host's wall-clock limit ran out between chunks (set by `plan`)
+  INTERRUPTED = 7  # the caller asked the search to stop (a signal; set by `plan`)
 
-  NAMES = ('running', 'goal', 'budget', 'iterations', 'open_empty', 'capacity', 'time_limit')
+  NAMES = ('running', 'goal', 'budget', 'iterations', 'open_empty', 'capacity', 'time_limit',
+           'interrupted')
 
   @classmethod
   def name(cls, code: int) -> str:

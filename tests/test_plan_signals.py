@@ -1,0 +1,109 @@
+"""`pachs plan` in real processes: SIGINT or SIGTERM during the search stops it within a chunk,
+prints the table, writes the JSON (unfinished rows 'interrupted') and exits 130 / 143; a signal
+during start-up prints one line and no traceback."""
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+
+import pytest
+
+# a search that runs for minutes: uniform-cost order (w = 0), one-step edges, no rollout lanes
+LONG_PLAN = ['plan', '--task', 'pusht-obs', '--instances', '2,3', '--budget', '200000',
+             '-w', '0', '--edge-steps', '1', '--rollout-share', '0', '-K', '16', '-N', '8']
+
+
+@pytest.fixture(scope='module')
+def cache_dir(tmp_path_factory):
+  """One compilation cache for the module: the later processes load what the first compiled."""
+  return str(tmp_path_factory.mktemp('cache'))
+
+
+def _start(args, cache_dir):
+  env = dict(os.environ, PACHS_COMPILATION_CACHE=cache_dir,
+             PYTHONPATH=os.pathsep.join([os.getcwd()] + sys.path))
+  process = subprocess.Popen([sys.executable, '-m', 'pachs_jax.cli'] + args,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+  lines = queue.Queue()
+  stderr = []
+
+  def read():
+    for line in process.stderr:
+      stderr.append(line)
+      lines.put(line)
+    lines.put(None)
+
+  threading.Thread(target=read, daemon=True).start()
+  return process, lines, stderr
+
+
+def _wait_for(lines, text, timeout=300):
+  while True:
+    line = lines.get(timeout=timeout)
+    if line is None:
+      raise AssertionError(f'the process ended before {text!r}')
+    if text in line:
+      return line
+
+
+def _finish(process, stderr, timeout=120):
+  out = process.stdout.read()
+  process.wait(timeout=timeout)
+  return process.returncode, out, ''.join(stderr)
+
+
+@pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])
+def test_a_signal_during_the_search_keeps_the_rows(tmp_path, cache_dir, signame, code):
+  rows = tmp_path / 'rows.json'
+  process, lines, stderr = _start(LONG_PLAN + ['--json', str(rows)], cache_dir)
+  _wait_for(lines, 'searching:')  # the progress line: the search runs
+  process.send_signal(getattr(signal, signame))
+  returncode, out, err = _finish(process, stderr)
+  assert returncode == code, err
+  assert f'pachs plan: {signame}: stopping after the current chunk' in err
+  assert 'Traceback' not in err
+  table = [line.split() for line in out.splitlines() if line.split()[:1] in (['2'], ['3'])]
+  saved = json.loads(rows.read_text())
+  stops = [r['stop'] for r in saved['rows']]
+  # instance 2 searches for minutes; instance 3 may find its goal within seconds
+  assert stops[0] == 'interrupted' and stops[1] in ('interrupted', 'goal')
+  assert [row[6] for row in table] == stops
+  assert f'interrupted: {stops.count("interrupted")} of 2 instances stopped early' in out
+  assert saved['interrupted'] is True
+  for row in saved['rows']:  # the anytime answer: a path to the best state so far
+    assert 0 < row['evaluated'] < 200000 and row['path_length'] > 0
+    assert len(row['plan']['actions']) == row['path_length']
+
+
+def test_a_second_signal_exits_at_once(tmp_path, cache_dir):
+  process, lines, stderr = _start(LONG_PLAN, cache_dir)
+  _wait_for(lines, 'searching:')
+  process.send_signal(signal.SIGINT)
+  _wait_for(lines, 'stopping after the current chunk')
+  process.send_signal(signal.SIGINT)
+  returncode, _, err = _finish(process, stderr)
+  assert returncode == 130
+  assert 'Traceback' not in err
+
+
+@pytest.mark.parametrize('wait_for', [None, 'planning'])
+def test_a_signal_during_start_up_prints_one_line(cache_dir, wait_for):
+  # None: during the imports; 'planning': while the programs compile or load
+  process, lines, stderr = _start(LONG_PLAN + ['--no-cache'], cache_dir)
+  if wait_for is None:
+    import time
+    time.sleep(1.0)
+  else:
+    process.stdout.readline()  # the note
+    assert 'planning' in process.stdout.readline()
+  process.send_signal(signal.SIGINT)
+  returncode, out, err = _finish(process, stderr)
+  assert returncode == 130, err
+  assert 'Traceback' not in err
+  assert err.strip().splitlines() == ['pachs plan: SIGINT: stopped during start-up; nothing '
+                                      'written'], err
+  assert 'instance' not in out
