@@ -41,6 +41,7 @@ def atomic_open(path: str, mode: str = 'w', **kwargs: Any) -> Iterator[IO]:
       yield f
       f.flush()
       os.fsync(f.fileno())
+    os.chmod(tmp, _mode_for(path))  # mkstemp's 0600 would hide the file from others
     os.replace(tmp, path)
   except BaseException as e:
     with contextlib.suppress(OSError):
@@ -49,6 +50,16 @@ def atomic_open(path: str, mode: str = 'w', **kwargs: Any) -> Iterator[IO]:
       raise WriteError(e.errno, f'cannot write {path}: {e.strerror or e}') from None
     raise
   fsync_directory(directory)
+
+
+def _mode_for(path: str) -> int:
+  """The permission bits `path` keeps (an existing file's), or those a new file gets under the
+  process's umask."""
+  if os.path.exists(path):
+    return os.stat(path).st_mode & 0o777
+  mask = os.umask(0)
+  os.umask(mask)
+  return 0o666 & ~mask
 
 
 def fsync_directory(directory: str) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from typing import Callable, Dict, Optional, Sequence
 
 import numpy as np
 
-from pachs_jax import plans
+from pachs_jax import files, plans
 
 def check_distinct(paths: Dict[str, Optional[str]]) -> None:
   """ValueError naming both flags when two of flag -> path (None: not given) name one file."""
@@ -36,33 +35,16 @@ def check_show_instance(instance: Optional[int], planned: Sequence[int]) -> int:
 
 
 def write_atomically(path: str, write: Callable) -> str:
-  """Calls write(binary file) into a temporary file beside path, then renames it onto path, so
-  that path holds the old file or the whole new one; a path that is not a regular file (a
-  device such as /dev/stdout) is written in place. Errors (a full disk) raise OSError.
-
-  A local helper until the project has a shared one for atomic files."""
+  """Calls write(binary file) through `files.atomic_open`, so that path holds the old file or
+  the whole new one; a path that is not a regular file (a device such as /dev/stdout) is
+  written in place. Errors (a full disk) raise OSError."""
   path = os.fspath(path)
   if os.path.exists(path) and not os.path.isfile(path):
     with open(path, 'wb') as f:
       write(f)
     return path
-  directory = os.path.dirname(os.path.abspath(path))
-  fd, temp = tempfile.mkstemp(prefix=f'.{os.path.basename(path)}.', suffix='.tmp', dir=directory)
-  try:
-    with os.fdopen(fd, 'wb') as f:
-      write(f)
-      f.flush()
-      os.fsync(f.fileno())
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(temp, os.stat(path).st_mode & 0o777 if os.path.exists(path) else 0o666 & ~mask)
-    os.replace(temp, path)
-  except BaseException:
-    try:
-      os.remove(temp)
-    except OSError:
-      pass
-    raise
+  with files.atomic_open(path, 'wb') as f:
+    write(f)
   return path
 
 
