@@ -250,6 +250,9 @@ def main(argv=None) -> int:
   exits at once.
   """
   words = sys.argv[1:] if argv is None else list(argv)
+  # a one-shot command: GPU memory taken as needed, not 75% of the card up front (which takes
+  # seconds on a large GPU; docs/startup_and_caching.md); read when JAX starts its backend
+  os.environ.setdefault('XLA_PYTHON_CLIENT_PREALLOCATE', 'false')
   command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo']) else 'pachs'
   with signals.SignalGuard(command) as guard:
     try:
