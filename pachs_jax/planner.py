@@ -3,6 +3,7 @@ docs/task_defaults.md), its shipped actor-critic, and a result table."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from typing import Callable, List, Optional, Sequence
 
@@ -105,6 +106,9 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
     model_task = task.name
   else:
     model_task = envs.spec(task).model_task
+  if envs.is_playground(model_task) and importlib.util.find_spec('mujoco_playground') is None:
+    from pachs_jax.envs import playground  # pylint: disable=import-outside-toplevel
+    playground.require_playground()  # the install command first: nothing runs without it
   # the checkpoint before the env (a Playground env takes long to build)
   path = path or checkpoint_path(model_task if isinstance(task, envs.Env) else task)
   if not os.path.exists(path):
