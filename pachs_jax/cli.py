@@ -200,6 +200,8 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     finally:
       line.close()
   else:
+    if guard is not None:
+      guard.phase = 'the sharded search (it keeps no partial results)'
     result = sharding.plan_sharded(env, model, starts, config, key,
                                    mesh=sharding.instance_mesh(devices))
   total = time.perf_counter() - start
@@ -258,7 +260,7 @@ def main(argv=None) -> int:
     try:
       return _main_prefetching(words, guard)
     except signals.Interrupted as err:
-      name = 'start-up' if words[:1] == ['plan'] else 'the command'
+      name = guard.phase or ('start-up' if words[:1] == ['plan'] else 'the command')
       print(f'{command}: {signal_name(err.signum)}: stopped during {name}; nothing written',
             file=sys.stderr, flush=True)
       return err.exit_code

@@ -46,6 +46,7 @@ class SignalGuard:
     self.prog = prog
     self.notice = notice
     self.requested: Optional[int] = None
+    self.phase: Optional[str] = None  # what runs now, for the line of a signal that stops it
     self._keeping = False
     self._previous = {}
 
