@@ -50,7 +50,17 @@ def test_stop_after_one_chunk_marks_the_unfinished_instances(small):
   assert StopReason.name(StopReason.INTERRUPTED) == 'interrupted'
 
 
-def test_ctrl_c_during_planner_plan_returns_the_partial_result(small):
+@pytest.fixture
+def python_sigint():
+  """Python's own SIGINT handler, also where pytest started with SIGINT ignored (a background
+  job); the previous handler is put back afterwards."""
+  previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+  yield
+  signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_during_planner_plan_returns_the_partial_result(small, python_sigint):
+  del python_sigint
   small.plan([0, 1])  # compiled: the next call's first chunk runs at once
 
   def press_ctrl_c(progress):

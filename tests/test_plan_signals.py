@@ -23,11 +23,18 @@ def cache_dir(tmp_path_factory):
   return str(tmp_path_factory.mktemp('cache'))
 
 
+def default_sigint():
+  """In the child: SIGINT's default action, also where the tests run with SIGINT ignored (a
+  background job), so that Python installs its own handler."""
+  signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(args, cache_dir):
   env = dict(os.environ, PACHS_COMPILATION_CACHE=cache_dir,
              PYTHONPATH=os.pathsep.join([os.getcwd()] + sys.path))
   process = subprocess.Popen([sys.executable, '-m', 'pachs_jax.cli'] + args,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                             preexec_fn=default_sigint)
   lines = queue.Queue()
   stderr = []
 

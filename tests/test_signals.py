@@ -39,6 +39,7 @@ SCRIPT = textwrap.dedent('''
 
 def _run(mode, signame):
   return subprocess.run([sys.executable, '-c', SCRIPT, mode, signame], capture_output=True,
+                        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                         text=True, timeout=60)
 
 
