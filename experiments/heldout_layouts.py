@@ -29,6 +29,10 @@ def main():
   for held in HELD_OUT:
     layouts.LAYOUTS[held.name] = held
   layouts.NAMES = tuple(layouts.LAYOUTS)
+  if len(sys.argv) < 2 or not sys.argv[1].endswith('.py') or not os.path.isfile(sys.argv[1]):
+    sys.exit('usage: python experiments/heldout_layouts.py SCRIPT.py [its flags]  (e.g. '
+             'experiments/open_loop.py --layout gate-mirror); held-out layouts: '
+             + ', '.join(held.name for held in HELD_OUT))
   script = sys.argv[1]
   sys.path.insert(0, os.path.dirname(os.path.abspath(script)))
   sys.argv = sys.argv[1:]
