@@ -112,6 +112,15 @@ def check_memory(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
                            working=memory.iteration_bytes(env, config, padded))
 
 
+def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
+  """Runs a jitted planner fn(*args) (e.g. a baseline's plan) after compiling it; sets
+  wall_time_s (host seconds without compilation)."""
+  compiled = fn.lower(*args).compile()
+  began = time.perf_counter()
+  out = jax.block_until_ready(compiled(*args))
+  return out.replace(wall_time_s=jnp.float32(time.perf_counter() - began))
+
+
 def _ready(programs: dict, name, waiting: Optional[dict] = None):
   """programs[name], waiting for (and then storing) one still being compiled in a thread; the
   time waited (s) is added to waiting['s'] when given."""
