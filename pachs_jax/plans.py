@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pachs_jax.envs import base
+from pachs_jax.search.baselines import common
 
 NODE_FIELDS = ('qpos', 'qvel', 'ctrl', 'qacc_warmstart', 't')  # the goal is stored once
 
@@ -140,7 +141,6 @@ class Replay:
 def replay(env: base.Env, plan: Plan) -> Replay:
   """Applies the plan's actions from its start state through `env.evaluate` (the physics the
   search used, one world) and returns the states reached and their costs."""
-  from pachs_jax.search.baselines import common
   if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
     raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
                      f'takes [L, {env.action_size}]')

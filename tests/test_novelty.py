@@ -89,7 +89,7 @@ def test_novel_restarts_find_goals_on_paths_that_replay(novel_search):
 def test_every_node_is_counted_in_its_coarse_cell(novel_search):
   env, _, _, state = novel_search
   pool = state.pool
-  num_cells = 2**12  # the power of two >= 2 x (3000 // 3 + 1) nodes
+  num_cells = 2**11  # the power of two >= 2 x (3000 // 3 + 1) nodes
   assert state.visits.nodes_per_cell.shape[1] == num_cells
   cells = novelty.coarse_cells(env.lattice_key(jax.tree.map(lambda x: x.reshape(
       (-1,) + x.shape[2:]), pool.nodes)), 2, num_cells).reshape(pool.g.shape)
