@@ -25,7 +25,7 @@ class Plan:
   states: NodeState [L + 1, ...] the states along the path, the start first.
   cost: path cost (sum of the transitions' costs, the env's cost units).
   found: the search reached a goal; ends_at_goal: the last state satisfies the goal rule.
-  truncated: the path was longer than the search kept (`SearchConfig.max_path_length`); the
+  truncated: the path was longer than the search kept (`Capacities.max_path_length`); the
     plan holds its first L transitions.
   """
 
