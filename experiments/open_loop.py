@@ -84,7 +84,7 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
   if mesh is not None:
     return (lambda starts, keys: sharding.plan_sharded_fn(shard_fn, starts, keys, mesh)), config
   jitted = jax.jit(shard_fn)
-  return (lambda starts, keys: bl.timed(jitted, starts, keys)), config
+  return (lambda starts, keys: programs.timed(jitted, starts, keys)), config
 
 
 def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:

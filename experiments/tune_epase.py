@@ -14,7 +14,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import envs
+from pachs_jax import envs, programs
 from pachs_jax.search import baselines as bl
 
 
@@ -43,7 +43,7 @@ def main():
                             lattice_resolution=setup.lattice_resolution)
     search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
     start = time.perf_counter()
-    result = bl.timed(search.plan, starts)
+    result = programs.timed(search.plan, starts)
     compile_s = time.perf_counter() - start - float(result.wall_time_s)
     r = jax.tree.map(np.asarray, result)
     h0 = np.asarray(setup.heuristic.value(setup.heuristic.init(starts),

@@ -10,6 +10,9 @@ import time
 
 from pachs_jax import argtypes, flags, signals
 
+# The command's flags are checked before JAX, MuJoCo or matplotlib load: the imports of
+# pachs_jax modules that load them stand inside the functions that need them (start-up path).
+
 
 def check_output_path(flag: str, path: str) -> None:
   """ValueError naming flag and path unless a file can be written at path: not a directory, its
@@ -37,7 +40,7 @@ def _check_image_path(flag: str, path: str) -> None:
   check_output_path(flag, path)
   ext = os.path.splitext(path)[1].lower().lstrip('.')
   if ext:
-    from matplotlib.backend_bases import FigureCanvasBase
+    from matplotlib.backend_bases import FigureCanvasBase  # start-up path: lazy
     formats = FigureCanvasBase.get_supported_filetypes()
     if ext not in formats:
       raise ValueError(f'{flag} {path}: cannot draw .{ext} images (use one of '
@@ -62,7 +65,7 @@ def _demo(args: argparse.Namespace) -> int:
   _check_image_path('--out', args.out)
   if args.gif:
     check_output_path('--gif', args.gif)
-  from pachs_jax import demo
+  from pachs_jax import demo  # start-up path: lazy (MuJoCo)
   summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif,
                           progress=True)
   print(json.dumps(summary, indent=1))
@@ -77,7 +80,7 @@ class _TaskChoices:
     self.tasks = tuple(tasks)
 
   def __contains__(self, text) -> bool:
-    from pachs_jax import envs
+    from pachs_jax import envs  # start-up path: lazy (JAX)
     return text in self.tasks or (envs.is_playground(text) and len(text) > len('playground:'))
 
   def __iter__(self):
@@ -105,7 +108,7 @@ def _plan_devices(args: argparse.Namespace):
   if args.time_limit is not None:
     raise ValueError('--time-limit (anytime mode) is not supported with sharding: use '
                      '--devices 1, or drop --time-limit to run every instance to completion')
-  import jax
+  import jax  # start-up path: lazy
 
   from pachs_jax import sharding
   if args.devices == 'all':
@@ -123,7 +126,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   the command's `signals.SignalGuard` (None: signals as Python handles them)."""
 
   # every output path first: nothing is planned for results that could not be written
-  from pachs_jax import outputs
+  from pachs_jax import outputs  # start-up path: lazy (JAX)
   outputs.check_plan_outputs(args.task, {'--json': args.json, '--render': args.render,
                                          '--animate': args.animate})
   if args.json:
@@ -134,7 +137,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     check_output_path('--animate', args.animate)
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
-  import jax
+  import jax  # start-up path: lazy, after the outputs' checks
   import numpy as np
 
   from pachs_jax import compile_cache, envs, planner, progress
@@ -275,7 +278,7 @@ def _main_prefetching(words, guard) -> int:
   # `pachs plan`: the executables this command used last time load beside the imports and model
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
-    from pachs_jax import compile_cache
+    from pachs_jax import compile_cache  # start-up path: lazy (JAX)
     with compile_cache.prefetching(words) as prefetch:
       return _main(words, prefetch, guard)
   return _main(words, guard=guard)
@@ -299,7 +302,7 @@ def _main(words, prefetch=None, guard=None) -> int:
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
-  from pachs_jax import envs
+  from pachs_jax import envs  # start-up path: lazy, after MUJOCO_GL is chosen
   from pachs_jax.envs import layouts, mujoco_c, registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')

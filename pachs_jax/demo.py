@@ -11,8 +11,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from matplotlib.path import Path
+from tqdm import tqdm
 
-from pachs_jax.envs import coverage, pusht, render
+from pachs_jax import envs, outputs
+from pachs_jax.envs import coverage, mujoco_c, pusht, render
 
 MAX_STEPS = 2000  # control steps a demo may take (100 s of simulated time)
 REST_Z, LIFT_Z = 0.015, 0.07  # m: tip height when pushing, and when passing over the T
@@ -117,7 +119,6 @@ def scripted_push(env, node, num_steps: int, progress: bool = False):
   env: a PushT env (MJX or MuJoCo C physics). Returns (nodes NodeState [T + 1] (numpy), tip
   positions [T + 1, 3] (m), coverage [T + 1], pushes: the steps spent pushing the T).
   """
-  from tqdm import tqdm
   transition, tip_position = jax.jit(env.transition), jax.jit(env.tip_position)
   data = mujoco.MjData(env.mj_model)
   obstacles = np.asarray(env.obstacles, np.float64).reshape(-1, 5)
@@ -143,8 +144,6 @@ def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None
   `mujoco_c.make_backend`), draws it to the image `out` (and, with `gif`, an animation with
   the MuJoCo rendering of the arm); returns a JSON-ready summary. Files are written
   atomically; ValueError for bad arguments before any work."""
-  from pachs_jax import envs, outputs
-  from pachs_jax.envs import mujoco_c
   if isinstance(num_steps, bool) or not isinstance(num_steps, int) or \
       not 1 <= num_steps <= MAX_STEPS:
     raise ValueError(f'steps must be an integer in 1..{MAX_STEPS}, got {num_steps!r}')

@@ -75,7 +75,7 @@ def _instance_plan(result, instances: Sequence[int], instance: int) -> plans.Pla
 def write_still(path: str, env, result, instances: Sequence[int], instance: int) -> str:
   """Draws the plan of `instance` (one of `instances`, the result's rows) to an image file
   whose extension names the format (none: PNG)."""
-  from pachs_jax.envs import render
+  from pachs_jax.envs import render  # start-up path: matplotlib only where a plan is drawn
   plan = _instance_plan(result, instances, instance)
   fig = render.plan_figure(env, plan.states, _title(env, plan, instance))
   ext = os.path.splitext(path)[1].lower().lstrip('.') or 'png'
@@ -88,7 +88,7 @@ def write_animation(path: str, env, result, instances: Sequence[int], instance: 
   drawing, with the MuJoCo rendering of the arm beside it with `arm`; None: where the user
   chose an OpenGL backend with MUJOCO_GL, since creating a context without one can abort the
   process); returns (path, note: why the rendering is left out, or None)."""
-  from pachs_jax.envs import render
+  from pachs_jax.envs import render  # start-up path: matplotlib only where a plan is drawn
   plan = _instance_plan(result, instances, instance)
   if arm is None:
     arm = bool(os.environ.get('MUJOCO_GL'))

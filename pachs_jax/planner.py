@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from pachs_jax import compile_cache, envs, programs, signals
-from pachs_jax.envs import mujoco_c, registry
+from pachs_jax.envs import mujoco_c, playground, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
 from pachs_jax.search.config import SearchConfig
@@ -107,7 +107,6 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   else:
     model_task = envs.spec(task).model_task
   if envs.is_playground(model_task) and importlib.util.find_spec('mujoco_playground') is None:
-    from pachs_jax.envs import playground  # pylint: disable=import-outside-toplevel
     playground.require_playground()  # the install command first: nothing runs without it
   # the checkpoint before the env (a Playground env takes long to build)
   path = path or checkpoint_path(model_task if isinstance(task, envs.Env) else task)
@@ -289,7 +288,7 @@ def format_table(rows: List[dict], columns: Sequence[str]) -> str:
 def draw_result(env, result: SearchResult, instances: Sequence[int],
                 path: str) -> str:
   """Draws the first instance's path (PushT: T poses, goal, obstacles, pusher trace)."""
-  from pachs_jax.envs import render
+  from pachs_jax.envs import render  # start-up path: matplotlib only where a plan is drawn
   if not env.name.startswith('pusht'):
     raise ValueError(f'drawing a path is implemented for the PushT tasks, not {env.name!r}')
   length = int(min(result.path_length[0], result.path_actions.shape[1]))

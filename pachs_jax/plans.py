@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pachs_jax.envs import base
+from pachs_jax.search.baselines import common
 
 NODE_FIELDS = ('qpos', 'qvel', 'ctrl', 'qacc_warmstart', 't')  # the goal is stored once
 
@@ -24,7 +25,7 @@ class Plan:
   states: NodeState [L + 1, ...] the states along the path, the start first.
   cost: path cost (sum of the transitions' costs, the env's cost units).
   found: the search reached a goal; ends_at_goal: the last state satisfies the goal rule.
-  truncated: the path was longer than the search kept (`SearchConfig.max_path_length`); the
+  truncated: the path was longer than the search kept (`Capacities.max_path_length`); the
     plan holds its first L transitions.
   """
 
@@ -140,7 +141,6 @@ class Replay:
 def replay(env: base.Env, plan: Plan) -> Replay:
   """Applies the plan's actions from its start state through `env.evaluate` (the physics the
   search used, one world) and returns the states reached and their costs."""
-  from pachs_jax.search.baselines import common
   if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
     raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
                      f'takes [L, {env.action_size}]')

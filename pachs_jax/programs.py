@@ -48,10 +48,11 @@ def bucket_size(num_instances: int, minimum: int = 1) -> int:
   return max(minimum, next_pow2(num_instances))
 
 
-def program_fingerprint(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
-  """What the search loop closes over, as a string; None when env or model cannot say."""
+def program_fingerprint(env: base.Env, actor_critic: ActorCritic, search: Search):
+  """What the search loop closes over (env, model, config and capacities), as a string; None
+  when env or model cannot say."""
   parts = (getattr(env, 'fingerprint', None), getattr(actor_critic, 'fingerprint', None))
-  return None if None in parts else repr(parts + (config,))
+  return None if None in parts else repr(parts + (search.config, search.capacities))
 
 
 @dataclasses.dataclass
@@ -105,9 +106,19 @@ def check_memory(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     num = jax.tree.leaves(start_nodes)[0].shape[0]
     padded = bucket_size(num, 1 if jax.default_backend() == 'cpu' else 32)
   search = make_search(env, actor_critic, config) if search is None else search
-  return memory.check_fits(functools.partial(make_search, env, actor_critic), search,
+  return memory.check_fits(functools.partial(make_search, env, actor_critic,
+                                             capacities=search.capacities), search,
                            start_nodes, padded, need=need,
                            working=memory.iteration_bytes(env, config, padded))
+
+
+def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
+  """Runs a jitted planner fn(*args) (e.g. a baseline's plan) after compiling it; sets
+  wall_time_s (host seconds without compilation)."""
+  compiled = fn.lower(*args).compile()
+  began = time.perf_counter()
+  out = jax.block_until_ready(compiled(*args))
+  return out.replace(wall_time_s=jnp.float32(time.perf_counter() - began))
 
 
 def _ready(programs: dict, name, waiting: Optional[dict] = None):
@@ -190,7 +201,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   owner, search = search, search.search
   start_nodes = conform_start_nodes(start_nodes, env)
   num_instances = check_start_nodes(start_nodes, env)
-  fingerprint = program_fingerprint(env, actor_critic, config)
+  fingerprint = program_fingerprint(env, actor_critic, search)
   stored = lambda name: fingerprint and f'{fingerprint} {name}'
   compiled_program = functools.partial(compile_cache.compiled_program, prefetch=owner.prefetch)
   keys = instance_keys(key, num_instances)

@@ -213,7 +213,8 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
     raise ValueError('search was built with another config')
   num_instances = check_start_nodes(start_nodes, env)
   check_model(env, actor_critic, start_nodes, config.num_actions)
-  memory.check_fits(functools.partial(pachs.make_search, env, actor_critic), search,
+  memory.check_fits(functools.partial(pachs.make_search, env, actor_critic,
+                                      capacities=search.capacities), search,
                     start_nodes, -(-num_instances // mesh.devices.size),
                     device=mesh.local_devices[0])
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)

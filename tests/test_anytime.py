@@ -1,58 +1,29 @@
 """The anytime wall-clock rule on a simulated clock: chunks stop where the next chunk and the
 result, timed as their last runs, would pass the limit."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
+from fakes import Result, State, patch_clock
 from pachs_jax import anytime
 from pachs_jax.search.result import StopReason
 
 
-class Clock:
-  """A perf_counter that only moves when the fake planner works."""
-
-  def __init__(self):
-    self.now = 100.0
-
-  def __call__(self):
-    return self.now
-
-
-@dataclasses.dataclass
-class State:
-  active: np.ndarray
-  chunks: int = 0
-
-
-@dataclasses.dataclass
-class Result:
-  stop_reason: np.ndarray
-  wall_time_s: float = float('nan')
-
-  def replace(self, **changes):
-    return dataclasses.replace(self, **changes)
-
-
 @pytest.fixture
 def clock(monkeypatch):
-  clock = Clock()
-  monkeypatch.setattr(anytime.time, 'perf_counter', clock)
-  monkeypatch.setattr(anytime.jax, 'block_until_ready', lambda x: x)
-  return clock
+  return patch_clock(monkeypatch, start=100.0)
 
 
 def make_planner(clock, chunk_s, result_s, stop_after=None):
   def advance(state):
     clock.now += chunk_s
-    chunks = state.chunks + 1
+    chunks = state.done + 1
     done = stop_after is not None and chunks >= stop_after
     return State(np.array([not done, False]), chunks)
 
   def result(state):
     clock.now += result_s
-    result.chunks = state.chunks
+    result.chunks = state.done
     return Result(np.where(state.active, StopReason.RUNNING, StopReason.GOAL))
   return advance, result
 

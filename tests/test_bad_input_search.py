@@ -16,7 +16,7 @@ import pytest
 
 from pachs_jax import cli, planner
 from pachs_jax.envs import gridworld, point_mass, pusht
-from pachs_jax.search import SearchConfig, StopReason, make_search, memory, pachs
+from pachs_jax.search import Capacities, SearchConfig, StopReason, make_search, memory, pachs
 from pachs_jax import programs
 from pachs_jax.programs import plan
 from pachs_jax import sharding
@@ -212,17 +212,21 @@ def test_state_bytes_are_exact_and_checked_against_real_memory(grid):
 
 def test_numpy_and_jax_numbers_are_accepted_and_normalised():
   mixed = SearchConfig(weight=np.float32(2.0), pop_size=np.int64(8), num_actions=jnp.int32(4),
-                       max_evaluations=np.uint16(100), max_iterations=np.int32(7),
+                       max_evaluations=np.uint16(100),
                        lattice_resolution=np.array([0.5, 1.0], np.float32),
                        compact_fractions=(np.float64(0.5), jnp.float32(0.25)))
   plain = SearchConfig(weight=2.0, pop_size=8, num_actions=4, max_evaluations=100,
-                       max_iterations=7, lattice_resolution=(0.5, 1.0),
+                       lattice_resolution=(0.5, 1.0),
                        compact_fractions=(0.5, 0.25))
   assert mixed == plain and hash(mixed) == hash(plain)
   assert type(mixed.weight) is float and type(mixed.pop_size) is int
   assert type(mixed.num_actions) is int and type(mixed.max_evaluations) is int
   assert all(type(r) is float for r in mixed.lattice_resolution)
   assert type(SearchConfig(weight=2).weight) is float
+  capped = Capacities(max_iterations=np.int32(7), pool=jnp.int64(8), table=np.uint8(16))
+  assert capped == Capacities(max_iterations=7, pool=8, table=16)
+  assert hash(capped) == hash(Capacities(max_iterations=7, pool=8, table=16))
+  assert type(capped.max_iterations) is int and type(capped.table) is int
   for bad in (dict(pop_size=True), dict(pop_size=np.bool_(True)), dict(pop_size=np.float64(8)),
               dict(weight=np.float32('nan')), dict(weight=True),
               dict(lattice_resolution=(np.float32(1.0), True))):

@@ -10,7 +10,7 @@ import pytest
 from conftest import assert_results_equal, take
 
 from pachs_jax.envs import gridworld
-from pachs_jax.search import StopReason
+from pachs_jax.search import Capacities, StopReason
 from pachs_jax.search import baselines as bl
 from pachs_jax.search.baselines import common
 from pachs_jax.search import instance_keys
@@ -207,13 +207,28 @@ def test_beam_budget_is_exact(env, start):
 # ---------------------------------------------------------------- ePA*SE
 
 
+def _grid_heuristic(env):
+  ac = gridworld.GridActorCritic(env)
+  return bl.Heuristic(init=lambda s: jnp.zeros((s.t.shape[0],)),
+                      value=lambda data, n: ac.heuristic(n.qpos, n.goal))
+
+
 @pytest.fixture(scope='module')
 def grid_epase(env):
-  ac = gridworld.GridActorCritic(env)
-  heuristic = bl.Heuristic(init=lambda s: jnp.zeros((s.t.shape[0],)),
-                           value=lambda data, n: ac.heuristic(n.qpos, n.goal))
-  return bl.make_epase(env, env.moves, heuristic, bl.EpaseConfig(pop_size=1,
-                                                                 max_evaluations=3000))
+  return bl.make_epase(env, env.moves, _grid_heuristic(env),
+                       bl.EpaseConfig(pop_size=1, max_evaluations=3000))
+
+
+def test_epase_capacities_bound_its_pool(env, start, grid_epase):
+  capped = bl.make_epase(env, env.moves, _grid_heuristic(env), grid_epase.config,
+                         capacities=Capacities(pool=6))
+  assert (grid_epase.sizes.pool, capped.sizes.pool) == (3001, 6)
+  result = jax.tree.map(np.asarray, capped.plan(start))
+  assert (result.generated <= 6).all()
+  stopped = result.stop_reason == StopReason.CAPACITY
+  assert stopped.any() and (stopped | result.found).all()
+  with pytest.raises(ValueError, match='power of two'):
+    bl.make_epase(env, env.moves, _grid_heuristic(env), capacities=Capacities(table=100))
 
 
 def test_epase_k1_is_optimal_and_batches(env, start, grid_epase):
@@ -326,7 +341,6 @@ def test_epase_finds_a_goal_on_the_shelf():
     (lambda: bl.SingleRolloutConfig(max_steps=-1), 'max_steps'),
     (lambda: bl.BeamConfig(score='value'), 'score'),
     (lambda: bl.BeamConfig(weight=float('nan')), 'weight'),
-    (lambda: bl.EpaseConfig(table_capacity=100), 'power of two'),
     (lambda: bl.VoxelGrid((0.0, 0.0, 0.0), -1.0, (2, 2, 2)), 'cell'),
 ])
 def test_bad_configs_raise(make, match):

@@ -219,14 +219,19 @@ def test_world_executes_and_perturbations_change_the_outcome(env, push):
 
 def test_search_on_the_cpu_backend_stops_at_its_iteration_limit(env, cenv):
   from pachs_jax import programs
+  from pachs_jax.search import pachs
+  from pachs_jax.search.capacity import Capacities
   from pachs_jax.search.config import SearchConfig
   from pachs_jax.search.result import StopReason
   from pachs_jax.search.baselines import replay
   starts = env.canonical_instances(2)
   # two iterations evaluate at most 2 K = 8 edges, far below the budget of 64, and no canonical
   # instance starts at its goal or is reached in two random steps: the iteration limit stops both
-  config = SearchConfig(num_actions=4, pop_size=4, max_evaluations=64, max_iterations=2)
-  result = programs.plan(cenv, UniformActorCritic(7), starts, config, jax.random.PRNGKey(0))
+  config = SearchConfig(num_actions=4, pop_size=4, max_evaluations=64)
+  search = pachs.make_search(cenv, UniformActorCritic(7), config,
+                             capacities=Capacities(max_iterations=2))
+  result = programs.plan(cenv, UniformActorCritic(7), starts, config, jax.random.PRNGKey(0),
+                         search=search)
   np.testing.assert_array_equal(np.asarray(result.stop_reason), StopReason.ITERATIONS)
   np.testing.assert_array_equal(np.asarray(result.found), False)
   np.testing.assert_array_equal(np.asarray(result.iterations), 2)

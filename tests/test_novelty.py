@@ -1,7 +1,6 @@
 """Chains that restart at rarely visited coarse cells (SearchConfig.chain_restart='novel',
 search/novelty.py): the visit counts, the draw's weights, and the search on the grid world."""
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -10,6 +9,7 @@ import pytest
 
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, make_search, novelty
+from pachs_jax.search import rules as rules_lib
 
 from test_segment import GOALS, OBSTACLES, STARTS, NoisyGridActor, _replay
 
@@ -67,9 +67,10 @@ def novel_search():
   env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=24)
   ac = NoisyGridActor(env)
   config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
-                        edge_steps=3, rollout_share=0.5, chain_restart='novel',
-                        novelty_coarsening=2)
-  search = make_search(env, ac, config)
+                        edge_steps=3, rollout_share=0.5, chain_restart='novel')
+  rules = rules_lib.from_config(env, ac, config)._replace(
+      restart=rules_lib.restart_novel(config.rollout_lanes, coarsening=2))
+  search = make_search(env, ac, config, rules=rules)
   nodes = env.node(STARTS, GOALS)
   state = search.run(search.init(nodes, jax.random.split(jax.random.PRNGKey(3), len(STARTS))))
   return env, config, search, state
@@ -86,11 +87,12 @@ def test_novel_restarts_find_goals_on_paths_that_replay(novel_search):
 
 
 def test_every_node_is_counted_in_its_coarse_cell(novel_search):
-  env, config, _, state = novel_search
+  env, _, _, state = novel_search
   pool = state.pool
+  num_cells = 2**11  # the power of two >= 2 x (3000 // 3 + 1) nodes
+  assert state.visits.nodes_per_cell.shape[1] == num_cells
   cells = novelty.coarse_cells(env.lattice_key(jax.tree.map(lambda x: x.reshape(
-      (-1,) + x.shape[2:]), pool.nodes)), config.novelty_coarsening,
-      config.novelty_cells).reshape(pool.g.shape)
+      (-1,) + x.shape[2:]), pool.nodes)), 2, num_cells).reshape(pool.g.shape)
   used = np.arange(pool.capacity)[None, :] < np.asarray(pool.size)[:, None]
   node_cell = np.asarray(state.visits.node_cell)
   np.testing.assert_array_equal(node_cell[used], np.asarray(cells)[used])
@@ -131,10 +133,8 @@ def test_chains_restart_at_the_start_or_at_earlier_nodes_that_fit_an_episode(res
     assert (restarts > 0).sum() >= len(restarts) // 2, restarts
 
 
-@pytest.mark.parametrize('changes, match', [
-    (dict(chain_restart='random'), 'chain_restart'),
-    (dict(novelty_coarsening=0), 'novelty_coarsening'),
-])
-def test_chain_restart_validation(changes, match):
-  with pytest.raises(ValueError, match=match):
-    SearchConfig(**changes)
+def test_chain_restart_validation():
+  with pytest.raises(ValueError, match='chain_restart'):
+    SearchConfig(chain_restart='random')
+  with pytest.raises(ValueError, match='coarsening'):
+    rules_lib.restart_novel(4, coarsening=0)

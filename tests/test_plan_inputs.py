@@ -9,6 +9,7 @@ import io
 import numpy as np
 import pytest
 
+from fakes import Result, State, patch_clock
 from pachs_jax import anytime, argtypes, cli, planner, progress, programs
 from pachs_jax.search import memory
 from pachs_jax.search.result import StopReason
@@ -52,45 +53,19 @@ def test_a_missing_playground_checkpoint_fails_at_once_naming_the_env_flag(tmp_p
 
 # -- chunks and stop requests on a simulated clock (as tests/test_anytime.py) --------------------
 
-@dataclasses.dataclass
-class State:
-  active: np.ndarray
-  iterations: int = 0
-
-
-@dataclasses.dataclass
-class Result:
-  stop_reason: np.ndarray
-  wall_time_s: float = float('nan')
-
-  def replace(self, **changes):
-    return dataclasses.replace(self, **changes)
-
-
-class Clock:
-  def __init__(self):
-    self.now = 0.0
-
-  def __call__(self):
-    return self.now
-
-
 @pytest.fixture
 def clock(monkeypatch):
-  clock = Clock()
-  monkeypatch.setattr(anytime.time, 'perf_counter', clock)
-  monkeypatch.setattr(anytime.jax, 'block_until_ready', lambda x: x)
-  return clock
+  return patch_clock(monkeypatch, start=0.0)
 
 
 def _planner(clock, iteration_s, total_iterations):
   chunks = []
 
   def advance(state, iterations):
-    done = min(iterations, total_iterations - state.iterations)
+    done = min(iterations, total_iterations - state.done)
     clock.now += done * iteration_s
     chunks.append(iterations)
-    total = state.iterations + done
+    total = state.done + done
     return State(np.array([total < total_iterations, False]), total)
 
   def result(state):

@@ -1,7 +1,6 @@
 """`plans`: each instance's plan as actions and states, its JSON form, and its replay through the
 env's own transition, against the search's own path."""
 
-import dataclasses
 import json
 
 import jax
@@ -12,7 +11,7 @@ from conftest import UniformActorCritic, trees_equal
 from pachs_jax import plans
 from pachs_jax.envs import gridworld, point_mass
 from pachs_jax.programs import plan
-from pachs_jax.search import SearchConfig, instance_keys
+from pachs_jax.search import Capacities, SearchConfig, instance_keys, make_search
 
 
 def _grid_problem():
@@ -74,8 +73,9 @@ def test_segment_edges_expand_into_transitions_and_replay_exactly():
   config = SearchConfig(weight=1.0, num_actions=4, pop_size=4, max_evaluations=600,
                         edge_steps=3)
   result = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1))
-  cut = plan(env, UniformActorCritic(2), nodes, dataclasses.replace(config, max_path_length=4),
-             jax.random.PRNGKey(1))
+  cut = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1),
+             search=make_search(env, UniformActorCritic(2), config,
+                                capacities=Capacities(max_path_length=4)))
   for whole, part in zip(plans.from_result(result), plans.from_result(cut)):
     assert whole.length == whole.states.t[-1] > 3  # transitions, not edges
     again = plans.replay(env, whole)

@@ -11,7 +11,7 @@ import pytest
 from conftest import assert_results_equal, take
 from pachs_jax import compile_cache
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, StopReason, instance_keys, make_search
+from pachs_jax.search import Capacities, SearchConfig, StopReason, instance_keys, make_search
 from pachs_jax.programs import Programs, plan
 
 SIZE = 14
@@ -237,9 +237,16 @@ def test_tiny_budget_stops_on_budget(problem):
   assert (res.path_length[hit] >= 1).all()  # the real-time answer: a path to an open node
 
 
+def _plan_capped(problem, config, **capacities):
+  """plan() of config with the search's Capacities(**capacities)."""
+  search = make_search(problem.env, problem.actor_critic, config,
+                       capacities=Capacities(**capacities))
+  return plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys,
+              search=search)
+
+
 def test_tiny_pool_stops_on_capacity(problem):
-  config = dataclasses.replace(BASE, pool_capacity=6)  # paths need >= 8 nodes
-  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  res = _np(_plan_capped(problem, BASE, pool=6))  # paths need >= 8 nodes
   hit = res.stop_reason == StopReason.CAPACITY
   assert hit[:NUM_FOUND - 1].all()
   assert (res.pool_overflow[hit] > 0).all()
@@ -247,8 +254,7 @@ def test_tiny_pool_stops_on_capacity(problem):
 
 
 def test_tiny_heap_stops_on_capacity(problem):
-  config = dataclasses.replace(BASE, heap_capacity=20)  # R: two expansions' edges and 4 more
-  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  res = _np(_plan_capped(problem, BASE, heap=20))  # R: two expansions' edges and 4 more
   hit = res.stop_reason == StopReason.CAPACITY
   assert hit[:NUM_FOUND - 1].all() and hit[NUM_FOUND]
   np.testing.assert_array_equal(res.heap_overflow[hit], 4)  # the third expansion's last 4
@@ -257,8 +263,7 @@ def test_tiny_heap_stops_on_capacity(problem):
 
 
 def test_iteration_limit(problem):
-  config = dataclasses.replace(BASE, max_iterations=3)
-  res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
+  res = _np(_plan_capped(problem, BASE, max_iterations=3))
   running = slice(0, NUM_FOUND - 1)
   np.testing.assert_array_equal(res.stop_reason[running], StopReason.ITERATIONS)
   np.testing.assert_array_equal(res.iterations[running], 3)
@@ -314,11 +319,27 @@ def test_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_search):
     (dict(max_evaluations=0), 'max_evaluations'), (dict(pop_size=0), 'pop_size'),
     (dict(num_actions=0), 'num_actions'), (dict(weight=-1.0), 'weight'),
     (dict(weight=float('nan')), 'weight'),
-    (dict(table_capacity=100), 'power of two'), (dict(lattice_resolution=(1.0, 0.0)), 'lattice'),
-    (dict(pool_capacity=2**30), '2\\*\\*31'), (dict(max_iterations=-3), 'max_iterations')])
+    (dict(lattice_resolution=(1.0, 0.0)), 'lattice')])
 def test_config_validation(changes, match):
   with pytest.raises(ValueError, match=match):
     dataclasses.replace(BASE, **changes)
+
+
+@pytest.mark.parametrize('capacities,match', [
+    (dict(table=100), 'power of two'), (dict(max_iterations=-3), 'max_iterations'),
+    (dict(heap=0), 'heap'), (dict(max_path_length=0), 'max_path_length')])
+def test_capacities_validation(capacities, match):
+  with pytest.raises(ValueError, match=match):
+    Capacities(**capacities)
+
+
+@pytest.mark.parametrize('config,capacities', [
+    (BASE, Capacities(pool=2**30)), (dataclasses.replace(BASE, max_evaluations=2**28), None)])
+def test_int32_limits_are_refused_before_any_work(problem, config, capacities):
+  with pytest.raises(ValueError, match='below 2\\*\\*31'):
+    make_search(problem.env, problem.actor_critic, config, capacities=capacities)
+  with pytest.raises(ValueError, match='must be a Capacities'):
+    make_search(problem.env, problem.actor_critic, BASE, capacities=dict(pool=6))
 
 
 def test_mismatched_pieces_are_rejected(problem):
@@ -375,8 +396,9 @@ def test_coarse_lattice_merges_states_and_paths_replay(problem):
 def _stopped_early(problem, config, realtime_answer):
   """(result, pool, running) of the search stopped after 4 iterations with that answer rule;
   running [I]: the instances the iteration limit stopped (at least 2)."""
-  stop_early = dataclasses.replace(config, max_iterations=4, realtime_answer=realtime_answer)
-  search = make_search(problem.env, problem.actor_critic, stop_early)
+  stop_early = dataclasses.replace(config, realtime_answer=realtime_answer)
+  search = make_search(problem.env, problem.actor_critic, stop_early,
+                       capacities=Capacities(max_iterations=4))
   state = search.run(search.init(problem.nodes, problem.keys))
   res = _np(search.result(state))
   running = res.stop_reason == StopReason.ITERATIONS
@@ -396,8 +418,7 @@ def _assert_path_ends_at(problem, res, pool, i, end):
 def test_min_h_realtime_answer(problem, config):
   """'min_h' returns the path to the non-start node with the least (dummy key - g), the
   answer that 'best_f' often leaves at the start early in a search."""
-  best_f = _np(plan(problem.env, problem.actor_critic, problem.nodes,
-                    dataclasses.replace(config, max_iterations=4), problem.keys))
+  best_f = _np(_plan_capped(problem, config, max_iterations=4))
   res, pool, running = _stopped_early(problem, config, 'min_h')
   # the search itself is the same; only the answer differs
   np.testing.assert_array_equal(res.evaluated, best_f.evaluated)

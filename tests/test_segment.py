@@ -16,7 +16,7 @@ from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, make_search
 from pachs_jax.programs import plan
 from pachs_jax import sharding
-from pachs_jax.search import segment
+from pachs_jax.search import capacity, segment
 
 OBSTACLES = np.zeros((12, 12), bool)
 OBSTACLES[2:10, 6] = True  # a wall with gaps at both ends
@@ -138,9 +138,11 @@ def test_edge_steps_validation(changes, match):
 
 
 def test_pool_and_heaps_are_sized_per_edge():
-  assert CONFIG.pool_size == 3000 // 3 + 1
-  assert CONFIG.dummy_heap_size == 1001
-  assert CONFIG.edge_heap_size == 8 * 1001
+  sizes = capacity.sizes(None, CONFIG.max_evaluations, CONFIG.num_actions + 1,
+                         CONFIG.edge_steps, heap_per_node=CONFIG.num_actions)
+  assert sizes.pool == 3000 // 3 + 1
+  assert sizes.dummy_heap == 1001
+  assert sizes.heap == 8 * 1001
 
 
 def test_algorithms_are_named():

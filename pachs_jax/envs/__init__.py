@@ -10,7 +10,7 @@ from pachs_jax.envs.registry import (SPECS, TASKS, TaskSpec, is_playground, make
 def from_playground(env, is_goal=None, lattice=None, **options):
   """A MuJoCo Playground env (an MjxEnv, or a registry name) as a PACHS task; see
   `envs.playground.from_playground` (needs pip install -e '.[playground]')."""
-  from pachs_jax.envs import playground  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import playground  # start-up path: lazy (loads PushT and MJX)
   return playground.from_playground(env, is_goal=is_goal, lattice=lattice, **options)
 
 

@@ -204,3 +204,6 @@ def sanitize_actions(action: jax.Array) -> tuple[jax.Array, jax.Array]:
   return jnp.clip(clean, -1.0, 1.0), ok
 
 
+def config_fingerprint(env: Env) -> str:
+  """`Env.fingerprint` of an env that its class and its frozen `config` fix."""
+  return f'{type(env).__qualname__}({env.config!r})'

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from pachs_jax.envs import base
+from pachs_jax.envs import base, protocol, warp_import, warp_physics
 
 PREFIX = 'playground:'  # task names 'playground:NAME' (NAME: a Playground registry name)
 INSTALL = "pip install -e '.[playground]'"
@@ -183,7 +183,6 @@ class PlaygroundEnv(base.Env):
                          and int(np.prod(getattr(self._data_spec, f).shape)) > 0)
     self._warp_template = None
     if self.impl == 'warp':  # private Warp buffers (contacts, constraints) from a real reset
-      from pachs_jax.envs import warp_import  # pylint: disable=import-outside-toplevel
       warp_import.require("a Playground env with impl='warp'")
       self._warp_template = jax.tree.map(np.asarray,
                                          jax.jit(env.reset)(jax.random.PRNGKey(0)).data)
@@ -209,7 +208,6 @@ class PlaygroundEnv(base.Env):
     impl='warp', Warp's buffers of one reset (shared by a vmapped batch, as in Playground)."""
     from mujoco_playground import State  # pylint: disable=import-outside-toplevel
     if self._warp_template is not None:
-      from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
       data = warp_physics.rebuild(self._warp_template)
     else:
       data = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._data_spec)
@@ -262,7 +260,6 @@ class PlaygroundEnv(base.Env):
               & jnp.isfinite(reward))
     valid = ok & finite & ~(jnp.asarray(stepped.done) > 0)
     if self._warp_template is not None:  # Warp's buffers overflowed: not simulated right
-      from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
       valid = valid & ~warp_physics.data_overflowed(stepped.data)
     cost = self.config.reward_max - reward
     cost = jnp.where(valid, cost, self.config.reward_max + self._termination_cost)
@@ -398,7 +395,6 @@ def from_playground(env, is_goal: Optional[GoalRule] = None, lattice=None,
   values.update({k: v for k, v in given.items() if v is not None})
   wrapped = PlaygroundEnv(env, PlaygroundConfig(**values), name=name or f'{PREFIX}{env_name}')
   if check:
-    from pachs_jax.envs import protocol  # pylint: disable=import-outside-toplevel
     protocol.check_task(wrapped)
   return wrapped
 

@@ -59,10 +59,7 @@ class PointMassEnv(base.Env):
     self.episode_length = config.episode_length
     self.goal_size = config.dim
 
-  @property
-  def fingerprint(self) -> str:
-    """The class and its config fix the env (`base.Env.fingerprint`)."""
-    return f'{type(self).__qualname__}({self.config!r})'
+  fingerprint = property(base.config_fingerprint)
 
   @property
   def action_size(self) -> int:

@@ -322,10 +322,7 @@ class PushTEnv(base.Env):
     self._home_qpos, self._arm_lower, self._arm_upper = jax.device_put(
         [np.asarray(x, np.float32) for x in (home, panda.JOINT_LOWER, panda.JOINT_UPPER)])
 
-  @property
-  def fingerprint(self) -> str:
-    """The class and its config fix the env (`base.Env.fingerprint`)."""
-    return f'{type(self).__qualname__}({self.config!r})'
+  fingerprint = property(base.config_fingerprint)
 
   @property
   def action_size(self) -> int:

@@ -45,13 +45,13 @@ class TaskSpec:
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
   def build(**options) -> base.Env:
-    from pachs_jax.envs import pusht
+    from pachs_jax.envs import pusht  # lazy: a task's physics loads when it is made
     return pusht.PushTEnv(pusht.PushTConfig(variant=variant, **options))
   return build
 
 
 def _shelf() -> base.Env:
-  from pachs_jax.envs import shelf
+  from pachs_jax.envs import shelf  # lazy: a task's physics loads when it is made
   return shelf.ShelfEnv()
 
 
@@ -104,7 +104,7 @@ def _playground_spec(name: str) -> TaskSpec:
                      f'{PLAYGROUND_PREFIX}PointMass')
 
   def build(**options) -> base.Env:
-    from pachs_jax.envs import playground
+    from pachs_jax.envs import playground  # lazy: a task's physics loads when it is made
     return playground.make(name, **options)
 
   return TaskSpec(name, build, name, 30, USER_SEARCH,

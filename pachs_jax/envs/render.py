@@ -3,14 +3,19 @@ MuJoCo offscreen frames."""
 
 from __future__ import annotations
 
+import copy
 import os
 from typing import Any, Optional, Sequence
 
+import jax
+import mujoco
 import numpy as np
 from matplotlib import patches
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from PIL import Image
 
+from pachs_jax.envs import kinematics
 from pachs_jax.envs.coverage import T_OUTLINE
 
 GOAL_COLOR = 'tab:green'
@@ -156,8 +161,6 @@ def save_pusht_figure(
 def save_gif(path, frames, fps: float = 20.0):
   """Writes frames [T, H, W, 3] uint8 as a looping GIF at fps frames per second to path (or a
   binary file object); returns path."""
-  from PIL import Image
-
   frames = np.asarray(frames)
   if frames.ndim != 4 or frames.shape[-1] != 3 or frames.shape[0] == 0:
     raise ValueError(f'frames must have shape [T, H, W, 3] with T >= 1, got {frames.shape}')
@@ -181,8 +184,6 @@ def render_mujoco_frames(mj_model, qpos_seq, width: int, height: int, camera=Non
   OpenGL backend chosen before `mujoco` is imported (MUJOCO_GL=egl or osmesa on a headless
   machine); raises RuntimeError saying so when no renderer can be created.
   """
-  import mujoco
-
   qpos_seq = np.asarray(qpos_seq, dtype=np.float64)
   if qpos_seq.ndim != 2 or qpos_seq.shape[1] != mj_model.nq:
     raise ValueError(f'qpos_seq must have shape [T, nq={mj_model.nq}], got {qpos_seq.shape}')
@@ -240,9 +241,6 @@ def frame_steps(num_states: int, max_frames: int = MAX_FRAMES) -> np.ndarray:
 def arm_points(mj_model, qpos_seq) -> np.ndarray:
   """[T, P, 3] world positions (m) of the arm's bodies from its base to the tip site, along
   qpos_seq [T, nq] (forward kinematics of `kinematics.ChainKinematics`, hinge joints)."""
-  import jax
-
-  from pachs_jax.envs import kinematics
   site = mj_model.site('tip').id
   body = int(mj_model.site_bodyid[site])
   chain = kinematics.ChainKinematics(mj_model, [body])
@@ -407,7 +405,6 @@ SHELF_CAMERA = ((0.4, 0.0, 0.45), 2.0, 50.0, -20.0)
 def _scene_model(env, goal):
   """The env's MjModel, copied with its 'goal' body (PushT) moved to the instance's goal
   [x, y, yaw]."""
-  import copy
   model = env.mj_model
   names = [model.body(i).name for i in range(model.nbody)]
   if 'goal' not in names or len(goal) != 3:
@@ -421,7 +418,6 @@ def _scene_model(env, goal):
 
 def _mujoco_camera(env):
   """A camera name or a free mujoco.MjvCamera framing the env's scene."""
-  import mujoco
   if env.mj_model.ncam:
     return 0
   lookat, distance, azimuth, elevation = SHELF_CAMERA

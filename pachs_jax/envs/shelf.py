@@ -295,10 +295,7 @@ class ShelfEnv(base.Env):
         [np.asarray(x, np.float32) for x in (panda.JOINT_LOWER, panda.JOINT_UPPER)])
     self._targets_cache: Dict[Tuple[int, int], Tuple[np.ndarray, np.ndarray]] = {}
 
-  @property
-  def fingerprint(self) -> str:
-    """The class and its config fix the env (`base.Env.fingerprint`)."""
-    return f'{type(self).__qualname__}({self.config!r})'
+  fingerprint = property(base.config_fingerprint)
 
   @property
   def action_size(self) -> int:

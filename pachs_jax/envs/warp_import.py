@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import io
+import os
 import sys
 
 # what MJX prints where warp-lang is not installed (or blocked with sys.modules['warp'] = None)
@@ -58,7 +59,6 @@ def announce_kernel_compile() -> None:
   """Keeps Warp's per-module load lines and start-up banner off stdout (its log level goes
   from info to warning), and prints one line to stderr when Warp's kernel cache holds no
   MuJoCo Warp step kernels yet, i.e. when this machine compiles them (once; cached after)."""
-  import os  # pylint: disable=g-import-not-at-top
   import warp  # pylint: disable=g-import-not-at-top
   if warp.config.log_level == warp.LOG_INFO:
     warp.config.log_level = warp.LOG_WARNING

@@ -64,12 +64,6 @@ def check_weight(owner: str, weight) -> float:
   return float(weight)
 
 
-def check_table_capacity(owner: str, table_capacity) -> None:
-  """ValueError for a lattice-table capacity that is not a power of two."""
-  if table_capacity is not None and table_capacity & (table_capacity - 1):
-    raise ValueError(f'{owner}.table_capacity must be a power of two, got {table_capacity}')
-
-
 def lattice_resolution_tuple(owner: str, resolution):
   """None, or the resolution as a tuple of positive finite floats (numpy and JAX numbers
   accepted); ValueError otherwise."""
@@ -93,66 +87,29 @@ def next_pow2(n: int) -> int:
 
 @dataclasses.dataclass(frozen=True)
 class EdgeSearchConfig:
-  """The settings that PACHS and ePA*SE share; capacities left as None are derived from the
-  evaluation budget and never overflow.
+  """The settings that PACHS and ePA*SE share (the arrays' capacities follow from the budget,
+  `capacity.Capacities`).
 
   weight: heuristic weight w >= 0 (keys g + w h).
   pop_size: K: per instance and iteration, the edges popped (PACHS: up to K states expanded
     and K edges evaluated).
   max_evaluations: edge-evaluation budget per instance.
-  max_iterations: loop-iteration limit per instance (None: no limit beyond the budget).
   lattice_resolution: [L] lattice cell sizes (None: the environment's default).
-  heap_capacity: OPEN entries per instance (None: every edge the budget can generate).
-  pool_capacity: nodes per instance (None: budget + 1).
-  table_capacity: lattice-table slots per instance, a power of two (None: >= 2 * pool).
-  max_path_length: actions kept in a returned path (longer paths keep their first ones).
   """
 
   weight: float = 1.0
   pop_size: int = 16
   max_evaluations: int = 100_000
-  max_iterations: Optional[int] = None
   lattice_resolution: Optional[Tuple[float, ...]] = None
-  heap_capacity: Optional[int] = None
-  pool_capacity: Optional[int] = None
-  table_capacity: Optional[int] = None
-  max_path_length: int = 1024
 
   def __post_init__(self):
     owner = type(self).__name__
     normalize_numbers(self)
     object.__setattr__(self, 'weight', check_weight(owner, self.weight))
-    for name in ('pop_size', 'max_evaluations', 'max_path_length'):
+    for name in ('pop_size', 'max_evaluations'):
       positive_int(owner, name, getattr(self, name))
-    for name in ('max_iterations', 'heap_capacity', 'pool_capacity', 'table_capacity'):
-      positive_int(owner, name, getattr(self, name), allow_none=True)
-    check_table_capacity(owner, self.table_capacity)
     object.__setattr__(self, 'lattice_resolution',
                        lattice_resolution_tuple(owner, self.lattice_resolution))
-
-  @property
-  def pool_size(self) -> int:
-    """Nodes per instance."""
-    return self.pool_capacity or self.max_evaluations + 1
-
-  @property
-  def table_size(self) -> int:
-    """Lattice-table slots per instance (a power of two)."""
-    return self.table_capacity or next_pow2(2 * self.pool_size)
-
-  def check_slots(self, slots: int) -> None:
-    """ValueError when heap entries node * slots + slot would overflow int32."""
-    if self.pool_size * slots >= 2**31:
-      raise ValueError(f'{type(self).__name__}: pool_capacity * (edges per node + 1) must stay '
-                       f'below 2**31 (heap entries store node * (edges + 1) + slot as int32); '
-                       f'got {self.pool_size} nodes and {slots - 1} edges per node')
-
-  def iteration_limit_for(self, slots: int) -> int:
-    """Loop iterations per instance with `slots` heap entries per node (the default is never
-    reached before the budget)."""
-    if self.max_iterations is not None:
-      return self.max_iterations
-    return min(2**31 - 1, slots * (self.max_evaluations + 1) + 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,11 +132,8 @@ class SearchConfig(EdgeSearchConfig):
     best edges; their successors join the search, and a chain's goal ends the instance at once.
   chain_restart: where a chain restarts: 'start' (the start state, so that chains are rollouts
     of the actor) or 'novel' (a generated node drawn with weight 1 / the nodes in its coarse
-    cell, `novelty`; nodes whose next edge would pass an episode's length are left out); no
-    effect without rollout lanes.
-  novelty_coarsening: the coarse cells of 'novel': lattice cells merged this many to a side.
-  heap_capacity bounds both heaps: the real-edge heap (None: N * pool) and the dummy-edge heap
-  (None: pool). pool_capacity None: budget // H + 1.
+    cell, `rules.restart_novel`; nodes whose next edge would pass an episode's length are left
+    out); no effect without rollout lanes.
   """
 
   num_actions: int = 16
@@ -188,12 +142,10 @@ class SearchConfig(EdgeSearchConfig):
   edge_steps: int = 1
   rollout_share: float = 0.0
   chain_restart: str = 'start'
-  novelty_coarsening: int = 4
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
-    positive_int('SearchConfig', 'novelty_coarsening', self.novelty_coarsening)
     if self.chain_restart not in CHAIN_RESTARTS:
       raise ValueError(f'SearchConfig.chain_restart must be one of {CHAIN_RESTARTS}, got '
                        f'{self.chain_restart!r}')
@@ -218,39 +170,8 @@ class SearchConfig(EdgeSearchConfig):
     if self.realtime_answer == 'min_h' and not self.weight > 0:
       raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
                        f'and needs weight > 0, got {self.weight!r}')
-    self.check_slots(self.num_actions + 1)
-    if self.edge_heap_size >= 2**31 or self.table_size >= 2**31:
-      raise ValueError('heap and table capacities must stay below 2**31 '
-                       f'(got heap {self.edge_heap_size}, table {self.table_size})')
 
   @property
   def rollout_lanes(self) -> int:
     """R, the lanes of the K that extend chains of the actor's edges."""
     return int(self.rollout_share * self.pop_size)
-
-  @property
-  def pool_size(self) -> int:
-    """Nodes per instance (one per edge the budget pays for, and the start)."""
-    return self.pool_capacity or self.max_evaluations // self.edge_steps + 1
-
-  @property
-  def novelty_cells(self) -> int:
-    """Hashed coarse cells per instance of chain_restart 'novel' (1 otherwise)."""
-    return (next_pow2(2 * self.pool_size) if self.chain_restart == 'novel' and self.rollout_lanes
-            else 1)
-
-  @property
-  def edge_heap_size(self) -> int:
-    """Entries per instance of the real-edge heap: N per expanded node."""
-    return self.heap_capacity or self.num_actions * self.pool_size
-
-  @property
-  def dummy_heap_size(self) -> int:
-    """Entries per instance of the dummy-edge heap: the start's plus one per edge."""
-    edges = self.max_evaluations // self.edge_steps + 1
-    return min(self.heap_capacity or edges, edges)
-
-  @property
-  def iteration_limit(self) -> int:
-    """Loop iterations per instance (the default is never reached before the budget)."""
-    return self.iteration_limit_for(self.num_actions + 1)

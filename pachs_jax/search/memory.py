@@ -122,10 +122,10 @@ def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_in
   """Returns the device bytes of a PACHS search of num_instances (padded) instances, its state
   and one iteration's working set; ValueError when they exceed the device's memory
   (`device_memory`), naming K and N when the working set is the larger part, else the largest
-  budget (max_evaluations) that fits beside the working set. search_for(config) -> the search of another budget (e.g.
-  `make_search` with env and model bound). need: the state's bytes when the caller knows them
-  (None: traced with `search_bytes`). working: one iteration's bytes (`iteration_bytes`).
-  Compiles nothing."""
+  budget (max_evaluations) that fits beside the working set. search_for(config) -> the search
+  of another budget (e.g. `make_search` with env, model and the search's capacities bound).
+  need: the state's bytes when the caller knows them (None: traced with `search_bytes`).
+  working: one iteration's bytes (`iteration_bytes`). Compiles nothing."""
   config = search.config
   available, where = device_memory(device)
   need = search_bytes(search, start_nodes, num_instances) if need is None else need

@@ -12,6 +12,7 @@ import numpy as np
 from flax import struct
 
 from pachs_jax.envs import base
+from pachs_jax.search import capacity as capacity_lib
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import novelty
@@ -65,6 +66,7 @@ class Search:
   run(state) -> state when every instance has stopped (one program: the loops of every size).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
+  capacities: the `capacity.Capacities` it was built with (sizes: what they resolve to).
   """
 
   init: Callable[..., SearchState]
@@ -73,6 +75,8 @@ class Search:
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
   config: SearchConfig
+  capacities: capacity_lib.Capacities
+  sizes: capacity_lib.Sizes
 
   def size_of(self, num_active: int, num_instances: int) -> Optional[int]:
     lanes = num_active * self.config.pop_size
@@ -106,11 +110,15 @@ def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
 
 
 def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
-                rules: Optional[rules_lib.Rules] = None) -> Search:
+                rules: Optional[rules_lib.Rules] = None,
+                capacities: Optional[capacity_lib.Capacities] = None) -> Search:
   """Builds the jitted PACHS functions for env, actor_critic and config; rules: the variant's
   edge, chain-restart and real-time answer functions (None: those config names,
-  `rules.from_config`)."""
+  `rules.from_config`); capacities: the arrays' sizes (None: derived from the budget)."""
   resolution = _check(env, actor_critic, config)
+  capacities = capacity_lib.Capacities() if capacities is None else capacities
+  sizes = capacity_lib.sizes(capacities, config.max_evaluations, config.num_actions + 1,
+                             config.edge_steps, heap_per_node=config.num_actions)
   rules = rules_lib.from_config(env, actor_critic, config) if rules is None else rules
   edge_rule, restart = rules.edges, rules.restart
   w, k, n = float(config.weight), config.pop_size, config.num_actions
@@ -215,7 +223,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
     return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
-                         config.iteration_limit, expanding, within, usable, steps,
+                         sizes.iterations, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
                          chain=chain, visits=visits)
 
@@ -223,13 +231,13 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     num_instances = check_start_nodes(start_nodes, env)
     start_cells = env.lattice_key(start_nodes, resolution)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
-                               config.pool_size, config.table_size, n, env.action_size, steps)
-    dummy_heap = heap_lib.init(num_instances, config.dummy_heap_size, k)
-    return SearchState(edge_heap=heap_lib.init(num_instances, config.edge_heap_size, k),
+                               sizes.pool, sizes.table, n, env.action_size, steps)
+    dummy_heap = heap_lib.init(num_instances, sizes.dummy_heap, k)
+    return SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
-                       visits=restart.visits(start_cells),
+                       visits=restart.visits(start_cells, sizes.pool),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None,
@@ -264,7 +272,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     value, in_open = jnp.where(has, chosen, value), has | in_open
     return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
-                                  config.max_path_length)
+                                  sizes.path)
 
   return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='size', donate_argnums=0),
-                lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config)
+                lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config,
+                capacities=capacities, sizes=sizes)

@@ -12,7 +12,7 @@ from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search import segment
-from pachs_jax.search.config import SearchConfig
+from pachs_jax.search.config import SearchConfig, next_pow2, positive_int
 
 
 class Edges(NamedTuple):
@@ -46,7 +46,7 @@ def actor_edges(env, actor_critic, steps: int) -> Edges:
 class Restart(NamedTuple):
   """Where a chain of the actor's edges restarts.
 
-  visits(start_cells [I, C]) -> the `novelty.Visits` the rule keeps.
+  visits(start_cells [I, L], pool_size) -> the `novelty.Visits` the rule keeps.
   record(visits, nodes [I, K], new [I, K], cells [I, K, L]) -> visits with the new nodes.
   choose(pool, visits, keys [I, 2], fits [I, P] bool) -> [I, R] restart nodes (or one for all).
   """
@@ -56,28 +56,34 @@ class Restart(NamedTuple):
   choose: Callable
 
 
-def restart_at_start(config: SearchConfig) -> Restart:
-  """Chains restart at the start state: they are rollouts of the actor."""
+def restart_at_start() -> Restart:
+  """Chains restart at the start state: they are rollouts of the actor (visits: one cell and
+  one node, never read)."""
   return Restart(
-      lambda cells: novelty.init(novelty.coarse_cells(
-          cells, config.novelty_coarsening, config.novelty_cells), 1, config.novelty_cells),
+      lambda cells, pool_size: novelty.init(jnp.zeros(cells.shape[:1], jnp.int32), 1, 1),
       lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
-def restart_novel(config: SearchConfig) -> Restart:
-  """Chains restart at a generated node drawn with weight 1 / the nodes in its coarse cell."""
-  coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
-                                              config.novelty_cells)
-  lanes = config.rollout_lanes
+def restart_novel(lanes: int, coarsening: int = 4) -> Restart:
+  """Chains of `lanes` rollout lanes restart at a generated node drawn with weight 1 / the
+  nodes in its coarse cell: lattice cells merged `coarsening` to a side, hashed into the power
+  of two >= 2 * pool size cells."""
+  coarsening = positive_int('restart_novel', 'coarsening', coarsening)
+  coarse = lambda cells, num_cells: novelty.coarse_cells(cells, coarsening, num_cells)
+
+  def visits(cells, pool_size):
+    num_cells = next_pow2(2 * pool_size)
+    return novelty.init(coarse(cells, num_cells), pool_size, num_cells)
+
+  def record(visits, node, new, cells):
+    return novelty.add(visits, node, new, coarse(cells, visits.nodes_per_cell.shape[1]))
 
   def choose(pool, visits, keys, fits):
     index = jnp.arange(pool.capacity)[None, :]
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
     return novelty.sample(visits, keys, eligible, lanes)
 
-  return Restart(lambda cells: novelty.init(coarse(cells), config.pool_size, config.novelty_cells),
-                 lambda visits, node, new, cells: novelty.add(visits, node, new, coarse(cells)),
-                 choose)
+  return Restart(visits, record, choose)
 
 
 def best_f_answer(pool, slots: int):
@@ -103,6 +109,7 @@ def from_config(env, actor_critic, config: SearchConfig) -> Rules:
   """The rules that config names: edge_steps, chain_restart and realtime_answer."""
   steps = config.edge_steps
   edges = one_step_edges(env) if steps == 1 else actor_edges(env, actor_critic, steps)
-  novel = config.chain_restart == 'novel' and config.rollout_lanes > 0
-  restart = restart_novel(config) if novel else restart_at_start(config)
+  lanes = config.rollout_lanes
+  restart = (restart_novel(lanes) if config.chain_restart == 'novel' and lanes > 0
+             else restart_at_start())
   return Rules(edges, restart, ANSWERS[config.realtime_answer])

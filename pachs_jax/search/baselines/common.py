@@ -1,8 +1,7 @@
-"""Pieces the baselines share: path replay and timing."""
+"""Pieces the baselines share: the sampling planners' state and path replay."""
 
 from __future__ import annotations
 
-import time
 from typing import Callable
 
 import jax
@@ -11,7 +10,7 @@ from flax import struct
 
 from pachs_jax import trees
 from pachs_jax.envs import base
-from pachs_jax.search.result import SearchResult, StopReason
+from pachs_jax.search.result import StopReason
 
 
 @struct.dataclass
@@ -69,11 +68,3 @@ def replay(env: base.Env, start: base.NodeState, actions: jax.Array, length: jax
                        start, nodes)
   return nodes, cost, valid, env.is_goal(last)
 
-
-def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
-  """Runs a jitted planner fn(*args) after compiling it; sets wall_time_s (host seconds without
-  compilation)."""
-  compiled = fn.lower(*args).compile()
-  start = time.perf_counter()
-  out = jax.block_until_ready(compiled(*args))
-  return out.replace(wall_time_s=jnp.float32(time.perf_counter() - start))

@@ -12,6 +12,7 @@ import numpy as np
 from flax import struct
 
 from pachs_jax.envs import base
+from pachs_jax.search import capacity as capacity_lib
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
@@ -32,8 +33,8 @@ class Heuristic:
 
 @dataclasses.dataclass(frozen=True)
 class EpaseConfig(EdgeSearchConfig):
-  """ePA*SE parameters, those of `EdgeSearchConfig`; heap_capacity None: (P + 1)(budget + 1)
-  entries for P motion primitives."""
+  """ePA*SE parameters, those of `EdgeSearchConfig` (its one heap holds (P + 1)(budget + 1)
+  entries for P motion primitives unless `capacity.Capacities` says fewer)."""
 
 
 @struct.dataclass
@@ -48,23 +49,28 @@ class EpaseState(phases.EdgeSearchState):
 class Epase:
   """Jitted functions: init(start_nodes [I]) -> EpaseState; run(state) -> state when every
   instance stopped; result(state) -> SearchResult (without a goal: the path to the best OPEN
-  entry's state); plan(start_nodes) = result(run(init(start_nodes)))."""
+  entry's state); plan(start_nodes) = result(run(init(start_nodes))); capacities and sizes:
+  as in `pachs.Search`."""
 
   init: Callable[[base.NodeState], EpaseState]
   run: Callable[[EpaseState], EpaseState]
   result: Callable[[EpaseState], SearchResult]
   plan: Callable[[base.NodeState], SearchResult]
   config: EpaseConfig
+  capacities: capacity_lib.Capacities
+  sizes: capacity_lib.Sizes
 
 
 def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
-               config: EpaseConfig = EpaseConfig(), edge_fn: Optional[Callable] = None) -> Epase:
+               config: EpaseConfig = EpaseConfig(), edge_fn: Optional[Callable] = None,
+               capacities: Optional[capacity_lib.Capacities] = None) -> Epase:
   """Builds the jitted ePA*SE for env, motion primitives [P, D], heuristic and config.
 
   One OPEN heap: expanding a state pushes its P real edges with the state's own key
   g + w h; the real edges among the K popped entries are evaluated in one batch by
   edge_fn(nodes [B], primitives [B, D]) -> EdgeOutcome (default env.evaluate, primitives being
-  actions). path_actions of the result hold the primitives of the path.
+  actions). path_actions of the result hold the primitives of the path. capacities: the
+  arrays' sizes (None: derived from the budget).
   """
   if not isinstance(config, EpaseConfig):
     raise ValueError(f'config must be an EpaseConfig, got {type(config).__name__}')
@@ -82,15 +88,16 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
     edge_fn = env.evaluate
   primitives = jnp.asarray(prims)
   resolution = env_lattice_resolution(env, config.lattice_resolution)
-  config.check_slots(num_prims + 1)
+  capacities = capacity_lib.Capacities() if capacities is None else capacities
+  sizes = capacity_lib.sizes(capacities, config.max_evaluations, num_prims + 1)
   w, k, slots, dummy = float(config.weight), config.pop_size, num_prims + 1, num_prims
 
   def init(start_nodes: base.NodeState) -> EpaseState:
     num = check_start_nodes(start_nodes, env)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes),
-                               env.lattice_key(start_nodes, resolution), config.pool_size,
-                               config.table_size, 1, dim)
-    heap = heap_lib.init(num, config.heap_capacity or slots * (config.max_evaluations + 1), k)
+                               env.lattice_key(start_nodes, resolution), sizes.pool,
+                               sizes.table, 1, dim)
+    heap = heap_lib.init(num, sizes.heap, k)
     return EpaseState(heap=phases.push_start(heap, dummy), heuristic=heuristic.init(start_nodes),
                       **phases.start_state(pool, table))
 
@@ -126,7 +133,7 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
     open_empty = state.active & ~jnp.any(popped.mask, axis=1)
     return phases.finish(state, found, goal, open_empty, out_of_budget,
                          heap.overflow + pool.overflow + table.overflow,
-                         config.iteration_limit_for(slots), expanding, within, usable,
+                         sizes.iterations, expanding, within, usable,
                          heap=heap, pool=pool, table=table)
 
   def run(state: EpaseState) -> EpaseState:
@@ -135,10 +142,11 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
   def result(state: EpaseState) -> SearchResult:
     _, value, in_open = heap_lib.peek(state.heap)
     return path_lib.search_result(state, value, in_open, slots, k, state.heap.overflow,
-                                  config.max_path_length)
+                                  sizes.path)
 
   def plan(start_nodes: base.NodeState) -> SearchResult:
     return result(run(init(start_nodes)))
 
   return Epase(init=jax.jit(init), run=jax.jit(run), result=jax.jit(result),
-               plan=jax.jit(plan), config=config)
+               plan=jax.jit(plan), config=config,
+               capacities=capacities, sizes=sizes)
