@@ -48,7 +48,8 @@ class Restart(NamedTuple):
 
   visits(start_cells [I, C]) -> the `novelty.Visits` the rule keeps.
   record(visits, nodes [I, K], new [I, K], cells [I, K, L]) -> visits with the new nodes.
-  choose(pool, visits, keys [I, 2], fits [I, P] bool) -> [I, R] restart nodes (or one for all).
+  choose(pool, visits, keys [I, 2], fits [I, P] bool, num) -> [I, num] restart nodes (or one
+    for all).
   """
 
   visits: Callable
@@ -68,12 +69,11 @@ def restart_novel(config: SearchConfig) -> Restart:
   """Chains restart at a generated node drawn with weight 1 / the nodes in its coarse cell."""
   coarse = lambda cells: novelty.coarse_cells(cells, config.novelty_coarsening,
                                               config.novelty_cells)
-  lanes = config.rollout_lanes
 
-  def choose(pool, visits, keys, fits):
+  def choose(pool, visits, keys, fits, num):
     index = jnp.arange(pool.capacity)[None, :]
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
-    return novelty.sample(visits, keys, eligible, lanes)
+    return novelty.sample(visits, keys, eligible, num)
 
   return Restart(lambda cells: novelty.init(coarse(cells), config.pool_size, config.novelty_cells),
                  lambda visits, node, new, cells: novelty.add(visits, node, new, coarse(cells)),
