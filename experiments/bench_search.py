@@ -423,7 +423,7 @@ def buckets(argv):
 
 def trace_iterations(search, starts, keys, compacted: bool) -> list:
   """One row per iteration: live instances before it, physics lanes, wall ms; the loop of
-  `size_for(state)` with compaction, else of all I * K lanes."""
+  `lanes_for(state)` (compaction and widening), else of all I * K lanes."""
   num = keys.shape[0]
   live = jax.device_put(np.ones(num, bool))
   state = search.init(starts, keys, live)
@@ -434,7 +434,7 @@ def trace_iterations(search, starts, keys, compacted: bool) -> list:
     active = int(np.sum(np.asarray(state.active)))
     if active == 0:
       break
-    size = search.size_for(state) if compacted else None
+    size = search.lanes_for(state) if compacted else None
     if size not in sizes:  # compile outside the clock
       began = time.perf_counter()
       lowered = jax.jit(lambda s, n, size=size: search.loop(s, n, size, False),
@@ -443,7 +443,8 @@ def trace_iterations(search, starts, keys, compacted: bool) -> list:
     began = time.perf_counter()
     state = sizes[size][0](state, np.int32(1))
     jax.block_until_ready(state.active)
-    rows.append({'live': active, 'lanes': size or num * k, 'useful_lanes': active * k,
+    rows.append({'live': active, 'lanes': (size and size.size) or num * k,
+                 'useful_lanes': active * k * (size.widen if size else 1),
                  'ms': 1e3 * (time.perf_counter() - began)})
   return rows, {str(s): c for s, (_, c) in sizes.items()}
 

@@ -48,8 +48,10 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
   """
   budget = args.budget
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
+    settings = planner.accelerator_settings(jax.default_backend() == 'cpu')
+    settings.update({k: v for k, v in flags.search_overrides(args).items() if v is not None})
     config = planner.default_config(task, 'original' if name == 'pachs-original' else 'pachs',
-                                    max_evaluations=budget, **flags.search_overrides(args))
+                                    max_evaluations=budget, **settings)
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
@@ -210,7 +212,8 @@ def main():
   parser.add_argument('--time-limit', type=float, default=None,
                       help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
   flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
-                                 'rollout_share', 'chain_restart'])
+                                 'rollout_share', 'chain_restart', 'compact_fractions',
+                                 'widen_factors'])
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')

@@ -23,9 +23,19 @@ CHECKPOINT_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'check
 # instance) by physics backend, MuJoCo C ('mujoco-c') or MJX on the CPU ('other').
 CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 
-# `pachs plan` on a GPU: SearchConfig.compact_fractions (docs/results.md, compaction):
-# the command's one physics batch is the smallest of these that holds the live instances' lanes.
+# On an accelerator, where a physics call costs about the same from a few to thousands of
+# worlds: SearchConfig.compact_fractions (the smallest batch that holds the live instances'
+# lanes) and widen_factors (the instances still searching pop m x K edges once they hold at most
+# 1 / m of the lanes), docs/results.md. Neither applies on a CPU, where each world costs.
 COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
+ACCELERATOR_WIDEN_FACTORS = (2, 4, 8)
+
+
+def accelerator_settings(on_cpu: bool) -> dict:
+  """The SearchConfig fields that `pachs plan`, `Planner` and the benchmarks set on an
+  accelerator (none on a CPU)."""
+  return {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS,
+                            'widen_factors': ACCELERATOR_WIDEN_FACTORS}
 
 
 def default_config(task: Optional[str], algorithm: str = 'pachs',
@@ -48,10 +58,10 @@ def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
   """The SearchConfig of `pachs plan`.
 
   The task's defaults; on a CPU without a `budget`, the backend's CPU budget (`CPU_DEFAULTS`)
-  and the task's `cpu_overrides`; on a GPU, `COMMAND_COMPACT_FRACTIONS`. Non-None `explicit`
+  and the task's `cpu_overrides`; on a GPU, `accelerator_settings`. Non-None `explicit`
   SearchConfig fields (weight, num_actions, ...) win over all of these.
   """
-  settings = {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS}
+  settings = accelerator_settings(on_cpu)
   if on_cpu and budget is None:
     settings.update(envs.spec(task).cpu_overrides if task is not None else {})
     budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]

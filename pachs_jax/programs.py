@@ -121,6 +121,11 @@ def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
   return out.replace(wall_time_s=jnp.float32(time.perf_counter() - began))
 
 
+def _loop_name(lanes) -> str:
+  """The stored name of the loop program of a `pachs.Lanes` layout."""
+  return f'loop size={lanes.size}' + (f' widen={lanes.widen}' if lanes.widen > 1 else '')
+
+
 def _ready(programs: dict, name, waiting: Optional[dict] = None):
   """programs[name], waiting for (and then storing) one still being compiled in a thread; the
   time waited (s) is added to waiting['s'] when given."""
@@ -176,15 +181,16 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     the search begins (after compiling; e.g. `SignalGuard.keep`). progress: called with a
     `Progress` after each chunk.
     The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
-    leaves them out: init, result and the loop of the live instances' physics size before the
-    clock starts; the loops of the smaller sizes the search can reach also before it with a
+    leaves them out: init, result and the loop of the live instances' lane layout before the
+    clock starts; the loops of the other layouts the search can reach also before it with a
     time limit, else beside the search (time spent waiting for one is not counted).
   search: a `Programs` to reuse (its compiled programs stay warm between calls), or a
     `make_search` result (compiled for this call only); None builds one.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
     cost little, 1 on the CPU); I is padded to `bucket_size(I, min_bucket)` with stopped copies.
-  shrink: move to the loops of smaller physics sizes as instances stop (each one more program
-    to compile or load); False runs the whole search in the loop of the live instances' size
+  shrink: move to the loops of other lane layouts (`pachs.Lanes`: smaller physics batches,
+    wider pops) as instances stop (each one more program to compile or load); False runs the
+    whole search in the loop of the live instances' layout
     (the one-shot `pachs plan`: a shorter start-up for a longer search).
   """
   if time_limit_s is not None and not time_limit_s > 0:
@@ -212,10 +218,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
            else anytime.ChunkSizes.fixed(chunk_iterations))
   # host values placed with device_put: jnp.asarray of a host scalar compiles a program of its own
   steps = jax.device_put(np.int32(sizes.first))  # (the loops take the count traced)
-  # the loops of the sizes this search can reach (lanes only shrink from the live instances')
-  first = search.size_of(num_instances, padded)
-  reachable = [first] + [s for s in reversed(search.lane_sizes(padded))
-                         if shrink and (first is None or s < first)]
+  # the loops of the lane layouts this search can reach (`pachs.Lanes`)
+  reachable = search.reachable(num_instances, padded)
+  first, reachable = reachable[0], reachable if shrink else reachable[:1]
   shrinking = jax.device_put(np.bool_(shrink))
   programs = owner.compiled.setdefault((padded, jax.default_backend()), {})
   # every program compiled (or loaded from the store) at once, beside the model check; without
@@ -232,13 +237,13 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       programs['init'] = compiled_program(search.init, (start_nodes, keys, live), stored('init'))
       result = threads.submit(compiled_program, search.result,
                               (programs['init'].out_shapes,), stored('result'))
-    for size in reachable:
-      if ('loop', size) not in programs:
-        programs[('loop', size)] = threads.submit(
+    for lanes in reachable:
+      if ('loop', lanes) not in programs:
+        programs[('loop', lanes)] = threads.submit(
             compiled_program,
-            jax.jit(lambda state, n, shrink, size=size: search.loop(state, n, size, shrink),
+            jax.jit(lambda state, n, shrink, lanes=lanes: search.loop(state, n, lanes, shrink),
                     donate_argnums=0),
-            (programs['init'].out_shapes, steps, shrinking), stored(f'loop size={size}'),
+            (programs['init'].out_shapes, steps, shrinking), stored(_loop_name(lanes)),
             donate_argnums=(0,))
     _wait(checked, stop)  # a bad model's error before anything runs
     if new:
@@ -246,9 +251,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       check_memory(env, actor_critic, start_nodes, config, search, padded,
                    need=memory.tree_bytes((programs['init'].out_shapes,
                                            programs['result'].out_shapes)))
-    for size in reachable[:1] if time_limit_s is None else reachable:
-      if isinstance(programs[('loop', size)], concurrent.futures.Future):
-        programs[('loop', size)] = _wait(programs[('loop', size)], stop)
+    for lanes in reachable[:1] if time_limit_s is None else reachable:
+      if isinstance(programs[('loop', lanes)], concurrent.futures.Future):
+        programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)
     if stop is not None and stop():
       raise signals.StoppedBeforeSearch('stopped while the programs compiled')
     waiting = {'s': 0.0}  # for the smaller loops during the search
@@ -257,10 +262,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       started()
 
     def advance(state, iterations):
-      """One chunk of at most `iterations` in the loop of the live instances' size."""
-      size = search.size_for(state) if shrink else first
+      """One chunk of at most `iterations` in the loop of the live instances' layout."""
+      lanes = search.lanes_for(state) if shrink else first
       count = jax.device_put(np.int32(iterations))
-      return _ready(programs, ('loop', size), waiting)(state, count, shrinking)
+      return _ready(programs, ('loop', lanes), waiting)(state, count, shrinking)
 
     def on_chunk(state, elapsed_s):
       active = np.asarray(state.active)[:num_instances]
@@ -275,8 +280,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                                sizes=sizes, on_chunk=progress and on_chunk)
     out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
     if stop is None or not stop():  # nothing left compiling once plan returns (a stopped
-      for size in reachable:        # plan returns at once; the next call waits for them)
-        _ready(programs, ('loop', size), waiting)
+      for lanes in reachable:       # plan returns at once; the next call waits for them)
+        _ready(programs, ('loop', lanes), waiting)
   except BaseException:
     for name in [name for name, p in programs.items()
                  if isinstance(p, concurrent.futures.Future)]:

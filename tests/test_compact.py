@@ -10,7 +10,7 @@ import pytest
 
 from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
-from pachs_jax.search import SearchConfig, compact, make_search
+from pachs_jax.search import SearchConfig, compact, make_search, pachs
 from pachs_jax.programs import Programs, plan
 from pachs_jax import sharding
 
@@ -93,7 +93,7 @@ def test_pachs_with_compaction_equals_without():
   jax.effects_barrier()
   assert set(env.batches) == {32}, env.batches
   assert [name for name in search.compiled[(8, jax.default_backend())]
-          if isinstance(name, tuple)] == [('loop', None)]
+          if isinstance(name, tuple)] == [('loop', pachs.Lanes(None, 1))]
   # the same inside shard_map (the default mesh)
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
   sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
@@ -117,5 +117,5 @@ def test_loops_are_compiled_for_the_sizes_reached():
   jax.effects_barrier()
   assert bool(out.found[0])
   loops = [key for key in search.compiled[(8, jax.default_backend())] if isinstance(key, tuple)]
-  assert loops == [('loop', 8)]
+  assert loops == [('loop', pachs.Lanes(8, 1))]
   assert set(env.batches) == {8}

@@ -69,7 +69,7 @@ def novel_search():
   config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
                         edge_steps=3, rollout_share=0.5, chain_restart='novel')
   rules = rules_lib.from_config(env, ac, config)._replace(
-      restart=rules_lib.restart_novel(config.rollout_lanes, coarsening=2))
+      restart=rules_lib.restart_novel(coarsening=2))
   search = make_search(env, ac, config, rules=rules)
   nodes = env.node(STARTS, GOALS)
   state = search.run(search.init(nodes, jax.random.split(jax.random.PRNGKey(3), len(STARTS))))
@@ -137,4 +137,4 @@ def test_chain_restart_validation():
   with pytest.raises(ValueError, match='chain_restart'):
     SearchConfig(chain_restart='random')
   with pytest.raises(ValueError, match='coarsening'):
-    rules_lib.restart_novel(4, coarsening=0)
+    rules_lib.restart_novel(coarsening=0)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Optional, Tuple
+from typing import Callable, NamedTuple, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -35,9 +35,12 @@ class SearchState(phases.EdgeSearchState):
   edge_heap: OPEN's real edges (s, a_j), key g(s) + w q_j.
   dummy_heap: OPEN's dummy edges (s, DUMMY), key g(s) + w h(s).
   rng: [I, 2] uint32 per-instance PRNG keys (folded with the iteration count).
-  chain: [I, R] int32 the node each rollout lane extends next (config.rollout_lanes R).
+  chain: [I, R * W] int32 the node each rollout lane extends next (config.rollout_lanes R; W
+    the widest of config.widen_factors, 1 without; a step widened m times uses the first m R).
   visits: the nodes per coarse cell, where chains restart with chain_restart 'novel' (a pool
     of one node otherwise).
+  lanes_offered: [I] int32 the edges the iterations so far could have evaluated (K each, m K
+    when widened).
   """
 
   edge_heap: heap_lib.Heap
@@ -45,6 +48,16 @@ class SearchState(phases.EdgeSearchState):
   rng: jax.Array
   chain: jax.Array
   visits: novelty.Visits
+  lanes_offered: jax.Array
+
+
+class Lanes(NamedTuple):
+  """How one loop program lays out an iteration's edges: each instance pops widen * K edges
+  (widen * R of them extend chains), and the physics simulates `size` lanes gathered from
+  the I * widen * K (None: all of them, only with widen 1)."""
+
+  size: Optional[int] = None
+  widen: int = 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,17 +66,18 @@ class Search:
 
   init(start_nodes [I], keys [I, 2], live [I] bool) -> SearchState with the start states'
     dummy edges in OPEN; instances that are not live (padding) start stopped.
-  loop(state, num_iterations, size, shrink=True) -> state after at most num_iterations more
-    iterations whose edges are simulated in `size` physics lanes (None: all I * K), with
-    shrink (a traced bool) stopping early once the active instances' lanes fit the next
-    smaller of `lane_sizes(I)` (the input state's buffers are donated; `size` is static: one
-    program per size).
-  lane_sizes(I) -> the compacted lane counts (ascending; config.compact_fractions of I * K,
-    each at least K).
-  size_of(num_active, I) -> the `size` whose loop applies to num_active of I instances;
-    size_for(state) -> the one that applies to state now (host; reads state.active).
-  run_chunk(state, num_iterations) -> loop(state, num_iterations, size_for(state)).
-  run(state) -> state when every instance has stopped (one program: the loops of every size).
+  loop(state, num_iterations, lanes, shrink=True) -> state after at most num_iterations more
+    iterations laid out as `lanes` (a `Lanes`; None: Lanes()), with shrink (a traced bool)
+    stopping early once another layout applies to the active instances (the input state's
+    buffers are donated; `lanes` is static: one program per layout).
+  lanes_of(num_active, I) -> the `Lanes` whose loop applies to num_active of I instances: the
+    widest of config.widen_factors whose edges fit the I * K lanes (1 when none does), then
+    the smallest of config.compact_fractions of I * K (each at least K) that holds them;
+    lanes_for(state) -> the one that applies to state now (host; reads state.active).
+  reachable(num_active, I) -> the layouts, in order, of a search that starts with num_active
+    of I instances active.
+  run_chunk(state, num_iterations) -> loop(state, num_iterations, lanes_for(state)).
+  run(state) -> state when every instance has stopped (one program: every layout's loop).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
   capacities: the `capacity.Capacities` it was built with (sizes: what they resolve to).
@@ -71,22 +85,39 @@ class Search:
 
   init: Callable[..., SearchState]
   loop: Callable[..., SearchState]
-  lane_sizes: Callable[[int], Tuple[int, ...]]
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
   config: SearchConfig
   capacities: capacity_lib.Capacities
   sizes: capacity_lib.Sizes
 
-  def size_of(self, num_active: int, num_instances: int) -> Optional[int]:
-    lanes = num_active * self.config.pop_size
-    return next((size for size in self.lane_sizes(num_instances) if size >= lanes), None)
+  def lanes_of(self, num_active: int, num_instances: int) -> Lanes:
+    return lanes_of(self.config, num_active, num_instances)
 
-  def size_for(self, state: SearchState) -> Optional[int]:
-    return self.size_of(int(np.sum(np.asarray(state.active))), state.active.shape[0])
+  def lanes_for(self, state: SearchState) -> Lanes:
+    return self.lanes_of(int(np.sum(np.asarray(state.active))), state.active.shape[0])
+
+  def reachable(self, num_active: int, num_instances: int) -> Tuple[Lanes, ...]:
+    return reachable(self.config, num_active, num_instances)
 
   def run_chunk(self, state: SearchState, num_iterations) -> SearchState:
-    return self.loop(state, num_iterations, size=self.size_for(state))
+    return self.loop(state, num_iterations, self.lanes_for(state))
+
+
+def lanes_of(config: SearchConfig, num_active: int, num_instances: int) -> Lanes:
+  """The `Lanes` of `Search.lanes_of` for config."""
+  k, full = config.pop_size, num_instances * config.pop_size
+  widen = max((m for m in config.widen_factors if num_active * k * m <= full), default=1)
+  edges = num_active * k * widen
+  sizes = compact.batch_sizes(full, config.compact_fractions, minimum=k)
+  size = next((s for s in sizes if s >= edges), None if widen == 1 else full)
+  return Lanes(size, widen)
+
+
+def reachable(config: SearchConfig, num_active: int, num_instances: int) -> Tuple[Lanes, ...]:
+  """The `Lanes` of `Search.reachable` for config."""
+  layouts = [lanes_of(config, a, num_instances) for a in range(num_active, 0, -1)]
+  return tuple(dict.fromkeys(layouts or [Lanes()]))
 
 
 def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
@@ -124,18 +155,17 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = edge_rule.steps, config.rollout_lanes
-  lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
-                                                        config.compact_fractions, minimum=k)
+  widest = max(config.widen_factors, default=1)
 
   def lattice_cells(nodes):
     """[I, K, L] int32 lattice keys of nodes [I, K]."""
-    num_instances = jax.tree.leaves(nodes)[0].shape[0]
-    return phases.unflat(env.lattice_key(phases.flat(nodes, num_instances * k), resolution),
-                         num_instances)
+    num_instances, lanes = jax.tree.leaves(nodes)[0].shape[:2]
+    return phases.unflat(env.lattice_key(phases.flat(nodes, num_instances * lanes),
+                                         resolution), num_instances)
 
   def expand(state, popped, expanding):
     """Samples and scores N edges at each expanded node; returns (pool, edge entries)."""
-    num_instances = expanding.shape[0]
+    num_instances, k = expanding.shape
     sources = pool_lib.gather_nodes(state.pool, popped.node)
     obs = phases.unflat(env.observe(phases.flat(sources, num_instances * k)), num_instances)
     rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
@@ -157,16 +187,17 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     keys = jax.vmap(jax.random.fold_in, (0, None))(keys, stream)
     return jax.vmap(lambda key: jax.random.split(key, count))(keys)
 
-  def chain_edges(state, pool):
-    """(tips [I, R], actions [I, R, A], q [I, R]): the actor's edge at each rollout lane's tip."""
-    tips = state.chain
+  def chain_edges(state, pool, r):
+    """(tips [I, R], actions [I, R, A], q [I, R]): the actor's edge at each of the first R
+    rollout lanes' tip."""
+    tips = state.chain[:, :r]
     num_instances = tips.shape[0]
     obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
     actions = segment.actor_samples(actor_critic, lane_keys(state, 2, r).reshape(-1, 2), obs)
     q = cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
-  def next_chains(pool, visits, keys, tip, written, is_goal, found, goal):
+  def next_chains(pool, visits, keys, tip, written, is_goal, found, goal, r):
     """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
     of their own, not merged in the lattice): a chain goes on from its successor and restarts
     (config.chain_restart) after an unusable edge or where its next edge would pass an
@@ -176,14 +207,15 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
       return tip, found, goal
     fits = lambda depth: depth + steps <= env.episode_length
     go_on = written & fits(pool_lib.gather(pool.depth, tip))
-    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth)))
+    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth), r))
     chain = chain.astype(jnp.int32)
     at_goal = written & is_goal
     cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
     return (chain, found | jnp.any(at_goal, axis=1),
             jnp.where(found, goal, tip[jnp.arange(tip.shape[0]), cheapest]))
 
-  def step(state: SearchState, size: Optional[int]) -> SearchState:
+  def step(state: SearchState, lanes: Lanes) -> SearchState:
+    k, r = lanes.widen * config.pop_size, lanes.widen * config.rollout_lanes
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
     limit = heap_lib.kth_key(state.edge_heap, k - r)
     dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
@@ -199,14 +231,14 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
     parent, mask = edges.node, edges.mask
     if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
-      tips, tip_action, tip_q = chain_edges(state, pool)
+      tips, tip_action, tip_q = chain_edges(state, pool, r)
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
         edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
-        config.max_evaluations, size, steps)
+        config.max_evaluations, lanes.size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
@@ -218,14 +250,15 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     visits = restart.record(state.visits, node, new, cells)
     chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
                                      node[:, k - r:], write[:, k - r:],
-                                     outcome.is_goal[:, k - r:], found, goal)
+                                     outcome.is_goal[:, k - r:], found, goal, r)
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
     return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
                          sizes.iterations, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
-                         chain=chain, visits=visits)
+                         chain=state.chain.at[:, :r].set(chain), visits=visits,
+                         lanes_offered=state.lanes_offered + k * state.active)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
@@ -236,30 +269,34 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     return SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
-                       chain=jnp.zeros((num_instances, r), jnp.int32),
+                       chain=jnp.zeros((num_instances, r * widest), jnp.int32),
                        visits=restart.visits(start_cells, sizes.pool),
+                       lanes_offered=jnp.zeros((num_instances,), jnp.int32),
                        **phases.start_state(pool, table, live))
 
-  def loop(state: SearchState, num_iterations, size: Optional[int] = None,
+  def loop(state: SearchState, num_iterations, lanes: Optional[Lanes] = None,
            shrink=True) -> SearchState:
-    smaller = [s for s in lane_sizes(state.active.shape[0]) if size is None or s < size]
-    floor = max(smaller, default=0)  # lanes at which the next smaller size takes over
+    lanes, num_instances = lanes or Lanes(), state.active.shape[0]
+    # the active instances at and below which another layout takes over
+    floor = min((a for a in range(1, num_instances + 1)
+                 if lanes_of(config, a, num_instances) == lanes), default=1) - 1
 
     def cond(carry):
       state, done = carry
-      lanes = jnp.sum(state.active, dtype=jnp.int32) * k
-      return (lanes > jnp.where(shrink, floor, 0)) & (done < num_iterations)
+      active = jnp.sum(state.active, dtype=jnp.int32)
+      return (active > jnp.where(shrink, floor, 0)) & (done < num_iterations)
 
     def body(carry):
       state, done = carry
-      return step(state, size), done + 1
+      return step(state, lanes), done + 1
 
     state, _ = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
     return state
 
   def run(state: SearchState) -> SearchState:
-    for size in (None,) + tuple(reversed(lane_sizes(state.active.shape[0]))):
-      state = loop(state, jnp.iinfo(jnp.int32).max, size)
+    num_instances = state.active.shape[0]
+    for lanes in reachable(config, num_instances, num_instances):
+      state = loop(state, jnp.iinfo(jnp.int32).max, lanes)
     return state
 
   def result(state: SearchState) -> SearchResult:
@@ -270,10 +307,13 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     value, in_open = jnp.where(use_dummy, dummy_value, value), in_open | in_dummy
     chosen, has = rules.answer(state.pool, slots)  # the real-time answer, where it chooses
     value, in_open = jnp.where(has, chosen, value), has | in_open
-    return path_lib.search_result(state, value, in_open, slots, k * steps,
-                                  state.edge_heap.overflow + state.dummy_heap.overflow,
-                                  sizes.path)
+    out = path_lib.search_result(state, value, in_open, slots, k * steps,
+                                 state.edge_heap.overflow + state.dummy_heap.overflow,
+                                 sizes.path)
+    offered = state.lanes_offered * steps
+    return out.replace(lane_utilization=jnp.where(
+        offered > 0, state.evaluated / jnp.maximum(offered, 1), 0.0).astype(jnp.float32))
 
-  return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='size', donate_argnums=0),
-                lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config,
+  return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='lanes', donate_argnums=0),
+                run=jax.jit(run), result=jax.jit(result), config=config,
                 capacities=capacities, sizes=sizes)

@@ -48,7 +48,8 @@ class Restart(NamedTuple):
 
   visits(start_cells [I, L], pool_size) -> the `novelty.Visits` the rule keeps.
   record(visits, nodes [I, K], new [I, K], cells [I, K, L]) -> visits with the new nodes.
-  choose(pool, visits, keys [I, 2], fits [I, P] bool) -> [I, R] restart nodes (or one for all).
+  choose(pool, visits, keys [I, 2], fits [I, P] bool, num) -> [I, num] restart nodes (or one
+    for all).
   """
 
   visits: Callable
@@ -64,10 +65,10 @@ def restart_at_start() -> Restart:
       lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
-def restart_novel(lanes: int, coarsening: int = 4) -> Restart:
-  """Chains of `lanes` rollout lanes restart at a generated node drawn with weight 1 / the
-  nodes in its coarse cell: lattice cells merged `coarsening` to a side, hashed into the power
-  of two >= 2 * pool size cells."""
+def restart_novel(coarsening: int = 4) -> Restart:
+  """Chains restart at a generated node drawn with weight 1 / the nodes in its coarse cell:
+  lattice cells merged `coarsening` to a side, hashed into the power of two >= 2 * pool size
+  cells."""
   coarsening = positive_int('restart_novel', 'coarsening', coarsening)
   coarse = lambda cells, num_cells: novelty.coarse_cells(cells, coarsening, num_cells)
 
@@ -78,10 +79,10 @@ def restart_novel(lanes: int, coarsening: int = 4) -> Restart:
   def record(visits, node, new, cells):
     return novelty.add(visits, node, new, coarse(cells, visits.nodes_per_cell.shape[1]))
 
-  def choose(pool, visits, keys, fits):
+  def choose(pool, visits, keys, fits, num):
     index = jnp.arange(pool.capacity)[None, :]
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
-    return novelty.sample(visits, keys, eligible, lanes)
+    return novelty.sample(visits, keys, eligible, num)
 
   return Restart(visits, record, choose)
 
@@ -110,6 +111,6 @@ def from_config(env, actor_critic, config: SearchConfig) -> Rules:
   steps = config.edge_steps
   edges = one_step_edges(env) if steps == 1 else actor_edges(env, actor_critic, steps)
   lanes = config.rollout_lanes
-  restart = (restart_novel(lanes) if config.chain_restart == 'novel' and lanes > 0
+  restart = (restart_novel() if config.chain_restart == 'novel' and lanes > 0
              else restart_at_start())
   return Rules(edges, restart, ANSWERS[config.realtime_answer])
