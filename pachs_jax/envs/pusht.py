@@ -44,7 +44,15 @@ class PushTConfig:
     `layouts.DEFAULT`); must be None for the other variants.
   physics_dt: s per physics step; substeps: physics steps per control step.
   solver_iterations / ls_iterations: MJX Newton solver and line-search iterations.
-  table_friction: T-table Coulomb coefficient (becomes joint friction loss).
+  table_friction: T-table Coulomb coefficient (planar: becomes joint friction loss).
+  t_body: 'planar' (slide x, slide y, hinge yaw with joint friction, no gravity) or 'free' (a
+    free joint under gravity with T-table contacts; the reference model, MuJoCo C worlds only:
+    `PushTEnv` needs 'planar').
+  t_friction_radius: planar only: m, the yaw friction loss is the sliding one times this.
+  t_damping, t_yaw_damping: planar only: T joint damping (N s / m, N m s / rad).
+  solver: MuJoCo's constraint solver, 'Newton' or 'CG'.
+  block_solref, block_solimp, block_margin: contact parameters of the T-block and stick-block
+    pairs (None: MuJoCo's defaults; margin in m).
   w_angle, w_position, w_reach: cost weights of the three dense terms.
   """
 
@@ -57,6 +65,14 @@ class PushTConfig:
   ls_iterations: int = 8
   table_friction: float = 0.5
   pusher_friction: float = 0.8
+  t_body: str = 'planar'
+  t_friction_radius: float = 0.05
+  t_damping: float = 0.5
+  t_yaw_damping: float = 0.01
+  solver: str = 'Newton'
+  block_solref: tuple | None = None
+  block_solimp: tuple | None = None
+  block_margin: float = 0.0
   w_angle: float = 1.0
   w_position: float = 3.0
   w_reach: float = 0.5
@@ -79,11 +95,80 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
   return layouts.layout(layouts.DEFAULT if config.layout is None else config.layout)
 
 
+T_BODIES = ('planar', 'free')
+SOLVERS = ('Newton', 'CG')
+
+
+def check_physics(config: PushTConfig) -> None:
+  """Raises ValueError, one line naming the field, unless the config's physics fields are
+  valid: positive time step, substeps and iterations, a known t_body and solver, and contact
+  parameters of MuJoCo's shapes (solref 2 numbers, solimp 3 or 5, margin >= 0)."""
+  c = config
+  if not (np.isfinite(c.physics_dt) and c.physics_dt > 0):
+    raise ValueError(f'PushTConfig.physics_dt must be a positive time step (s), got {c.physics_dt!r}')
+  for name in ('substeps', 'solver_iterations', 'ls_iterations'):
+    v = getattr(c, name)
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+      raise ValueError(f'PushTConfig.{name} must be a positive int, got {v!r}')
+  if c.t_body not in T_BODIES:
+    raise ValueError(f'PushTConfig.t_body must be one of {T_BODIES}, got {c.t_body!r}')
+  if c.solver not in SOLVERS:
+    raise ValueError(f'PushTConfig.solver must be one of {SOLVERS}, got {c.solver!r}')
+  for name, sizes in (('block_solref', (2,)), ('block_solimp', (3, 5))):
+    v = getattr(c, name)
+    if v is not None and (np.shape(v) not in [(n,) for n in sizes]
+                          or not np.all(np.isfinite(v))):
+      raise ValueError(f'PushTConfig.{name} must be None or {" or ".join(map(str, sizes))} '
+                       f'finite numbers, got {v!r}')
+  if not (np.isfinite(c.block_margin) and c.block_margin >= 0):
+    raise ValueError(f'PushTConfig.block_margin must be >= 0 (m), got {c.block_margin!r}')
+
+
+def _block_pair_attributes(config: PushTConfig) -> str:
+  """The contact attributes of a T-block or stick-block pair (leading space; '' for none)."""
+  out = ''
+  if config.block_solref is not None:
+    out += ' solref="' + ' '.join(f'{x:g}' for x in config.block_solref) + '"'
+  if config.block_solimp is not None:
+    out += ' solimp="' + ' '.join(f'{x:g}' for x in config.block_solimp) + '"'
+  if config.block_margin:
+    out += f' margin="{config.block_margin:g}"'
+  return out
+
+
+def free_t_state(qpos, qvel):
+  """(qpos [..., 14], qvel [..., 13]) of the free T model for planar states qpos [..., 10],
+  qvel [..., 10]: the T resting on the table (centre at `T_HALF_HEIGHT`), yaw as a quaternion,
+  its planar velocity as the free joint's linear x, y and angular z velocity."""
+  qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+  yaw = qpos[..., 9]
+  zero = np.zeros_like(yaw)
+  t_qpos = np.stack([qpos[..., 7], qpos[..., 8], zero + T_HALF_HEIGHT, np.cos(yaw / 2), zero,
+                     zero, np.sin(yaw / 2)], -1)
+  t_qvel = np.stack([qvel[..., 7], qvel[..., 8], zero, zero, zero, qvel[..., 9]], -1)
+  return (np.concatenate([qpos[..., :7], t_qpos], -1),
+          np.concatenate([qvel[..., :7], t_qvel], -1))
+
+
+def planar_t_state(qpos, qvel):
+  """(qpos [..., 10], qvel [..., 10]) planar states of free T model states qpos [..., 14],
+  qvel [..., 13]: the T's x, y and yaw (about the world z axis) and their rates."""
+  qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+  w, x, y, z = (qpos[..., 10 + k] for k in range(4))
+  yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+  t_qpos = np.stack([qpos[..., 7], qpos[..., 8], yaw], -1)
+  t_qvel = np.stack([qvel[..., 7], qvel[..., 8], qvel[..., 12]], -1)
+  return (np.concatenate([qpos[..., :7], t_qpos], -1),
+          np.concatenate([qvel[..., :7], t_qvel], -1))
+
+
 def model_xml(config: PushTConfig) -> str:
   """MJCF of the PushT scene for a config (obstacles only for the 'obs' variant)."""
+  check_physics(config)
   g = 9.81
   fl_xy = config.table_friction * T_MASS * g
-  fl_yaw = fl_xy * 0.05  # effective radius of the contact patch (m)
+  fl_yaw = fl_xy * config.t_friction_radius  # effective radius of the contact patch (m)
+  free = config.t_body == 'free'
   bar, stem = coverage.T_BOXES
   t_geoms = ''.join(
       f'<geom name="t_{n}" type="box" size="{b[2]} {b[3]} {T_HALF_HEIGHT}" '
@@ -101,15 +186,30 @@ def model_xml(config: PushTConfig) -> str:
       for i, o in enumerate(obstacles))
   pairs = ['<pair geom1="stick" geom2="t_bar"/>', '<pair geom1="stick" geom2="t_stem"/>',
            '<pair geom1="stick" geom2="table"/>']
+  block = _block_pair_attributes(config)
   for i in range(len(obstacles)):
-    pairs += [f'<pair geom1="t_bar" geom2="obstacle{i}"/>',
-              f'<pair geom1="t_stem" geom2="obstacle{i}"/>',
-              f'<pair geom1="stick" geom2="obstacle{i}"/>']
+    pairs += [f'<pair geom1="t_bar" geom2="obstacle{i}"{block}/>',
+              f'<pair geom1="t_stem" geom2="obstacle{i}"{block}/>',
+              f'<pair geom1="stick" geom2="obstacle{i}"{block}/>']
+  if free:
+    mu = config.table_friction
+    pairs += [f'<pair geom1="t_{n}" geom2="table" condim="3" '
+              f'friction="{mu} {mu} 0.005 0.0001 0.0001"/>' for n in ('bar', 'stem')]
+    t_joints = '<freejoint name="t_free"/>'
+  else:
+    t_joints = (
+        f'<joint name="t_x" type="slide" axis="1 0 0" frictionloss="{fl_xy}" '
+        f'damping="{config.t_damping}"/>'
+        f'<joint name="t_y" type="slide" axis="0 1 0" frictionloss="{fl_xy}" '
+        f'damping="{config.t_damping}"/>'
+        f'<joint name="t_yaw" type="hinge" axis="0 0 1" frictionloss="{fl_yaw}" '
+        f'damping="{config.t_yaw_damping}"/>')
   gx, gy, gyaw = FIXED_GOAL
   return f"""
 <mujoco model="pusht-{config.variant}{'-' + layout.name if layout else ''}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{config.physics_dt}" gravity="0 0 0" integrator="implicitfast"
+  <option timestep="{config.physics_dt}" gravity="0 0 {-g if free else 0}"
+          integrator="implicitfast" solver="{config.solver}"
           iterations="{config.solver_iterations}" ls_iterations="{config.ls_iterations}"
           cone="pyramidal">
     <flag eulerdamp="disable"/>
@@ -122,12 +222,10 @@ def model_xml(config: PushTConfig) -> str:
           contype="0" conaffinity="0"/>
     <body name="goal" pos="{gx} {gy} 0.0005" euler="0 0 {gyaw}">{goal_geoms}</body>
     {obstacle_geoms}
-    {panda.arm_body_xml('stick', base_pos=BASE_POS)}
+    {panda.arm_body_xml('stick', base_pos=BASE_POS, gravcomp=1.0 if free else 0.0)}
     <body name="tblock" pos="0 0 {T_HALF_HEIGHT}">
       <inertial pos="0 0 0" mass="{T_MASS}" diaginertia="0.0025 0.0025 0.0045"/>
-      <joint name="t_x" type="slide" axis="1 0 0" frictionloss="{fl_xy}" damping="0.5"/>
-      <joint name="t_y" type="slide" axis="0 1 0" frictionloss="{fl_xy}" damping="0.5"/>
-      <joint name="t_yaw" type="hinge" axis="0 0 1" frictionloss="{fl_yaw}" damping="0.01"/>
+      {t_joints}
       {t_geoms}
     </body>
   </worldbody>
@@ -294,6 +392,10 @@ class PushTEnv(base.Env):
   def __init__(self, config: PushTConfig = PushTConfig()):
     if config.variant not in ('fixed', 'rand', 'obs'):
       raise ValueError(f"PushT variant must be 'fixed', 'rand' or 'obs', got {config.variant!r}")
+    check_physics(config)
+    if config.t_body != 'planar':
+      raise ValueError(f"PushTEnv needs t_body='planar', got {config.t_body!r}: the free T is "
+                       'a reference model for MuJoCo C worlds (pusht.model_xml)')
     self.layout = config_layout(config)
     self.config = config
     self.name = f'pusht-{config.variant}'
