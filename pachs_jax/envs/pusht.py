@@ -353,11 +353,11 @@ def site_reach(model: mujoco.MjModel, site: int) -> float:
 
 
 def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.ndarray,
-                    qpos: np.ndarray | None = None) -> np.ndarray:
+                    qpos: np.ndarray | None = None, max_step: float = 0.02) -> np.ndarray:
   """[7] float64 action in [-1, 1] moving the stick tip towards tip_goal [3] (m, world frame).
 
-  One damped least-squares step on the tip's Jacobian towards a point at most 2 cm away per
-  axis. With `qpos` [10], data's kinematics are computed there first; without, data must hold
+  One damped least-squares step on the tip's Jacobian towards a point at most max_step (m)
+  away per axis. With `qpos` [10], data's kinematics are computed there first; without, data must hold
   the kinematics of its own qpos (e.g. after mj_forward). A scripted pusher for demos and tests.
   """
   if qpos is not None:
@@ -368,7 +368,7 @@ def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.nda
   jac = np.zeros((3, model.nv))
   mujoco.mj_jacSite(model, data, jac, None, site)
   jac = jac[:, :panda.NUM_JOINTS]
-  dx = np.clip(tip_goal - data.site_xpos[site], -0.02, 0.02)
+  dx = np.clip(tip_goal - data.site_xpos[site], -max_step, max_step)
   dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(3), dx)
   return np.clip(dq / ARM_ACTION_SCALE, -1.0, 1.0)
 
