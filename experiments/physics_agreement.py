@@ -56,6 +56,9 @@ AGREEMENT = {
     '10ms x5': MANISKILL_STEP,
     '10ms x5 newton 10/20': dict(**MANISKILL_STEP, solver_iterations=10, ls_iterations=20),
     '5ms x10': dict(physics_dt=0.005, substeps=10),
+    'free mu3 10ms x5': REFERENCE['free mu3'],
+    'free mu3 10ms x5 newton 10/20': dict(**REFERENCE['free mu3'], solver_iterations=10,
+                                          ls_iterations=20),
 }
 
 
@@ -120,6 +123,7 @@ def mjx_step_ms(config, rollouts, worlds: int = 16) -> float:
   step = jax.jit(lambda d: jax.lax.fori_loop(
       0, config.substeps, lambda _, x: jax.vmap(lambda y: mjx.step(mx, y))(x), d))
   jax.block_until_ready(step(data))
+  jax.block_until_ready(step(data))
   t0 = time.perf_counter()
   for _ in range(3):
     out = step(data)
@@ -180,7 +184,8 @@ def run_agreement(args, layouts, policies, starts_of):
   the same settings in MuJoCo C float64."""
   rows, costs = [], []
   length = max(args.horizons)
-  names = args.candidates.split(',') if args.candidates else list(AGREEMENT)
+  names = (args.candidates.split(',') if args.candidates
+           else [k for k in AGREEMENT if not k.startswith('free')])
   for name in names:
     fields = AGREEMENT[name]
     for layout in layouts:
@@ -189,9 +194,14 @@ def run_agreement(args, layouts, policies, starts_of):
       begins = agreement.replay_begins(args.steps, length)
       truth = agreement.truth_at(roll, begins, length)
       for planner_name in args.planners.split(','):
-        env = agreement.planner_env(cfg, planner_name)
         t0 = time.perf_counter()
-        rep = agreement.replay_planner(env, roll, begins, length)
+        if cfg.t_body == 'free' or args.bare_models:
+          rep = (agreement.c_replay(cfg, roll, begins, length) if planner_name == 'mujoco-c'
+                 else agreement.model_replay(cfg, roll, begins, length,
+                                             'warp' if planner_name == 'warp' else 'jax'))
+        else:
+          rep = agreement.replay_planner(agreement.planner_env(cfg, planner_name), roll,
+                                         begins, length)
         seconds = time.perf_counter() - t0
         rows += error_rows(rep, truth, args.horizons,
                            {'physics': name, 'layout': layout, 'planner': planner_name,
@@ -202,7 +212,8 @@ def run_agreement(args, layouts, policies, starts_of):
                       'iterations': cfg.solver_iterations,
                       'ls_iterations': cfg.ls_iterations})
         if args.mjx_cost:
-          costs[-1]['mjx_ms_per_control_step_16_worlds'] = mjx_step_ms(cfg, roll)
+          for w in args.mjx_worlds:
+            costs[-1][f'mjx_ms_per_control_step_{w}_worlds'] = mjx_step_ms(cfg, roll, w)
         print(costs[-1], flush=True)
   return rows, costs
 
@@ -215,10 +226,14 @@ def main():
   parser.add_argument('--horizons', default='1,10,30')
   parser.add_argument('--planners', default='mjx,mujoco-c', help='agreement: planner physics')
   parser.add_argument('--candidates', default=None, help='agreement: names, comma separated')
+  parser.add_argument('--bare-models', action='store_true',
+                      help="agreement: replay on the config's bare models, not the envs")
   parser.add_argument('--mjx-cost', action='store_true', help='also time MJX steps (slow)')
+  parser.add_argument('--mjx-worlds', default='16', help='batch sizes of the MJX timing')
   common.add_common_args(parser, out=None, instances=8, seed=True)
   args = parser.parse_args()
   args.horizons = [int(h) for h in args.horizons.split(',')]
+  args.mjx_worlds = [int(w) for w in args.mjx_worlds.split(',')]
   layouts = args.layouts.split(',')
   out = args.out or f'experiments/results/physics/{args.part}.json'
   policies, starts_of = {}, {}

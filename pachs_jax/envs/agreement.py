@@ -216,6 +216,17 @@ def planner_env(config: pusht.PushTConfig, planner: str) -> base.Env:
   return mujoco_c.make_backend(pusht.PushTEnv(config), planner, nthread=1)
 
 
+def c_replay(config: pusht.PushTConfig, rollouts: Rollouts, begins, length: int,
+             float32_states: bool = True) -> np.ndarray:
+  """As `replay_planner`, in a MuJoCo C model of the config (any t_body) from the world's own
+  states; float32_states as in `CWorld.replay` (True: the MuJoCo C edge backend's nodes)."""
+  return CWorld(config).replay(
+      np.concatenate([rollouts.qpos[:, b] for b in begins]),
+      np.concatenate([rollouts.qvel[:, b] for b in begins]),
+      np.concatenate([rollouts.warmstart[:, b] for b in begins]),
+      np.concatenate([rollouts.actions[:, b:b + length] for b in begins]), float32_states)
+
+
 def replay_planner(env: base.Env, rollouts: Rollouts, begins, length: int) -> np.ndarray:
   """[len(begins) * N, length + 1, 10] planar qpos of the planner env's replays of the world's
   actions from its (planar, float32) states at the begins; rows begin-major."""
@@ -235,6 +246,41 @@ def replay_planner(env: base.Env, rollouts: Rollouts, begins, length: int) -> np
   run = jax.jit(lambda s, a: replay_lib.replay(env, s, a, jnp.full((len(a),), length,
                                                                    jnp.int32))[0].qpos)
   return np.asarray(run(jax.tree.map(jnp.asarray, start), jnp.asarray(actions)), np.float64)
+
+
+def model_replay(config: pusht.PushTConfig, rollouts: Rollouts, begins, length: int,
+                 impl: str = 'jax') -> np.ndarray:
+  """As `replay_planner`, for any t_body, on the config's bare MJX model (impl 'jax' or 'warp';
+  float32): the world's own states (free or planar) at the begins, the env's control rule."""
+  mjx = pusht.mjx
+  model = mujoco.MjModel.from_xml_string(pusht.model_xml(config))
+  mx = mjx.put_model(model, impl=impl)
+  qpos = np.concatenate([rollouts.qpos[:, b] for b in begins]).astype(np.float32)
+  qvel = np.concatenate([rollouts.qvel[:, b] for b in begins]).astype(np.float32)
+  warm = np.concatenate([rollouts.warmstart[:, b] for b in begins]).astype(np.float32)
+  actions = np.concatenate([rollouts.actions[:, b:b + length] for b in begins])
+  lower = jnp.asarray(pusht.panda.JOINT_LOWER, jnp.float32)
+  upper = jnp.asarray(pusht.panda.JOINT_UPPER, jnp.float32)
+  kwargs = dict(naconmax=48 * len(qpos), njmax=256) if impl == 'warp' else {}
+  template = mjx.make_data(model, impl=impl, **kwargs) if impl == 'warp' else mjx.make_data(mx)
+
+  def run(q, v, w, a):
+    data = jax.vmap(lambda q, v, w: template.replace(qpos=q, qvel=v, qacc_warmstart=w,
+                                                     ctrl=q[:7]))(q, v, w)
+
+    def control(d, act):
+      d = d.replace(ctrl=jnp.clip(d.qpos[:, :7] + pusht.ARM_ACTION_SCALE * act, lower, upper))
+      d = jax.lax.fori_loop(0, config.substeps,
+                            lambda _, x: jax.vmap(lambda y: mjx.step(mx, y))(x), d)
+      return d, d.qpos
+
+    _, path = jax.lax.scan(control, data, jnp.swapaxes(a, 0, 1))
+    return jnp.concatenate([q[None], path]).swapaxes(0, 1)
+
+  path = np.asarray(jax.jit(run)(qpos, qvel, warm, jnp.asarray(actions)), np.float64)
+  if config.t_body == 'free':
+    return pusht.planar_t_state(path, np.zeros(path.shape[:-1] + (model.nv,)))[0]
+  return path
 
 
 def truth_at(rollouts: Rollouts, begins, length: int) -> np.ndarray:
