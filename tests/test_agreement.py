@@ -1,0 +1,82 @@
+"""PushT physics options (free T reference, block contacts) and the planner-world agreement
+check (`pachs_jax.envs.agreement`)."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from pachs_jax.envs import agreement, pusht
+
+
+@pytest.mark.parametrize('field, value, words', [
+    ('t_body', 'floating', 't_body'), ('solver', 'PGS', 'solver'),
+    ('physics_dt', -0.01, 'physics_dt'), ('substeps', 0, 'substeps'),
+    ('block_solref', (0.01,), 'block_solref'), ('block_margin', -0.001, 'block_margin')])
+def test_bad_physics_fields_are_named(field, value, words):
+  config = pusht.PushTConfig(**{field: value})
+  with pytest.raises(ValueError, match=words):
+    pusht.model_xml(config)
+
+
+def test_env_refuses_the_free_t():
+  with pytest.raises(ValueError, match="t_body='planar'"):
+    pusht.PushTEnv(pusht.PushTConfig(t_body='free'))
+
+
+def test_defaults_build_the_shipped_model():
+  # the options are additive: the default config's planar T keeps its joints and friction
+  model = mujoco.MjModel.from_xml_string(pusht.model_xml(pusht.PushTConfig()))
+  assert (model.nq, model.nv) == (10, 10)
+  assert model.opt.gravity[2] == 0.0
+  fl = model.dof_frictionloss[7:10]
+  np.testing.assert_allclose(fl, [0.5 * 0.8 * 9.81] * 2 + [0.5 * 0.8 * 9.81 * 0.05], rtol=1e-6)
+
+
+def test_planar_and_free_states_round_trip():
+  rng = np.random.default_rng(0)
+  qpos, qvel = rng.normal(size=(5, 10)), rng.normal(size=(5, 10))
+  qpos[:, 9] = rng.uniform(-np.pi, np.pi, 5)
+  free_q, free_v = pusht.free_t_state(qpos, qvel)
+  assert free_q.shape == (5, 14) and free_v.shape == (5, 13)
+  np.testing.assert_allclose(np.linalg.norm(free_q[:, 10:14], axis=-1), 1.0)
+  back_q, back_v = pusht.planar_t_state(free_q, free_v)
+  np.testing.assert_allclose(back_q, qpos, atol=1e-12)
+  np.testing.assert_allclose(back_v, qvel, atol=1e-12)
+
+
+def _free_t(mu: float):
+  config = pusht.PushTConfig(t_body='free', table_friction=mu, physics_dt=0.002, substeps=1)
+  model = mujoco.MjModel.from_xml_string(pusht.model_xml(config))
+  data = mujoco.MjData(model)
+  home = np.concatenate([pusht.HOME_QPOS, [0.1, 0.2, 0.0]])
+  data.qpos[:], _ = pusht.free_t_state(home, np.zeros(10))
+  data.ctrl[:] = pusht.HOME_QPOS
+  return model, data
+
+
+def test_free_t_rests_on_the_table_under_gravity():
+  model, data = _free_t(3.0)
+  start = data.qpos.copy()
+  mujoco.mj_step(model, data, nstep=500)  # 1 s
+  assert np.linalg.norm(data.qpos[7:9] - start[7:9]) < 1e-4
+  assert 0.0 < pusht.T_HALF_HEIGHT - data.qpos[9] < 2e-3  # MuJoCo's soft contact: < 2 mm
+  np.testing.assert_allclose(np.abs(data.qpos[10]), 1.0, atol=1e-6)  # no tilt
+
+
+@pytest.mark.parametrize('ratio', [0.7, 1.5])
+def test_free_t_obeys_coulomb_friction(ratio):
+  # a horizontal force at the T's centre: below mu m g it sticks, above it slides with
+  # acceleration (F - mu m g) / m
+  mu, g, seconds = 0.5, 9.81, 0.5
+  model, data = _free_t(mu)
+  mujoco.mj_step(model, data, nstep=100)  # settle
+  start = data.qpos[7].copy()
+  force = ratio * mu * pusht.T_MASS * g
+  data.xfrc_applied[model.body('tblock').id, 0] = force
+  mujoco.mj_step(model, data, nstep=int(seconds / model.opt.timestep))
+  moved = data.qpos[7] - start
+  expected = 0.5 * max(force - mu * pusht.T_MASS * g, 0.0) / pusht.T_MASS * seconds ** 2
+  if expected == 0.0:
+    assert abs(moved) < 1e-3
+  else:
+    assert moved == pytest.approx(expected, rel=0.2)
