@@ -139,6 +139,15 @@ def run_reference(args, layouts, policies, starts_of):
     (ref_name, ref_fields), = REFERENCE.items()
     ref = config_of(layout, ref_fields)
     roll = world_rollouts(ref, starts_of[layout], policies[layout], args.steps)
+    quat = roll.qpos[..., 10:14]
+    tilt = np.degrees(2 * np.arcsin(np.sqrt(np.clip(quat[..., 1] ** 2 + quat[..., 2] ** 2,
+                                                    0, 1))))
+    costs.append({'physics': f'{ref_name} world on {layout}: T tilt',
+                  'max_tilt_deg': float(tilt.max()),
+                  'instances_tilted_over_5deg': int((tilt.max(1) > 5).sum()),
+                  'instances': len(tilt),
+                  'max_height_mm': float(1e3 * roll.qpos[..., 9].max())})
+    print(costs[-1], flush=True)
     begins = agreement.replay_begins(args.steps, length)
     truth = agreement.truth_at(roll, begins, length)
     qpos, qvel = roll.planar()
