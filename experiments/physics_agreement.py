@@ -30,6 +30,10 @@ P = pusht.PushTConfig
 TODAY = dict()  # the shipped physics (PushTConfig defaults)
 MANISKILL_STEP = dict(physics_dt=0.01, substeps=5)
 HARD = dict(block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.0005, 0.5, 2))
+# stiff blocks that hold: 2.5 ms steps, MuJoCo's solref clamp (2 dt) met, 20 solver iterations
+STIFF = dict(physics_dt=0.0025, substeps=20, solver_iterations=20, ls_iterations=20,
+             block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.001, 0.5, 2))
+FREE = dict(t_body='free', table_friction=3.0)
 
 # name -> PushTConfig physics fields
 REFERENCE = {  # free T (world) and planar fits, ManiSkill's friction 3 and 100 Hz x 5 physics
@@ -49,6 +53,9 @@ PENETRATION = {
     '10ms x5 hard': dict(**MANISKILL_STEP, **HARD),
     '5ms x10 hard': dict(physics_dt=0.005, substeps=10, **HARD),
     '10ms x5 hard margin2mm': dict(**MANISKILL_STEP, **HARD, block_margin=0.002),
+    '2.5ms x20 stiff': STIFF,
+    'free mu3 10ms x5': dict(**FREE, **MANISKILL_STEP),
+    'free mu3 2.5ms x20 stiff': dict(**FREE, **STIFF),
 }
 AGREEMENT = {
     'today': TODAY,
@@ -56,6 +63,10 @@ AGREEMENT = {
     '10ms x5': MANISKILL_STEP,
     '10ms x5 newton 10/20': dict(**MANISKILL_STEP, solver_iterations=10, ls_iterations=20),
     '5ms x10': dict(physics_dt=0.005, substeps=10),
+    'planar mu3 10ms x5': dict(table_friction=3.0, **MANISKILL_STEP),
+    'free mu3 5ms x10': dict(**FREE, physics_dt=0.005, substeps=10),
+    'free mu3 2.5ms x20 stiff': dict(**FREE, **STIFF),
+    '2.5ms x20 stiff': STIFF,
     'free mu3 10ms x5': REFERENCE['free mu3'],
     'free mu3 10ms x5 newton 10/20': dict(**REFERENCE['free mu3'], solver_iterations=10,
                                           ls_iterations=20),
