@@ -259,28 +259,35 @@ def model_replay(config: pusht.PushTConfig, rollouts: Rollouts, begins, length: 
   qvel = np.concatenate([rollouts.qvel[:, b] for b in begins]).astype(np.float32)
   warm = np.concatenate([rollouts.warmstart[:, b] for b in begins]).astype(np.float32)
   actions = np.concatenate([rollouts.actions[:, b:b + length] for b in begins])
-  lower = jnp.asarray(pusht.panda.JOINT_LOWER, jnp.float32)
-  upper = jnp.asarray(pusht.panda.JOINT_UPPER, jnp.float32)
-  kwargs = dict(naconmax=48 * len(qpos), njmax=256) if impl == 'warp' else {}
-  template = mjx.make_data(model, impl=impl, **kwargs) if impl == 'warp' else mjx.make_data(mx)
-
-  def run(q, v, w, a):
-    data = jax.vmap(lambda q, v, w: template.replace(qpos=q, qvel=v, qacc_warmstart=w,
-                                                     ctrl=q[:7]))(q, v, w)
-
-    def control(d, act):
-      d = d.replace(ctrl=jnp.clip(d.qpos[:, :7] + pusht.ARM_ACTION_SCALE * act, lower, upper))
-      d = jax.lax.fori_loop(0, config.substeps,
-                            lambda _, x: jax.vmap(lambda y: mjx.step(mx, y))(x), d)
-      return d, d.qpos
-
-    _, path = jax.lax.scan(control, data, jnp.swapaxes(a, 0, 1))
-    return jnp.concatenate([q[None], path]).swapaxes(0, 1)
-
-  path = np.asarray(jax.jit(run)(qpos, qvel, warm, jnp.asarray(actions)), np.float64)
+  if impl == 'warp':
+    template = mjx.make_data(model, impl=impl, naconmax=48 * len(qpos), njmax=256)
+  else:
+    template = mjx.make_data(mx)
+  path = _mjx_replay(mx, template, jnp.asarray(config.substeps), qpos, qvel, warm,
+                     jnp.asarray(actions))
+  path = np.asarray(path, np.float64)
   if config.t_body == 'free':
     return pusht.planar_t_state(path, np.zeros(path.shape[:-1] + (model.nv,)))[0]
   return path
+
+
+@jax.jit
+def _mjx_replay(mx, template, substeps, qpos, qvel, warm, actions):
+  """[B, H + 1, nq] qpos of MJX replays of actions [B, H, 7] (model and step count traced, so
+  configs that differ only in time step and substeps share one compiled program)."""
+  mjx = pusht.mjx
+  lower = jnp.asarray(pusht.panda.JOINT_LOWER, jnp.float32)
+  upper = jnp.asarray(pusht.panda.JOINT_UPPER, jnp.float32)
+  data = jax.vmap(lambda q, v, w: template.replace(qpos=q, qvel=v, qacc_warmstart=w,
+                                                   ctrl=q[:7]))(qpos, qvel, warm)
+
+  def control(d, act):
+    d = d.replace(ctrl=jnp.clip(d.qpos[:, :7] + pusht.ARM_ACTION_SCALE * act, lower, upper))
+    d = jax.lax.fori_loop(0, substeps, lambda _, x: jax.vmap(lambda y: mjx.step(mx, y))(x), d)
+    return d, d.qpos
+
+  _, path = jax.lax.scan(control, data, jnp.swapaxes(actions, 0, 1))
+  return jnp.concatenate([qpos[None], path]).swapaxes(0, 1)
 
 
 def truth_at(rollouts: Rollouts, begins, length: int) -> np.ndarray:
@@ -343,18 +350,26 @@ def check_agreement(config: pusht.PushTConfig, planner: str = 'mjx', instances: 
 
   The world runs `policy` (None: `pushing_policy(seed)`) from the config's first `instances`
   canonical starts for `steps` control steps; the planner replays each `horizon`-step window
-  that starts at a multiple of `horizon` from the world's state there.
+  that starts at a multiple of `horizon` from the world's state there. A planar config's planner
+  is its env's `evaluate` (`planner_env`); a free T's, the config's bare model.
   """
   if instances < 1 or steps < horizon or horizon < 1:
     raise ValueError(f'need instances >= 1 and steps >= horizon >= 1, got instances '
                      f'{instances}, steps {steps}, horizon {horizon}')
-  env = planner_env(config, planner)
-  starts = jax.device_get(pusht.PushTEnv(config).canonical_instances(instances))
+  if planner not in PLANNERS:
+    raise ValueError(f'planner must be one of {PLANNERS}, got {planner!r}')
+  planar = dataclasses.replace(config, t_body='planar')
+  starts = jax.device_get(pusht.PushTEnv(planar).canonical_instances(instances))
   world = CWorld(config)
   rollouts = world.run(starts.qpos, starts.qvel, starts.goal,
                        policy or pushing_policy(seed), steps)
   begins = replay_begins(steps, horizon)
-  replayed = replay_planner(env, rollouts, begins, horizon)
+  if config.t_body == 'free':  # no env yet: the bare model of the config
+    replayed = (c_replay(config, rollouts, begins, horizon) if planner == 'mujoco-c' else
+                model_replay(config, rollouts, begins, horizon,
+                             'warp' if planner == 'warp' else 'jax'))
+  else:
+    replayed = replay_planner(planner_env(config, planner), rollouts, begins, horizon)
   pos, ang = pose_errors(replayed[:, -1], truth_at(rollouts, begins, horizon)[:, -1])
   return AgreementReport(planner, horizon, int(pos.size), float(np.percentile(pos, 90)),
                          float(np.percentile(ang, 90)), position_tolerance_mm,
