@@ -80,3 +80,35 @@ def test_free_t_obeys_coulomb_friction(ratio):
     assert abs(moved) < 1e-3
   else:
     assert moved == pytest.approx(expected, rel=0.2)
+
+
+def test_agreement_check_passes_the_same_physics():
+  # the MuJoCo C edge backend (float32 states) replays the float64 world of its own config
+  report = agreement.check_agreement(pusht.PushTConfig(), 'mujoco-c', instances=3, steps=20)
+  assert report.passed, report.message()
+  assert report.replays == 6
+  assert report.position_mm_p90 < 0.5 and report.angle_deg_p90 < 0.2
+  assert 'agrees with' in report.message()
+
+
+def test_agreement_check_reports_a_large_time_step_with_numbers():
+  # planner physics at 25 ms x 2 against the task's 12.5 ms x 4 world: refused, with numbers
+  coarse = pusht.PushTConfig(physics_dt=0.025, substeps=2)
+  report = agreement.check_agreement(coarse, 'mujoco-c', instances=3, steps=20,
+                                     world_config=pusht.PushTConfig())
+  assert not report.passed
+  assert report.position_mm_p90 > 5.0
+  message = report.message()
+  assert 'DOES NOT agree' in message
+  assert f'{report.position_mm_p90:.2f} mm' in message and '0.025 s x 2 substeps' in message
+
+
+def test_agreement_command_exit_status(capsys):
+  bad = ['--variant', 'fixed', '--planner', 'mujoco-c', '--instances', '3', '--physics-dt',
+         '0.025', '--substeps', '2', '--world-physics-dt', '0.0125', '--world-substeps', '4']
+  assert agreement.main(bad) == 1
+  assert 'DOES NOT agree' in capsys.readouterr().out
+  with pytest.raises(SystemExit):  # a bad field: one line from argparse, before any work
+    agreement.main(['--variant', 'fixed', '--physics-dt', '-1'])
+  assert 'physics_dt' in capsys.readouterr().err
+

@@ -2,7 +2,8 @@
 from the world's states in a planner's physics (MJX float32, MuJoCo Warp, MuJoCo C with float32
 states); the T's pose error after `HORIZON` control steps is checked against tolerances.
 
-  python -m pachs_jax.envs.agreement --layout wall --physics-dt 0.025 --substeps 2"""
+  python -m pachs_jax.envs.agreement --layout wall --physics-dt 0.025 --substeps 2 \
+      --world-physics-dt 0.0125 --world-substeps 4   # exit status 1: does not agree"""
 
 from __future__ import annotations
 
@@ -255,9 +256,13 @@ def model_replay(config: pusht.PushTConfig, rollouts: Rollouts, begins, length: 
   mjx = pusht.mjx
   model = mujoco.MjModel.from_xml_string(pusht.model_xml(config))
   mx = mjx.put_model(model, impl=impl)
-  qpos = np.concatenate([rollouts.qpos[:, b] for b in begins]).astype(np.float32)
-  qvel = np.concatenate([rollouts.qvel[:, b] for b in begins]).astype(np.float32)
-  warm = np.concatenate([rollouts.warmstart[:, b] for b in begins]).astype(np.float32)
+  qpos = np.concatenate([rollouts.qpos[:, b] for b in begins])
+  qvel = np.concatenate([rollouts.qvel[:, b] for b in begins])
+  warm = np.concatenate([rollouts.warmstart[:, b] for b in begins])
+  if qpos.shape[-1] != model.nq:  # the world's other T model: its state converted, no warm start
+    qpos, qvel = CWorld(config).state_of(qpos, qvel)
+    warm = np.zeros_like(qvel)
+  qpos, qvel, warm = (x.astype(np.float32) for x in (qpos, qvel, warm))
   actions = np.concatenate([rollouts.actions[:, b:b + length] for b in begins])
   if impl == 'warp':
     template = mjx.make_data(model, impl=impl, naconmax=48 * len(qpos), njmax=256)
@@ -344,9 +349,11 @@ class AgreementReport:
 def check_agreement(config: pusht.PushTConfig, planner: str = 'mjx', instances: int = 4,
                     steps: int = 20, horizon: int = HORIZON, seed: int = 0,
                     policy: Optional[Policy] = None,
+                    world_config: Optional[pusht.PushTConfig] = None,
                     position_tolerance_mm: float = POSITION_TOLERANCE_MM,
                     angle_tolerance_deg: float = ANGLE_TOLERANCE_DEG) -> AgreementReport:
-  """The planner's agreement with a MuJoCo C float64 world of the same config.
+  """The planner's agreement with a MuJoCo C float64 world of world_config (None: the same
+  config; e.g. the task's physics, to check a user's planner settings against it).
 
   The world runs `policy` (None: `pushing_policy(seed)`) from the config's first `instances`
   canonical starts for `steps` control steps; the planner replays each `horizon`-step window
@@ -358,9 +365,11 @@ def check_agreement(config: pusht.PushTConfig, planner: str = 'mjx', instances: 
                      f'{instances}, steps {steps}, horizon {horizon}')
   if planner not in PLANNERS:
     raise ValueError(f'planner must be one of {PLANNERS}, got {planner!r}')
-  planar = dataclasses.replace(config, t_body='planar')
+  world_config = config if world_config is None else world_config
+  pusht.check_physics(world_config)
+  planar = dataclasses.replace(world_config, t_body='planar')
   starts = jax.device_get(pusht.PushTEnv(planar).canonical_instances(instances))
-  world = CWorld(config)
+  world = CWorld(world_config)
   rollouts = world.run(starts.qpos, starts.qvel, starts.goal,
                        policy or pushing_policy(seed), steps)
   begins = replay_begins(steps, horizon)
@@ -388,13 +397,23 @@ def main(argv=None) -> int:
   for name in ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations', 'solver'):
     value = getattr(defaults, name)
     parser.add_argument('--' + name.replace('_', '-'), type=type(value), default=value)
+  parser.add_argument('--t-body', default=defaults.t_body, choices=pusht.T_BODIES)
+  parser.add_argument('--table-friction', type=float, default=defaults.table_friction)
+  parser.add_argument('--world-physics-dt', type=float, default=None,
+                      help="the world's time step (default: the planner's)")
+  parser.add_argument('--world-substeps', type=int, default=None)
   args = parser.parse_args(argv)
   try:
     config = pusht.PushTConfig(
         variant=args.variant, layout=args.layout, physics_dt=args.physics_dt,
         substeps=args.substeps, solver_iterations=args.solver_iterations,
-        ls_iterations=args.ls_iterations, solver=args.solver)
-    report = check_agreement(config, args.planner, args.instances, args.steps, seed=args.seed)
+        ls_iterations=args.ls_iterations, solver=args.solver, t_body=args.t_body,
+        table_friction=args.table_friction)
+    world = dataclasses.replace(
+        config, physics_dt=args.world_physics_dt or config.physics_dt,
+        substeps=args.world_substeps or config.substeps)
+    report = check_agreement(config, args.planner, args.instances, args.steps, seed=args.seed,
+                             world_config=world)
   except ValueError as e:
     parser.error(str(e))
   print(report.message())
