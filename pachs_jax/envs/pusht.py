@@ -95,6 +95,16 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
   return layouts.layout(layouts.DEFAULT if config.layout is None else config.layout)
 
 
+# Named physics settings (PushTConfig fields; experiments/results/physics/ has the measurements).
+# 'faithful': ManiSkill's free T (friction 3, gravity) with stiff blocks: 2.5 ms x 20 steps and
+# 20 solver iterations hold the stiff contacts; 'maniskill': the free T at ManiSkill's own
+# 10 ms x 5 physics (cheapest free T, softer blocks, worse planner-world agreement).
+PHYSICS_PRESETS = {
+    'faithful': dict(t_body='free', table_friction=3.0, physics_dt=0.0025, substeps=20,
+                     solver_iterations=20, ls_iterations=20, block_solref=(0.005, 1.0),
+                     block_solimp=(0.99, 0.999, 0.001, 0.5, 2.0)),
+    'maniskill': dict(t_body='free', table_friction=3.0, physics_dt=0.01, substeps=5),
+}
 T_BODIES = ('planar', 'free')
 SOLVERS = ('Newton', 'CG')
 
@@ -122,6 +132,13 @@ def check_physics(config: PushTConfig) -> None:
                        f'finite numbers, got {v!r}')
   if not (np.isfinite(c.block_margin) and c.block_margin >= 0):
     raise ValueError(f'PushTConfig.block_margin must be >= 0 (m), got {c.block_margin!r}')
+
+
+def physics_preset(name: str, **fields) -> PushTConfig:
+  """A PushTConfig with the named `PHYSICS_PRESETS` entry and the other given fields."""
+  if name not in PHYSICS_PRESETS:
+    raise ValueError(f'unknown physics preset {name!r}; valid: {sorted(PHYSICS_PRESETS)}')
+  return PushTConfig(**{**PHYSICS_PRESETS[name], **fields})
 
 
 def _block_pair_attributes(config: PushTConfig) -> str:
