@@ -212,7 +212,7 @@ def gap_push(fields: dict, steps: int = 60) -> dict:
   roll = world.run(start[None], np.zeros((1, 10)), np.asarray([pusht.FIXED_GOAL]), policy,
                    steps)
   qpos, _ = roll.planar()
-  out = {'physics': f'gap push: {fields}', 'lowest_t_origin_y_mm': 1e3 * float(qpos[0, :, 8].min()),
+  out = {'lowest_t_origin_y_mm': 1e3 * float(qpos[0, :, 8].min()),
          'bar_entered_block_band': bool(qpos[0, :, 8].min() < 0.0925 - 0.002),
          't_block_max_mm': 1e3 * float(roll.t_block.max())}
   if cfg.t_body == 'free':
@@ -239,8 +239,14 @@ def run_penetration(args, layouts, policies, starts_of):
                    'mujoco_c_us_per_physics_step': c_step_us(cfg, roll),
                    'physics_steps_per_control_step': cfg.substeps})
       print(rows[-1], flush=True)
-  gaps = [gap_push(PENETRATION[name]) for name in names]
-  return rows, gaps
+  return rows, []
+
+
+def run_gap(args, layouts, policies, starts_of):
+  """A gap narrower than the T: `gap_push` for each penetration candidate."""
+  del layouts, policies, starts_of
+  names = args.candidates.split(',') if args.candidates else list(PENETRATION)
+  return [{'name': name, **gap_push(PENETRATION[name])} for name in names], []
 
 
 def run_agreement(args, layouts, policies, starts_of):
@@ -284,7 +290,7 @@ def run_agreement(args, layouts, policies, starts_of):
 
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('part', choices=['reference', 'penetration', 'agreement'])
+  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap'])
   parser.add_argument('--layouts', default='gate,wall')
   parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
   parser.add_argument('--horizons', default='1,10,30')
@@ -301,16 +307,16 @@ def main():
   layouts = args.layouts.split(',')
   out = args.out or f'experiments/results/physics/{args.part}.json'
   policies, starts_of = {}, {}
-  for layout in layouts:
+  for layout in (layouts if args.part != 'gap' else []):
     env, model = planner.load_model('pusht-obs', backend='mjx', layout=layout)
     policies[layout] = policy_of(model, env, args.seed)
     starts_of[layout] = jax.device_get(env.canonical_instances(args.instances))
   part = {'reference': run_reference, 'penetration': run_penetration,
-          'agreement': run_agreement}[args.part]
+          'agreement': run_agreement, 'gap': run_gap}[args.part]
   rows, costs = part(args, layouts, policies, starts_of)
   settings = {k: v for k, v in vars(args).items()}
   tables = {'reference': REFERENCE | PLANAR_FITS, 'penetration': PENETRATION,
-            'agreement': AGREEMENT}[args.part]
+            'agreement': AGREEMENT, 'gap': PENETRATION}[args.part]
   payload = {'provenance': common.provenance(), 'settings': settings,
              'physics': {k: {f: list(v) if isinstance(v, tuple) else v for f, v in d.items()}
                          for k, d in tables.items()},
