@@ -326,10 +326,12 @@ def main():
     f.write(f'# PushT physics: {args.part}\n\n{payload["provenance"]}\n\n'
             f'Settings: {settings}\n\nPhysics (PushTConfig fields over the defaults): '
             f'{payload["physics"]}\n\n')
-    f.write(common.markdown_table(rows, list(rows[0])) + '\n')
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    f.write(common.markdown_table([{k: r.get(k, '') for k in columns} for r in rows], columns)
+            + '\n')
     if costs:
       cols = sorted({k for c in costs for k in c}, key=lambda k: (k != 'physics', k))
-      f.write('\nStep cost on this CPU:\n\n'
+      f.write('\nStep cost (MuJoCo C one thread; MJX a vmapped batch) and world facts:\n\n'
               + common.markdown_table([{k: c.get(k, '') for k in cols} for c in costs], cols)
               + '\n')
 
