@@ -1,6 +1,7 @@
 """PushT physics options (free T reference, block contacts) and the planner-world agreement
 check (`pachs_jax.envs.agreement`)."""
 
+import jax
 import mujoco
 import numpy as np
 import pytest
@@ -18,9 +19,56 @@ def test_bad_physics_fields_are_named(field, value, words):
     pusht.model_xml(config)
 
 
-def test_env_refuses_the_free_t():
-  with pytest.raises(ValueError, match="t_body='planar'"):
-    pusht.PushTEnv(pusht.PushTConfig(t_body='free'))
+FREE = dict(t_body='free', table_friction=3.0, physics_dt=0.005, substeps=10)
+
+
+def test_free_env_reads_the_same_pose_cost_and_observation():
+  planar = pusht.PushTEnv(pusht.PushTConfig())
+  free = pusht.PushTEnv(pusht.PushTConfig(**FREE))
+  pose, goal = np.array([-0.1, 0.05, 1.0]), np.asarray(pusht.FIXED_GOAL)
+  node_p, node_f = planar.node_from_pose(pose, goal), free.node_from_pose(pose, goal)
+  assert node_f.qpos.shape == (14,) and node_f.qvel.shape == (13,)
+  np.testing.assert_allclose(pusht.t_pose(node_f.qpos), pose, atol=1e-6)
+  np.testing.assert_allclose(free.observation(node_f), planar.observation(node_p), atol=1e-5)
+  tip = planar.tip_position(node_p)[:2]
+  assert float(free._cost(node_f, tip)) == pytest.approx(float(planar._cost(node_p, tip)),
+                                                        abs=1e-6)
+  at_goal = free.node_from_pose(goal, goal)
+  assert bool(free.goal_reached(at_goal)) and not bool(free.goal_reached(node_f))
+
+
+def test_free_env_mujoco_c_edges_follow_the_world():
+  from pachs_jax.envs import mujoco_c
+  env = pusht.PushTEnv(pusht.PushTConfig(**FREE))
+  backend = mujoco_c.MujocoCEnv(env, nthread=1)
+  world = mujoco_c.World(env)
+  node = env.node_from_pose(np.array([-0.3, -0.25, 0.3]), np.asarray(pusht.FIXED_GOAL))
+  node = jax.tree.map(np.asarray, node)
+  world.reset(node)
+  model, data = world.model, mujoco.MjData(world.model)
+  start = np.asarray(pusht.t_pose(node.qpos))
+  for _ in range(12):  # the tip goes through the T's centre: contact
+    action = pusht.jacobian_action(model, data, np.array([-0.25, -0.2, 0.02]),
+                                   np.asarray(node.qpos, np.float64))
+    out = backend.evaluate(jax.tree.map(lambda x: np.asarray(x)[None], node),
+                           np.asarray(action, np.float32)[None])
+    assert bool(out.is_valid[0])
+    node = jax.tree.map(lambda x: np.asarray(x[0]), out.next_node)
+    truth = world.execute(action[None])[-1]
+    np.testing.assert_allclose(node.qpos, truth.qpos, atol=1e-3)
+  assert np.linalg.norm(np.asarray(pusht.t_pose(node.qpos))[:2] - start[:2]) > 0.005  # pushed
+
+
+def test_a_tipped_free_t_is_invalid():
+  from pachs_jax.envs import mujoco_c
+  env = pusht.PushTEnv(pusht.PushTConfig(**FREE))
+  backend = mujoco_c.MujocoCEnv(env, nthread=1)
+  node = env.node_from_pose(np.array([-0.1, 0.05, 0.0]), np.asarray(pusht.FIXED_GOAL))
+  on_side = np.array([0.0, 0.0, 0.05, np.cos(0.7), np.sin(0.7), 0.0, 0.0])  # 80 deg about x
+  node = node.replace(qpos=node.qpos.at[7:].set(on_side))
+  out = backend.evaluate(jax.tree.map(lambda x: x[None], node), np.zeros((1, 7), np.float32))
+  assert not bool(out.is_valid[0])
+  assert float(pusht.t_tilt(out.next_node.qpos[0])) > pusht.MAX_T_TILT
 
 
 def test_defaults_build_the_shipped_model():

@@ -373,7 +373,7 @@ def check_agreement(config: pusht.PushTConfig, planner: str = 'mjx', instances: 
   rollouts = world.run(starts.qpos, starts.qvel, starts.goal,
                        policy or pushing_policy(seed), steps)
   begins = replay_begins(steps, horizon)
-  if config.t_body == 'free':  # no env yet: the bare model of the config
+  if config.t_body == 'free':  # the config's bare model (the env's physics, no env needed)
     replayed = (c_replay(config, rollouts, begins, horizon) if planner == 'mujoco-c' else
                 model_replay(config, rollouts, begins, horizon,
                              'warp' if planner == 'warp' else 'jax'))

@@ -46,8 +46,8 @@ class PushTConfig:
   solver_iterations / ls_iterations: MJX Newton solver and line-search iterations.
   table_friction: T-table Coulomb coefficient (planar: becomes joint friction loss).
   t_body: 'planar' (slide x, slide y, hinge yaw with joint friction, no gravity) or 'free' (a
-    free joint under gravity with T-table contacts; the reference model, MuJoCo C worlds only:
-    `PushTEnv` needs 'planar').
+    free joint under gravity with T-table contacts of friction `table_friction`; its node qpos
+    is [14], qvel [13]; `t_pose` reads the planar pose of either).
   t_friction_radius: planar only: m, the yaw friction loss is the sliding one times this.
   t_damping, t_yaw_damping: planar only: T joint damping (N s / m, N m s / rad).
   solver: MuJoCo's constraint solver, 'Newton' or 'CG'.
@@ -177,6 +177,37 @@ def planar_t_state(qpos, qvel):
   t_qvel = np.stack([qvel[..., 7], qvel[..., 8], qvel[..., 12]], -1)
   return (np.concatenate([qpos[..., :7], t_qpos], -1),
           np.concatenate([qvel[..., :7], t_qvel], -1))
+
+
+MAX_T_TILT = np.pi / 6  # rad: a free T tilted further has tipped over (its edge is invalid)
+
+
+def t_pose(qpos: jax.Array) -> jax.Array:
+  """[..., 3] the T's planar pose (x, y (m), yaw (rad) about the world z axis) of node qpos
+  [..., 10] (planar T) or [..., 14] (free T: yaw of its quaternion)."""
+  qpos = jnp.asarray(qpos)
+  if qpos.shape[-1] == 10:
+    return qpos[..., 7:10]
+  w, x, y, z = (qpos[..., 10 + k] for k in range(4))
+  yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+  return jnp.stack([qpos[..., 7], qpos[..., 8], yaw], -1)
+
+
+def t_velocity(qvel: jax.Array) -> jax.Array:
+  """[..., 3] the T's planar velocity (m/s, m/s, rad/s) of node qvel [..., 10] or [..., 13]."""
+  qvel = jnp.asarray(qvel)
+  if qvel.shape[-1] == 10:
+    return qvel[..., 7:10]
+  return jnp.stack([qvel[..., 7], qvel[..., 8], qvel[..., 12]], -1)
+
+
+def t_tilt(qpos: jax.Array) -> jax.Array:
+  """[...] rad the free T's tilt from upright (0 for a planar T) of node qpos [..., nq]."""
+  qpos = jnp.asarray(qpos)
+  if qpos.shape[-1] == 10:
+    return jnp.zeros(qpos.shape[:-1], qpos.dtype)
+  s = jnp.sqrt(jnp.clip(qpos[..., 11] ** 2 + qpos[..., 12] ** 2, 0.0, 1.0))
+  return 2 * jnp.arcsin(s)
 
 
 def model_xml(config: PushTConfig) -> str:
@@ -396,7 +427,8 @@ def _wrap_angle(a: jax.Array) -> jax.Array:
 
 
 class PushTEnv(base.Env):
-  """PushT on MJX. qpos = [7 arm joints (rad), T x, T y (m), T yaw (rad)]; goal = [x, y, yaw].
+  """PushT on MJX. qpos = [7 arm joints (rad), T x, T y (m), T yaw (rad)] (a free T: [7 arm
+  joints, T x, y, z (m), quaternion w, x, y, z], qvel [13]); goal = [x, y, yaw].
 
   Action: [-1, 1]^7 scaled by ARM_ACTION_SCALE to a joint-position target offset from the
   current joint angles, held for `substeps` physics steps. Cost per step (= -reward):
@@ -410,9 +442,6 @@ class PushTEnv(base.Env):
     if config.variant not in ('fixed', 'rand', 'obs'):
       raise ValueError(f"PushT variant must be 'fixed', 'rand' or 'obs', got {config.variant!r}")
     check_physics(config)
-    if config.t_body != 'planar':
-      raise ValueError(f"PushTEnv needs t_body='planar', got {config.t_body!r}: the free T is "
-                       'a reference model for MuJoCo C worlds (pusht.model_xml)')
     self.layout = config_layout(config)
     self.config = config
     self.name = f'pusht-{config.variant}'
@@ -437,7 +466,7 @@ class PushTEnv(base.Env):
                                                  [self.mj_model.site_bodyid[self._tip_site]])
     self.obstacles = (self.layout.blocks_array() if self.layout is not None
                       else np.zeros((0, 5), np.float32))
-    home = np.concatenate([HOME_QPOS, np.zeros(3)])
+    home = np.concatenate([HOME_QPOS, np.zeros(self.mj_model.nq - len(HOME_QPOS))])
     self._home_qpos, self._arm_lower, self._arm_upper = jax.device_put(
         [np.asarray(x, np.float32) for x in (home, panda.JOINT_LOWER, panda.JOINT_UPPER)])
 
@@ -474,7 +503,12 @@ class PushTEnv(base.Env):
 
   def node_from_pose(self, t_pose: jax.Array, goal: jax.Array) -> base.NodeState:
     """A start node with the arm at home, T at t_pose [3] and goal [3]; no batch axis."""
-    qpos = self._home_qpos.at[7:].set(jnp.asarray(t_pose, jnp.float32))
+    t_pose = jnp.asarray(t_pose, jnp.float32)
+    if self.config.t_body == 'free':  # resting on the table, upright
+      half = t_pose[2] / 2
+      t_pose = jnp.stack([t_pose[0], t_pose[1], jnp.float32(T_HALF_HEIGHT), jnp.cos(half),
+                          jnp.float32(0), jnp.float32(0), jnp.sin(half)])
+    qpos = self._home_qpos.at[7:].set(t_pose)
     nv = self.mj_model.nv
     return base.NodeState(qpos=qpos, qvel=jnp.zeros(nv, jnp.float32),
                           ctrl=qpos[:7], qacc_warmstart=jnp.zeros(nv, jnp.float32),
@@ -508,7 +542,7 @@ class PushTEnv(base.Env):
       raise ValueError(f'num must be positive, got {num}')
     candidates = jax.jit(lambda key: self.initial_nodes(jax.random.split(key, 8 * num + 64)))
     nodes = jax.device_get(candidates(jax.random.PRNGKey(seed)))
-    ok = start_clear(nodes.qpos[:, 7:10], nodes.goal, self.obstacles,
+    ok = start_clear(np.asarray(t_pose(nodes.qpos)), nodes.goal, self.obstacles,
                      self.config.success_coverage)
     index = np.flatnonzero(ok)[:num]
     if len(index) < num:
@@ -557,7 +591,8 @@ class PushTEnv(base.Env):
     finite = base.finite_node(next_node)
     t_xy = next_node.qpos[7:9]
     on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(FIXED_GOAL[:2])) < TABLE_HALF_EXTENT)
-    is_valid = finite & action_ok & on_table
+    upright = t_tilt(next_node.qpos) < MAX_T_TILT
+    is_valid = finite & action_ok & on_table & upright
     # Keep invalid successors finite: they are dropped by the search and end an episode.
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)
@@ -577,7 +612,7 @@ class PushTEnv(base.Env):
 
   def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
     c = self.config
-    pose, goal = node.qpos[7:10], node.goal
+    pose, goal = t_pose(node.qpos), node.goal
     angle = jnp.abs(_wrap_angle(pose[2] - goal[2])) / jnp.pi
     position = jnp.linalg.norm(pose[:2] - goal[:2])
     reach = jnp.maximum(jnp.linalg.norm(tip_xy - pose[:2]) - 0.05, 0.0)
@@ -591,7 +626,7 @@ class PushTEnv(base.Env):
 
   def observation(self, node: base.NodeState) -> jax.Array:
     tip = self.tip_position(node)
-    pose, goal = node.qpos[7:10], node.goal
+    pose, goal = t_pose(node.qpos), node.goal
     c, s = jnp.cos(goal[2]), jnp.sin(goal[2])
     d = pose[:2] - goal[:2]
     rel = jnp.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])  # T in goal frame (m)
@@ -603,14 +638,14 @@ class PushTEnv(base.Env):
     return jnp.concatenate([
         arm_q, 0.1 * node.qvel[:7], tip, pose[:2], jnp.array([ct, st]), goal[:2],
         jnp.array([c, s]), rel, jnp.array([jnp.cos(dyaw), jnp.sin(dyaw)]), tip_in_t,
-        node.qvel[7:10]]).astype(jnp.float32)
+        t_velocity(node.qvel)]).astype(jnp.float32)
 
   def lattice_coords(self, node: base.NodeState, resolution: jax.Array) -> jax.Array:
-    pose = node.qpos[7:10]
+    pose = t_pose(node.qpos)
     tip = self.tip_position(node)
     yaw = pose[2] % (2 * jnp.pi)
     values = jnp.stack([pose[0], pose[1], yaw, tip[0], tip[1]])
     return jnp.floor(values / resolution).astype(jnp.int32)
 
   def goal_reached(self, node: base.NodeState) -> jax.Array:
-    return coverage.coverage(node.qpos[7:10], node.goal) >= self.config.success_coverage
+    return coverage.coverage(t_pose(node.qpos), node.goal) >= self.config.success_coverage
