@@ -325,7 +325,8 @@ class MujocoCEnv(base.Env):
     finite = ok & base.finite_node(next_node)
     t_xy = next_node.qpos[7:9]
     on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(pusht.FIXED_GOAL[:2])) < pusht.TABLE_HALF_EXTENT)
-    is_valid = finite & action_ok & on_table
+    upright = pusht.t_tilt(next_node.qpos) < pusht.MAX_T_TILT
+    is_valid = finite & action_ok & on_table & upright
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)
     next_node = next_node.replace(t=node.t + 1)
@@ -379,7 +380,8 @@ def make_backend(env: base.Env, backend: str = 'auto', nthread: Optional[int] = 
 class Perturbation:
   """Scale factors applied to a copy of the world's MjModel (1.0 leaves a field unchanged).
 
-  friction: T-table friction: `dof_frictionloss` of the T's joints t_x, t_y, t_yaw.
+  friction: T-table friction: `dof_frictionloss` of the T's joints t_x, t_y, t_yaw (a free T:
+    the T-table pairs' `pair_friction`).
   contact_friction: `geom_friction` (all three coefficients) of every geom (stick-T, T-obstacle).
   t_mass: the T's `body_mass` and `body_inertia`.
   actuator_gain: the arm servos' stiffness kp (`actuator_gainprm[:, 0]`, `actuator_biasprm[:, 1]`).
@@ -402,8 +404,14 @@ class Perturbation:
     """A perturbed copy of a PushT model (model itself is unchanged)."""
     m = _copy_model(model)
     t_body = m.body('tblock').id
-    for name in ('t_x', 't_y', 't_yaw'):
-      m.dof_frictionloss[m.jnt_dofadr[m.joint(name).id]] *= self.friction
+    if env_is_free(m):  # the T-table contact pairs' sliding, torsional and rolling friction
+      for p in range(m.npair):
+        if m.geom(m.pair_geom2[p]).name == 'table' and m.geom(m.pair_geom1[p]).name in (
+            't_bar', 't_stem'):
+          m.pair_friction[p] *= self.friction
+    else:
+      for name in ('t_x', 't_y', 't_yaw'):
+        m.dof_frictionloss[m.jnt_dofadr[m.joint(name).id]] *= self.friction
     m.geom_friction[:] *= self.contact_friction
     m.body_mass[t_body] *= self.t_mass
     m.body_inertia[t_body] *= self.t_mass
@@ -411,6 +419,11 @@ class Perturbation:
     m.actuator_biasprm[:, 1] *= self.actuator_gain
     m.actuator_biasprm[:, 2] *= self.actuator_damping
     return m
+
+
+def env_is_free(model: mujoco.MjModel) -> bool:
+  """Whether a PushT model's T is the free body (`pusht.PushTConfig.t_body` 'free')."""
+  return model.nq == 14
 
 
 def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:

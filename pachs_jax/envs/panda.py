@@ -87,8 +87,9 @@ def _end_effector(kind: str, prefix: str) -> str:
 
 
 def arm_body_xml(end_effector: str = 'stick', base_pos=(0.0, 0.0, 0.0), prefix: str = '',
-                 config: ArmConfig = ArmConfig()) -> str:
-  """MJCF <body> of the arm with joints 'joint1'..'joint7' and sites 'flange' and 'tip'."""
+                 config: ArmConfig = ArmConfig(), gravcomp: float = 0.0) -> str:
+  """MJCF <body> of the arm with joints 'joint1'..'joint7' and sites 'flange' and 'tip';
+  gravcomp: the links' gravity compensation (1: the arm ignores gravity in a scene with it)."""
   close = []
   parts = [f'<body name="{prefix}link0" pos="{_fmt(base_pos)}">',
            f'<geom name="{prefix}link0" type="capsule" size="0.07" fromto="0 0 0.05 0 0 0.25" '
@@ -96,7 +97,9 @@ def arm_body_xml(end_effector: str = 'stick', base_pos=(0.0, 0.0, 0.0), prefix: 
   for i in range(NUM_JOINTS):
     pos, quat = _link_offset(i)
     lo, hi = JOINT_LOWER[i], JOINT_UPPER[i]
-    parts.append(f'<body name="{prefix}link{i + 1}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">')
+    comp = f' gravcomp="{gravcomp:g}"' if gravcomp else ''
+    parts.append(f'<body name="{prefix}link{i + 1}" pos="{_fmt(pos)}" quat="{_fmt(quat)}"'
+                 f'{comp}>')
     parts.append(f'<inertial pos="0 0 0" mass="{LINK_MASS[i]}" '
                  f'diaginertia="{_fmt(np.full(3, 0.004 + 0.006 * LINK_MASS[i]))}"/>')
     parts.append(f'<joint name="{prefix}joint{i + 1}" range="{lo:.4f} {hi:.4f}" class="arm" '

@@ -44,7 +44,15 @@ class PushTConfig:
     `layouts.DEFAULT`); must be None for the other variants.
   physics_dt: s per physics step; substeps: physics steps per control step.
   solver_iterations / ls_iterations: MJX Newton solver and line-search iterations.
-  table_friction: T-table Coulomb coefficient (becomes joint friction loss).
+  table_friction: T-table Coulomb coefficient (planar: becomes joint friction loss).
+  t_body: 'planar' (slide x, slide y, hinge yaw with joint friction, no gravity) or 'free' (a
+    free joint under gravity with T-table contacts of friction `table_friction`; its node qpos
+    is [14], qvel [13]; `t_pose` reads the planar pose of either).
+  t_friction_radius: planar only: m, the yaw friction loss is the sliding one times this.
+  t_damping, t_yaw_damping: planar only: T joint damping (N s / m, N m s / rad).
+  solver: MuJoCo's constraint solver, 'Newton' or 'CG'.
+  block_solref, block_solimp, block_margin: contact parameters of the T-block and stick-block
+    pairs (None: MuJoCo's defaults; margin in m).
   w_angle, w_position, w_reach: cost weights of the three dense terms.
   """
 
@@ -57,6 +65,14 @@ class PushTConfig:
   ls_iterations: int = 8
   table_friction: float = 0.5
   pusher_friction: float = 0.8
+  t_body: str = 'planar'
+  t_friction_radius: float = 0.05
+  t_damping: float = 0.5
+  t_yaw_damping: float = 0.01
+  solver: str = 'Newton'
+  block_solref: tuple | None = None
+  block_solimp: tuple | None = None
+  block_margin: float = 0.0
   w_angle: float = 1.0
   w_position: float = 3.0
   w_reach: float = 0.5
@@ -79,11 +95,128 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
   return layouts.layout(layouts.DEFAULT if config.layout is None else config.layout)
 
 
+# Named physics settings (PushTConfig fields; experiments/results/physics/ has the measurements).
+# 'faithful': ManiSkill's free T (friction 3, gravity) with stiff blocks: 2.5 ms x 20 steps and
+# 20 solver iterations hold the stiff contacts; 'maniskill': the free T at ManiSkill's own
+# 10 ms x 5 physics (cheapest free T, softer blocks, worse planner-world agreement).
+PHYSICS_PRESETS = {
+    'faithful': dict(t_body='free', table_friction=3.0, physics_dt=0.0025, substeps=20,
+                     solver_iterations=20, ls_iterations=20, block_solref=(0.005, 1.0),
+                     block_solimp=(0.99, 0.999, 0.001, 0.5, 2.0)),
+    'maniskill': dict(t_body='free', table_friction=3.0, physics_dt=0.01, substeps=5),
+}
+T_BODIES = ('planar', 'free')
+SOLVERS = ('Newton', 'CG')
+
+
+def check_physics(config: PushTConfig) -> None:
+  """Raises ValueError, one line naming the field, unless the config's physics fields are
+  valid: positive time step, substeps and iterations, a known t_body and solver, and contact
+  parameters of MuJoCo's shapes (solref 2 numbers, solimp 3 or 5, margin >= 0)."""
+  c = config
+  if not (np.isfinite(c.physics_dt) and c.physics_dt > 0):
+    raise ValueError(f'PushTConfig.physics_dt must be a positive time step (s), got {c.physics_dt!r}')
+  for name in ('substeps', 'solver_iterations', 'ls_iterations'):
+    v = getattr(c, name)
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+      raise ValueError(f'PushTConfig.{name} must be a positive int, got {v!r}')
+  if c.t_body not in T_BODIES:
+    raise ValueError(f'PushTConfig.t_body must be one of {T_BODIES}, got {c.t_body!r}')
+  if c.solver not in SOLVERS:
+    raise ValueError(f'PushTConfig.solver must be one of {SOLVERS}, got {c.solver!r}')
+  for name, sizes in (('block_solref', (2,)), ('block_solimp', (3, 5))):
+    v = getattr(c, name)
+    if v is not None and (np.shape(v) not in [(n,) for n in sizes]
+                          or not np.all(np.isfinite(v))):
+      raise ValueError(f'PushTConfig.{name} must be None or {" or ".join(map(str, sizes))} '
+                       f'finite numbers, got {v!r}')
+  if not (np.isfinite(c.block_margin) and c.block_margin >= 0):
+    raise ValueError(f'PushTConfig.block_margin must be >= 0 (m), got {c.block_margin!r}')
+
+
+def physics_preset(name: str, **fields) -> PushTConfig:
+  """A PushTConfig with the named `PHYSICS_PRESETS` entry and the other given fields."""
+  if name not in PHYSICS_PRESETS:
+    raise ValueError(f'unknown physics preset {name!r}; valid: {sorted(PHYSICS_PRESETS)}')
+  return PushTConfig(**{**PHYSICS_PRESETS[name], **fields})
+
+
+def _block_pair_attributes(config: PushTConfig) -> str:
+  """The contact attributes of a T-block or stick-block pair (leading space; '' for none)."""
+  out = ''
+  if config.block_solref is not None:
+    out += ' solref="' + ' '.join(f'{x:g}' for x in config.block_solref) + '"'
+  if config.block_solimp is not None:
+    out += ' solimp="' + ' '.join(f'{x:g}' for x in config.block_solimp) + '"'
+  if config.block_margin:
+    out += f' margin="{config.block_margin:g}"'
+  return out
+
+
+def free_t_state(qpos, qvel):
+  """(qpos [..., 14], qvel [..., 13]) of the free T model for planar states qpos [..., 10],
+  qvel [..., 10]: the T resting on the table (centre at `T_HALF_HEIGHT`), yaw as a quaternion,
+  its planar velocity as the free joint's linear x, y and angular z velocity."""
+  qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+  yaw = qpos[..., 9]
+  zero = np.zeros_like(yaw)
+  t_qpos = np.stack([qpos[..., 7], qpos[..., 8], zero + T_HALF_HEIGHT, np.cos(yaw / 2), zero,
+                     zero, np.sin(yaw / 2)], -1)
+  t_qvel = np.stack([qvel[..., 7], qvel[..., 8], zero, zero, zero, qvel[..., 9]], -1)
+  return (np.concatenate([qpos[..., :7], t_qpos], -1),
+          np.concatenate([qvel[..., :7], t_qvel], -1))
+
+
+def planar_t_state(qpos, qvel):
+  """(qpos [..., 10], qvel [..., 10]) planar states of free T model states qpos [..., 14],
+  qvel [..., 13]: the T's x, y and yaw (about the world z axis) and their rates."""
+  qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+  w, x, y, z = (qpos[..., 10 + k] for k in range(4))
+  yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+  t_qpos = np.stack([qpos[..., 7], qpos[..., 8], yaw], -1)
+  t_qvel = np.stack([qvel[..., 7], qvel[..., 8], qvel[..., 12]], -1)
+  return (np.concatenate([qpos[..., :7], t_qpos], -1),
+          np.concatenate([qvel[..., :7], t_qvel], -1))
+
+
+MAX_T_TILT = np.pi / 6  # rad: a free T tilted further has tipped over (its edge is invalid)
+
+
+def t_pose(qpos: jax.Array) -> jax.Array:
+  """[..., 3] the T's planar pose (x, y (m), yaw (rad) about the world z axis) of node qpos
+  [..., 10] (planar T) or [..., 14] (free T: yaw of its quaternion)."""
+  qpos = jnp.asarray(qpos)
+  if qpos.shape[-1] == 10:
+    return qpos[..., 7:10]
+  w, x, y, z = (qpos[..., 10 + k] for k in range(4))
+  yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+  return jnp.stack([qpos[..., 7], qpos[..., 8], yaw], -1)
+
+
+def t_velocity(qvel: jax.Array) -> jax.Array:
+  """[..., 3] the T's planar velocity (m/s, m/s, rad/s) of node qvel [..., 10] or [..., 13]."""
+  qvel = jnp.asarray(qvel)
+  if qvel.shape[-1] == 10:
+    return qvel[..., 7:10]
+  return jnp.stack([qvel[..., 7], qvel[..., 8], qvel[..., 12]], -1)
+
+
+def t_tilt(qpos: jax.Array) -> jax.Array:
+  """[...] rad the free T's tilt from upright (0 for a planar T) of node qpos [..., nq]."""
+  qpos = jnp.asarray(qpos)
+  if qpos.shape[-1] == 10:
+    return jnp.zeros(qpos.shape[:-1], qpos.dtype)
+  s = jnp.sqrt(jnp.clip(qpos[..., 11] ** 2 + qpos[..., 12] ** 2, 0.0, 1.0))
+  return 2 * jnp.arcsin(s)
+
+
 def model_xml(config: PushTConfig) -> str:
   """MJCF of the PushT scene for a config (obstacles only for the 'obs' variant)."""
+  check_physics(config)
   g = 9.81
   fl_xy = config.table_friction * T_MASS * g
-  fl_yaw = fl_xy * 0.05  # effective radius of the contact patch (m)
+  fl_yaw = fl_xy * config.t_friction_radius  # effective radius of the contact patch (m)
+  free = config.t_body == 'free'
   bar, stem = coverage.T_BOXES
   t_geoms = ''.join(
       f'<geom name="t_{n}" type="box" size="{b[2]} {b[3]} {T_HALF_HEIGHT}" '
@@ -101,15 +234,30 @@ def model_xml(config: PushTConfig) -> str:
       for i, o in enumerate(obstacles))
   pairs = ['<pair geom1="stick" geom2="t_bar"/>', '<pair geom1="stick" geom2="t_stem"/>',
            '<pair geom1="stick" geom2="table"/>']
+  block = _block_pair_attributes(config)
   for i in range(len(obstacles)):
-    pairs += [f'<pair geom1="t_bar" geom2="obstacle{i}"/>',
-              f'<pair geom1="t_stem" geom2="obstacle{i}"/>',
-              f'<pair geom1="stick" geom2="obstacle{i}"/>']
+    pairs += [f'<pair geom1="t_bar" geom2="obstacle{i}"{block}/>',
+              f'<pair geom1="t_stem" geom2="obstacle{i}"{block}/>',
+              f'<pair geom1="stick" geom2="obstacle{i}"{block}/>']
+  if free:
+    mu = config.table_friction
+    pairs += [f'<pair geom1="t_{n}" geom2="table" condim="3" '
+              f'friction="{mu} {mu} 0.005 0.0001 0.0001"/>' for n in ('bar', 'stem')]
+    t_joints = '<freejoint name="t_free"/>'
+  else:
+    t_joints = (
+        f'<joint name="t_x" type="slide" axis="1 0 0" frictionloss="{fl_xy}" '
+        f'damping="{config.t_damping}"/>'
+        f'<joint name="t_y" type="slide" axis="0 1 0" frictionloss="{fl_xy}" '
+        f'damping="{config.t_damping}"/>'
+        f'<joint name="t_yaw" type="hinge" axis="0 0 1" frictionloss="{fl_yaw}" '
+        f'damping="{config.t_yaw_damping}"/>')
   gx, gy, gyaw = FIXED_GOAL
   return f"""
 <mujoco model="pusht-{config.variant}{'-' + layout.name if layout else ''}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{config.physics_dt}" gravity="0 0 0" integrator="implicitfast"
+  <option timestep="{config.physics_dt}" gravity="0 0 {-g if free else 0}"
+          integrator="implicitfast" solver="{config.solver}"
           iterations="{config.solver_iterations}" ls_iterations="{config.ls_iterations}"
           cone="pyramidal">
     <flag eulerdamp="disable"/>
@@ -122,12 +270,10 @@ def model_xml(config: PushTConfig) -> str:
           contype="0" conaffinity="0"/>
     <body name="goal" pos="{gx} {gy} 0.0005" euler="0 0 {gyaw}">{goal_geoms}</body>
     {obstacle_geoms}
-    {panda.arm_body_xml('stick', base_pos=BASE_POS)}
+    {panda.arm_body_xml('stick', base_pos=BASE_POS, gravcomp=1.0 if free else 0.0)}
     <body name="tblock" pos="0 0 {T_HALF_HEIGHT}">
       <inertial pos="0 0 0" mass="{T_MASS}" diaginertia="0.0025 0.0025 0.0045"/>
-      <joint name="t_x" type="slide" axis="1 0 0" frictionloss="{fl_xy}" damping="0.5"/>
-      <joint name="t_y" type="slide" axis="0 1 0" frictionloss="{fl_xy}" damping="0.5"/>
-      <joint name="t_yaw" type="hinge" axis="0 0 1" frictionloss="{fl_yaw}" damping="0.01"/>
+      {t_joints}
       {t_geoms}
     </body>
   </worldbody>
@@ -255,11 +401,11 @@ def site_reach(model: mujoco.MjModel, site: int) -> float:
 
 
 def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.ndarray,
-                    qpos: np.ndarray | None = None) -> np.ndarray:
+                    qpos: np.ndarray | None = None, max_step: float = 0.02) -> np.ndarray:
   """[7] float64 action in [-1, 1] moving the stick tip towards tip_goal [3] (m, world frame).
 
-  One damped least-squares step on the tip's Jacobian towards a point at most 2 cm away per
-  axis. With `qpos` [10], data's kinematics are computed there first; without, data must hold
+  One damped least-squares step on the tip's Jacobian towards a point at most max_step (m)
+  away per axis. With `qpos` [10], data's kinematics are computed there first; without, data must hold
   the kinematics of its own qpos (e.g. after mj_forward). A scripted pusher for demos and tests.
   """
   if qpos is not None:
@@ -270,7 +416,7 @@ def jacobian_action(model: mujoco.MjModel, data: mujoco.MjData, tip_goal: np.nda
   jac = np.zeros((3, model.nv))
   mujoco.mj_jacSite(model, data, jac, None, site)
   jac = jac[:, :panda.NUM_JOINTS]
-  dx = np.clip(tip_goal - data.site_xpos[site], -0.02, 0.02)
+  dx = np.clip(tip_goal - data.site_xpos[site], -max_step, max_step)
   dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(3), dx)
   return np.clip(dq / ARM_ACTION_SCALE, -1.0, 1.0)
 
@@ -281,7 +427,8 @@ def _wrap_angle(a: jax.Array) -> jax.Array:
 
 
 class PushTEnv(base.Env):
-  """PushT on MJX. qpos = [7 arm joints (rad), T x, T y (m), T yaw (rad)]; goal = [x, y, yaw].
+  """PushT on MJX. qpos = [7 arm joints (rad), T x, T y (m), T yaw (rad)] (a free T: [7 arm
+  joints, T x, y, z (m), quaternion w, x, y, z], qvel [13]); goal = [x, y, yaw].
 
   Action: [-1, 1]^7 scaled by ARM_ACTION_SCALE to a joint-position target offset from the
   current joint angles, held for `substeps` physics steps. Cost per step (= -reward):
@@ -294,6 +441,7 @@ class PushTEnv(base.Env):
   def __init__(self, config: PushTConfig = PushTConfig()):
     if config.variant not in ('fixed', 'rand', 'obs'):
       raise ValueError(f"PushT variant must be 'fixed', 'rand' or 'obs', got {config.variant!r}")
+    check_physics(config)
     self.layout = config_layout(config)
     self.config = config
     self.name = f'pusht-{config.variant}'
@@ -318,7 +466,7 @@ class PushTEnv(base.Env):
                                                  [self.mj_model.site_bodyid[self._tip_site]])
     self.obstacles = (self.layout.blocks_array() if self.layout is not None
                       else np.zeros((0, 5), np.float32))
-    home = np.concatenate([HOME_QPOS, np.zeros(3)])
+    home = np.concatenate([HOME_QPOS, np.zeros(self.mj_model.nq - len(HOME_QPOS))])
     self._home_qpos, self._arm_lower, self._arm_upper = jax.device_put(
         [np.asarray(x, np.float32) for x in (home, panda.JOINT_LOWER, panda.JOINT_UPPER)])
 
@@ -352,7 +500,12 @@ class PushTEnv(base.Env):
 
   def node_from_pose(self, t_pose: jax.Array, goal: jax.Array) -> base.NodeState:
     """A start node with the arm at home, T at t_pose [3] and goal [3]; no batch axis."""
-    qpos = self._home_qpos.at[7:].set(jnp.asarray(t_pose, jnp.float32))
+    t_pose = jnp.asarray(t_pose, jnp.float32)
+    if self.config.t_body == 'free':  # resting on the table, upright
+      half = t_pose[2] / 2
+      t_pose = jnp.stack([t_pose[0], t_pose[1], jnp.float32(T_HALF_HEIGHT), jnp.cos(half),
+                          jnp.float32(0), jnp.float32(0), jnp.sin(half)])
+    qpos = self._home_qpos.at[7:].set(t_pose)
     nv = self.mj_model.nv
     return base.NodeState(qpos=qpos, qvel=jnp.zeros(nv, jnp.float32),
                           ctrl=qpos[:7], qacc_warmstart=jnp.zeros(nv, jnp.float32),
@@ -386,7 +539,7 @@ class PushTEnv(base.Env):
       raise ValueError(f'num must be positive, got {num}')
     candidates = jax.jit(lambda key: self.initial_nodes(jax.random.split(key, 8 * num + 64)))
     nodes = jax.device_get(candidates(jax.random.PRNGKey(seed)))
-    ok = start_clear(nodes.qpos[:, 7:10], nodes.goal, self.obstacles,
+    ok = start_clear(np.asarray(t_pose(nodes.qpos)), nodes.goal, self.obstacles,
                      self.config.success_coverage)
     index = np.flatnonzero(ok)[:num]
     if len(index) < num:
@@ -435,7 +588,8 @@ class PushTEnv(base.Env):
     finite = base.finite_node(next_node)
     t_xy = next_node.qpos[7:9]
     on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(FIXED_GOAL[:2])) < TABLE_HALF_EXTENT)
-    is_valid = finite & action_ok & on_table
+    upright = t_tilt(next_node.qpos) < MAX_T_TILT
+    is_valid = finite & action_ok & on_table & upright
     # Keep invalid successors finite: they are dropped by the search and end an episode.
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)
@@ -455,7 +609,7 @@ class PushTEnv(base.Env):
 
   def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
     c = self.config
-    pose, goal = node.qpos[7:10], node.goal
+    pose, goal = t_pose(node.qpos), node.goal
     angle = jnp.abs(_wrap_angle(pose[2] - goal[2])) / jnp.pi
     position = jnp.linalg.norm(pose[:2] - goal[:2])
     reach = jnp.maximum(jnp.linalg.norm(tip_xy - pose[:2]) - 0.05, 0.0)
@@ -469,7 +623,7 @@ class PushTEnv(base.Env):
 
   def observation(self, node: base.NodeState) -> jax.Array:
     tip = self.tip_position(node)
-    pose, goal = node.qpos[7:10], node.goal
+    pose, goal = t_pose(node.qpos), node.goal
     c, s = jnp.cos(goal[2]), jnp.sin(goal[2])
     d = pose[:2] - goal[:2]
     rel = jnp.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])  # T in goal frame (m)
@@ -481,14 +635,14 @@ class PushTEnv(base.Env):
     return jnp.concatenate([
         arm_q, 0.1 * node.qvel[:7], tip, pose[:2], jnp.array([ct, st]), goal[:2],
         jnp.array([c, s]), rel, jnp.array([jnp.cos(dyaw), jnp.sin(dyaw)]), tip_in_t,
-        node.qvel[7:10]]).astype(jnp.float32)
+        t_velocity(node.qvel)]).astype(jnp.float32)
 
   def lattice_coords(self, node: base.NodeState, resolution: jax.Array) -> jax.Array:
-    pose = node.qpos[7:10]
+    pose = t_pose(node.qpos)
     tip = self.tip_position(node)
     yaw = pose[2] % (2 * jnp.pi)
     values = jnp.stack([pose[0], pose[1], yaw, tip[0], tip[1]])
     return jnp.floor(values / resolution).astype(jnp.int32)
 
   def goal_reached(self, node: base.NodeState) -> jax.Array:
-    return coverage.coverage(node.qpos[7:10], node.goal) >= self.config.success_coverage
+    return coverage.coverage(t_pose(node.qpos), node.goal) >= self.config.success_coverage
