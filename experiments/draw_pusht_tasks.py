@@ -20,7 +20,7 @@ from pachs_jax.envs import layouts, pusht, render
 
 def draw_instances(ax, env, title: str, legend: bool = True) -> None:
   nodes = env.canonical_instances(30)
-  poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
+  poses, goals = np.asarray(pusht.t_pose(nodes.qpos)), np.asarray(nodes.goal)
   for i, pose in enumerate(poses):
     ax.add_patch(Polygon(render.t_polygon(pose), closed=True, fc='tab:orange', ec='tab:red',
                          alpha=0.18, lw=0.6, label='start poses' if i == 0 else None))

@@ -21,6 +21,7 @@ import numpy as np
 
 import common
 from pachs_jax import planner, programs
+from pachs_jax.envs import pusht
 from pachs_jax.envs import coverage, layouts
 from pachs_jax.search import baselines as bl
 
@@ -40,7 +41,7 @@ def final_coverage(env, result) -> np.ndarray:
   """[I] coverage of the goal by the T at the path's last node."""
   last = np.asarray(result.path_length)
   rows = np.arange(len(last))
-  pose = np.asarray(result.path_nodes.qpos)[rows, np.minimum(last, env.episode_length), 7:10]
+  pose = np.asarray(pusht.t_pose(np.asarray(result.path_nodes.qpos)[rows, np.minimum(last, env.episode_length)]))
   goal = np.asarray(result.path_nodes.goal)[rows, 0]
   return np.asarray(coverage.coverage(pose, goal))
 

@@ -81,7 +81,7 @@ def tip_target(qpos: np.ndarray, tip: np.ndarray, goal: np.ndarray,
   error (a turning push); near the goal the bar's end is pushed sideways to turn it. The tip
   starts each push `GAP` behind the T's outline; it passes over the T lifted to `LIFT_Z`.
   """
-  pose = np.asarray(qpos[7:10], np.float64)
+  pose = np.asarray(pusht.t_pose(qpos), np.float64)
   goal = np.asarray(goal, np.float64)
   target = waypoint(pose[:2], goal[:2], obstacles)
   error = target - pose[:2]
@@ -134,7 +134,7 @@ def scripted_push(env, node, num_steps: int, progress: bool = False):
     nodes.append(jax.device_get(node))
     tips.append(np.asarray(tip_position(node)))
   nodes = jax.tree.map(lambda *x: np.stack(x), *nodes)
-  cov = np.asarray(coverage.coverage(nodes.qpos[:, 7:10], goal[None]))
+  cov = np.asarray(coverage.coverage(pusht.t_pose(nodes.qpos), goal[None]))
   return nodes, np.array(tips), cov, pushes
 
 
@@ -155,7 +155,7 @@ def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None
   start = time.perf_counter()
   nodes, tips, cov, pushes = scripted_push(env, node, num_steps, progress)
   elapsed = time.perf_counter() - start
-  poses = nodes.qpos[:, 7:10]
+  poses = pusht.t_pose(nodes.qpos)
   obstacles = np.asarray(env.obstacles).reshape(-1, 5)
   title = (f'{task} instance {instance}: scripted pusher, {num_steps} steps\n'
            f'final coverage {cov[-1]:.2f} (best {cov.max():.2f})')

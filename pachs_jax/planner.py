@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from pachs_jax import compile_cache, envs, programs, signals
-from pachs_jax.envs import mujoco_c, playground, registry
+from pachs_jax.envs import mujoco_c, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
 from pachs_jax.search.config import SearchConfig
@@ -303,7 +303,7 @@ def draw_result(env, result: SearchResult, instances: Sequence[int],
   nodes = jax.tree.map(lambda x: x[0, :length + 1], result.path_nodes)
   tips = np.asarray(jax.jit(jax.vmap(env.tip_position))(nodes))[:, :2]
   found = 'reached the goal' if bool(result.found[0]) else 'partial path'
-  render.save_pusht_figure(path, np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal[0]),
+  render.save_pusht_figure(path, np.asarray(pusht.t_pose(nodes.qpos)), np.asarray(nodes.goal[0]),
                            pusher_xy=tips, obstacles=env.obstacles if len(env.obstacles) else None,
                            every=max(1, length // 12),
                            title=f'{env.name} instance {instances[0]}: PACHS path of {length} '

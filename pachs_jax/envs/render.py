@@ -15,7 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
-from pachs_jax.envs import kinematics
+from pachs_jax.envs import kinematics, pusht
 from pachs_jax.envs.coverage import T_OUTLINE
 
 GOAL_COLOR = 'tab:green'
@@ -361,7 +361,7 @@ def _scene(env, states, title: str, size_px: int):
   goal = np.asarray(states.goal)[0]
   if env.name.startswith('pusht'):
     arms = arm_points(env.mj_model, qpos)
-    return _PushTScene(qpos[:, 7:10], goal, arms[:, -1, :2], arms[..., :2],
+    return _PushTScene(np.asarray(pusht.t_pose(qpos)), goal, arms[:, -1, :2], arms[..., :2],
                        np.asarray(env.obstacles).reshape(-1, 5), title, size_px)
   if env.name == 'shelf':
     return _ShelfScene(env.boxes, goal, arm_points(env.mj_model, qpos), title, size_px)
@@ -385,7 +385,7 @@ def plan_figure(env, states, title: str, size_px: int = 600) -> Figure:
     ax = fig.add_subplot(1, 1, 1)
     tips = arm_points(env.mj_model, qpos)[:, -1, :2]
     obstacles = np.asarray(env.obstacles).reshape(-1, 5)
-    draw_pusht(ax, qpos[:, 7:10], np.asarray(states.goal)[0], pusher_xy=tips,
+    draw_pusht(ax, np.asarray(pusht.t_pose(qpos)), np.asarray(states.goal)[0], pusher_xy=tips,
                obstacles=obstacles if len(obstacles) else None,
                every=max(1, (len(qpos) - 1) // 12))
     ax.set_title(title, fontsize='small')
