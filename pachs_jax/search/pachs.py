@@ -14,6 +14,7 @@ from flax import struct
 from pachs_jax.envs import base
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
+from pachs_jax.search import improve
 from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
@@ -37,6 +38,7 @@ class SearchState(phases.EdgeSearchState):
   chain: [I, R] int32 the node each rollout lane extends next (config.rollout_lanes R).
   visits: the nodes per coarse cell, where chains restart with chain_restart 'novel' (a pool
     of one node otherwise).
+  incumbent: the cheapest goal found, the first goal's counts, the evaluation limit.
   """
 
   edge_heap: heap_lib.Heap
@@ -44,6 +46,7 @@ class SearchState(phases.EdgeSearchState):
   rng: jax.Array
   chain: jax.Array
   visits: novelty.Visits
+  incumbent: improve.Incumbent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +119,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = edge_rule.steps, config.rollout_lanes
+  improving = config.after_goal == 'improve'
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -158,29 +162,35 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     q = cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
-  def next_chains(pool, visits, keys, tip, written, is_goal, found, goal):
+  def next_chains(pool, visits, incumbent, keys, tip, written, is_goal):
     """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
     of their own, not merged in the lattice): a chain goes on from its successor and restarts
-    (config.chain_restart) after an unusable edge or where its next edge would pass an
-    episode's length; a chain's goal (the cheapest, when several) ends the instance at once, as
-    a rollout's does."""
+    (config.chain_restart; after the first goal with after_goal 'improve', on the incumbent's
+    path) after an unusable edge, a goal, a g at the incumbent's cost or where its next edge
+    would pass an episode's length; found, goal: the chains' cheapest goal."""
     if not r:
-      return tip, found, goal
+      return tip, jnp.zeros(tip.shape[:1], bool), jnp.zeros(tip.shape[:1], jnp.int32)
     fits = lambda depth: depth + steps <= env.episode_length
-    go_on = written & fits(pool_lib.gather(pool.depth, tip))
-    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth)))
-    chain = chain.astype(jnp.int32)
+    tip_g = pool_lib.gather(pool.g, tip)
+    go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
+             & (tip_g < incumbent.cost[:, None]))
+    restarts = restart.choose(pool, visits, keys, fits(pool.depth))
+    if improving:
+      path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
+      restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
+          pool, incumbent, path_keys, fits(pool.depth), r), restarts)
+    chain = jnp.where(go_on, tip, restarts).astype(jnp.int32)
     at_goal = written & is_goal
-    cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
-    return (chain, found | jnp.any(at_goal, axis=1),
-            jnp.where(found, goal, tip[jnp.arange(tip.shape[0]), cheapest]))
+    cheapest = jnp.argmin(jnp.where(at_goal, tip_g, jnp.inf), axis=1)
+    return chain, jnp.any(at_goal, axis=1), tip[jnp.arange(tip.shape[0]), cheapest]
 
   def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
     limit = heap_lib.kth_key(state.edge_heap, k - r)
     dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
     fresh, found, goal = phases.goal_check(state.pool, popped, dummy)
-    working = state.active & ~found
+    incumbent = improve.offer(state.incumbent, state.pool, found, goal)
+    working = state.active if improving else state.active & ~found
     expanding = fresh & working[:, None]
     pool, new_edges = expand(state, popped, expanding)
     edge_heap = heap_lib.push(state.edge_heap, *new_edges)
@@ -195,10 +205,12 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
+    if improving:  # prune the edges from nodes that cost as much as the incumbent
+      mask = mask & (pool_lib.gather(pool.g, parent) < incumbent.cost[:, None])
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
         edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
-        config.max_evaluations, size, steps)
+        incumbent.limit, size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
@@ -208,16 +220,23 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
         unmerged=chain_lane if r else None)
     new = write & (node >= size)  # not an open node whose g improved
     visits = restart.record(state.visits, node, new, cells)
-    chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
+    chain, found, goal = next_chains(pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
                                      node[:, k - r:], write[:, k - r:],
-                                     outcome.is_goal[:, k - r:], found, goal)
+                                     outcome.is_goal[:, k - r:])
+    incumbent = improve.offer(incumbent, pool, found, goal)
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
-    return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
+    evaluated = state.evaluated + phases.count(within) * steps
+    incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
+                               config.improve_allowance, config.max_evaluations)
+    done = incumbent.found & (~improving | (evaluated >= incumbent.limit) | out_of_budget
+                              | open_empty | (overflow > 0)
+                              | (state.iterations + 1 >= config.iteration_limit))
+    return phases.finish(state, done, incumbent.node, open_empty, out_of_budget, overflow,
                          config.iteration_limit, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
-                         chain=chain, visits=visits)
+                         chain=chain, visits=visits, incumbent=incumbent)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
@@ -230,6 +249,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
                        visits=restart.visits(start_cells),
+                       incumbent=improve.init(num_instances, config.max_evaluations),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, size: Optional[int] = None,
@@ -264,7 +284,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     value, in_open = jnp.where(has, chosen, value), has | in_open
     return path_lib.search_result(state, value, in_open, slots, k * steps,
                                   state.edge_heap.overflow + state.dummy_heap.overflow,
-                                  config.max_path_length)
+                                  config.max_path_length, state.incumbent)
 
   return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='size', donate_argnums=0),
                 lane_sizes=lane_sizes, run=jax.jit(run), result=jax.jit(result), config=config)
