@@ -5,6 +5,8 @@ re-simulation; docs/search_loop.md)."""
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -52,13 +54,20 @@ def offer(incumbent: Incumbent, pool: pool_lib.NodePool, found: jax.Array,
                            cost=jnp.where(better, cost, incumbent.cost))
 
 
+def cheapest(pool: pool_lib.NodePool, node: jax.Array, at_goal: jax.Array):
+  """(found [I], goal [I]): the cheapest of the goal nodes node [I, K] where at_goal [I, K]."""
+  best = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, node), jnp.inf), axis=1)
+  return jnp.any(at_goal, axis=1), jnp.take_along_axis(node, best[:, None], axis=1)[:, 0]
+
+
 def settle(incumbent: Incumbent, evaluated: jax.Array, iterations: jax.Array,
            allowance: float, budget: int) -> Incumbent:
   """incumbent with the first goal recorded where it was found this iteration (evaluated,
   iterations [I]: the counts after it) and the limit set to the first goal's evaluations times
   1 + allowance, at most the budget (allowance inf: the budget)."""
   first = incumbent.found & (incumbent.first_evaluated < 0)
-  extra = jnp.minimum(evaluated.astype(jnp.float32) * (1.0 + allowance), float(budget))
+  extra = (jnp.full(evaluated.shape, float(budget)) if math.isinf(allowance) else
+           jnp.minimum(evaluated.astype(jnp.float32) * (1.0 + allowance), float(budget)))
   return incumbent.replace(
       first_evaluated=jnp.where(first, evaluated, incumbent.first_evaluated),
       first_iterations=jnp.where(first, iterations, incumbent.first_iterations),

@@ -163,13 +163,13 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
   def next_chains(pool, visits, incumbent, keys, tip, written, is_goal):
-    """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
-    of their own, not merged in the lattice): a chain goes on from its successor and restarts
-    (config.chain_restart; after the first goal with after_goal 'improve', on the incumbent's
-    path) after an unusable edge, a goal, a g at the incumbent's cost or where its next edge
-    would pass an episode's length; found, goal: the chains' cheapest goal."""
+    """[I, R] the nodes the chains extend next, after the rollout lanes' successors tip [I, R]
+    (nodes of their own, not merged in the lattice): a chain goes on from its successor and
+    restarts (config.chain_restart; after the first goal with after_goal 'improve', on the
+    incumbent's path) after an unusable edge, a goal, a g at the incumbent's cost or where its
+    next edge would pass an episode's length."""
     if not r:
-      return tip, jnp.zeros(tip.shape[:1], bool), jnp.zeros(tip.shape[:1], jnp.int32)
+      return tip
     fits = lambda depth: depth + steps <= env.episode_length
     tip_g = pool_lib.gather(pool.g, tip)
     go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
@@ -179,10 +179,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
       path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
       restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
           pool, incumbent, path_keys, fits(pool.depth), r), restarts)
-    chain = jnp.where(go_on, tip, restarts).astype(jnp.int32)
-    at_goal = written & is_goal
-    cheapest = jnp.argmin(jnp.where(at_goal, tip_g, jnp.inf), axis=1)
-    return chain, jnp.any(at_goal, axis=1), tip[jnp.arange(tip.shape[0]), cheapest]
+    return jnp.where(go_on, tip, restarts).astype(jnp.int32)
 
   def step(state: SearchState, size: Optional[int]) -> SearchState:
     # expansion: the dummy edges up to the K-th real-edge key, one network batch
@@ -220,10 +217,11 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
         unmerged=chain_lane if r else None)
     new = write & (node >= size)  # not an open node whose g improved
     visits = restart.record(state.visits, node, new, cells)
-    chain, found, goal = next_chains(pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
-                                     node[:, k - r:], write[:, k - r:],
-                                     outcome.is_goal[:, k - r:])
-    incumbent = improve.offer(incumbent, pool, found, goal)
+    chain = next_chains(pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
+                        node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:])
+    # goals at generation: the chains' (as a rollout's), after the first goal every lane's
+    incumbent = improve.offer(incumbent, pool, *improve.cheapest(
+        pool, node, write & outcome.is_goal & (chain_lane | improving)))
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
