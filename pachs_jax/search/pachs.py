@@ -119,7 +119,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = edge_rule.steps, config.rollout_lanes
-  improving = config.after_goal == 'improve'
+  improving = config.after_goal in ('improve', 'prune')  # TEMP 'prune': measured, then removed
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -175,7 +175,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
              & (tip_g < incumbent.cost[:, None]))
     restarts = restart.choose(pool, visits, keys, fits(pool.depth))
-    if improving:
+    if config.after_goal == 'improve':
       path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
       restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
           pool, incumbent, path_keys, fits(pool.depth), r), restarts)
@@ -228,9 +228,10 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     evaluated = state.evaluated + phases.count(within) * steps
     incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
                                config.improve_allowance, config.max_evaluations)
-    done = incumbent.found & (~improving | (evaluated >= incumbent.limit) | out_of_budget
-                              | open_empty | (overflow > 0)
-                              | (state.iterations + 1 >= config.iteration_limit))
+    done = incumbent.found  # the first goal, or (improving) the end of the allowance
+    if improving:
+      done = done & ((evaluated >= incumbent.limit) | out_of_budget | open_empty | (overflow > 0)
+                     | (state.iterations + 1 >= config.iteration_limit))
     return phases.finish(state, done, incumbent.node, open_empty, out_of_budget, overflow,
                          config.iteration_limit, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
