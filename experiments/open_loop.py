@@ -25,7 +25,7 @@ from pachs_jax.search.result import StopReason
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
 # PACHS with the first goal ending the search, or with an improvement phase after it
 # (SearchConfig.after_goal; the planner 'pachs' follows --after-goal or the task's default)
-AFTER_GOAL_PLANNERS = {'pachs-stop': 'stop', 'pachs-improve': 'improve', 'pachs-prune': 'prune'}
+AFTER_GOAL_PLANNERS = {'pachs-stop': 'stop', 'pachs-improve': 'improve'}
 SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
 # The original's open-loop success rates where it states them (quoted in the README).
 ORIGINAL = {

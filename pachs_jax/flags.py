@@ -10,7 +10,7 @@ from pachs_jax import argtypes
 
 REALTIME_ANSWERS = ('best_f', 'min_h', 'min_cost')  # SearchConfig.realtime_answer
 CHAIN_RESTARTS = ('start', 'novel')  # SearchConfig.chain_restart
-AFTER_GOALS = ('stop', 'improve', 'prune')  # SearchConfig.after_goal
+AFTER_GOALS = ('stop', 'improve')  # SearchConfig.after_goal
 
 # SearchConfig field -> (flags, add_argument keywords); every default None: the task's
 SEARCH_FLAGS: Dict[str, tuple] = {

@@ -144,3 +144,22 @@ def test_draw_never_picks_weight_zero():
 def test_after_goal_validation(changes, match):
   with pytest.raises(ValueError, match=match):
     SearchConfig(**changes)
+
+
+def test_open_loop_rows_report_the_first_goal_and_the_curve_counts_from_it(runs):
+  import os
+  import sys
+  sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
+  import open_loop  # pylint: disable=import-outside-toplevel
+  result = runs['improve'][3].replace(wall_time_s=jnp.float32(10.0))
+  rows = open_loop.run_rows(result, 1, len(STARTS))
+  r = jax.tree.map(np.asarray, result)
+  assert [row['first_goal_evaluated'] for row in rows] == r.first_goal_evaluated.tolist()
+  assert [row['evaluated'] for row in rows] == r.evaluated.tolist()
+  np.testing.assert_allclose([row['first_goal_cost'] for row in rows], r.first_goal_cost)
+  curve_rows = open_loop.first_goal_rows(rows)
+  assert [row['evaluated'] for row in curve_rows] == r.first_goal_evaluated.tolist()
+  # a planner whose first goal is its answer (no first-goal fields): its own counts
+  plain = open_loop.run_rows(result.replace(first_goal_evaluated=None, first_goal_iterations=None,
+                                            first_goal_cost=None), 1, len(STARTS))
+  assert [row['first_goal_evaluated'] for row in plain] == r.evaluated.tolist()

@@ -119,7 +119,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   w, k, n = float(config.weight), config.pop_size, config.num_actions
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = edge_rule.steps, config.rollout_lanes
-  improving = config.after_goal in ('improve', 'prune')  # TEMP 'prune': measured, then removed
+  improving = config.after_goal == 'improve'
   lane_sizes = lambda num_instances: compact.batch_sizes(num_instances * k,
                                                         config.compact_fractions, minimum=k)
 
@@ -175,7 +175,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
              & (tip_g < incumbent.cost[:, None]))
     restarts = restart.choose(pool, visits, keys, fits(pool.depth))
-    if config.after_goal == 'improve':
+    if improving:
       path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
       restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
           pool, incumbent, path_keys, fits(pool.depth), r), restarts)
