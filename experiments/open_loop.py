@@ -23,6 +23,9 @@ from pachs_jax.search import pachs
 from pachs_jax.search.result import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
+# PACHS with the first goal ending the search, or with an improvement phase after it
+# (SearchConfig.after_goal; the planner 'pachs' follows --after-goal or the task's default)
+AFTER_GOAL_PLANNERS = {'pachs-stop': 'stop', 'pachs-improve': 'improve'}
 SHELF_PLANNERS = ('pachs', 'epase', 'parallel', 'beam')
 # The original's open-loop success rates where it states them (quoted in the README).
 ORIGINAL = {
@@ -47,11 +50,13 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
   its devices (no time limit then).
   """
   budget = args.budget
-  if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
-    settings = planner.accelerator_settings(jax.default_backend() == 'cpu')
-    settings.update({k: v for k, v in flags.search_overrides(args).items() if v is not None})
+  if name in ('pachs', 'pachs-original') or name in AFTER_GOAL_PLANNERS:
+    # the default PACHS, the published algorithm, or the default with after_goal set
+    overrides = planner.accelerator_settings(jax.default_backend() == 'cpu')
+    overrides.update({k: v for k, v in flags.search_overrides(args).items() if v is not None})
+    overrides['after_goal'] = AFTER_GOAL_PLANNERS.get(name, overrides.get('after_goal'))
     config = planner.default_config(task, 'original' if name == 'pachs-original' else 'pachs',
-                                    max_evaluations=budget, **settings)
+                                    max_evaluations=budget, **overrides)
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
@@ -91,13 +96,23 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
 
 def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
   """Per-run rows; a run's time is estimated as the call's wall time x its iterations / the
-  call's largest iteration count (the runs finish at different iterations of one loop)."""
+  call's largest iteration count (the runs finish at different iterations of one loop). The
+  first goal's evaluations, time and cost are the returned path's for a planner whose first
+  goal ends its search."""
   r = jax.tree.map(np.asarray, result)
   wall = float(r.wall_time_s)
   most = max(int(r.iterations.max()), 1)
+  first = r.first_goal_evaluated is not None
   rows = []
   for j in range(len(r.found)):
+    found = bool(r.found[j])
+    first_evaluated = int(r.first_goal_evaluated[j]) if first else int(r.evaluated[j])
+    first_iterations = int(r.first_goal_iterations[j]) if first else int(r.iterations[j])
+    first_cost = float(r.first_goal_cost[j]) if first else float(r.cost[j])
     rows.append({
+        'first_goal_evaluated': first_evaluated if found else None,
+        'first_goal_time_s_est': wall * first_iterations / most if found else None,
+        'first_goal_cost': first_cost if found else None,
         'instance': j % num_instances, 'round': j // num_instances, 'found': bool(r.found[j]),
         'cost': float(r.cost[j]), 'path_length': int(r.path_length[j]),
         'evaluated': int(r.evaluated[j]), 'expanded': int(r.expanded[j]),
@@ -105,6 +120,12 @@ def run_rows(result, rounds: int, num_instances: int) -> List[Dict]:
         'time_s_est': wall * int(r.iterations[j]) / most,
         'overflow': int(r.heap_overflow[j] + r.pool_overflow[j] + r.table_overflow[j])})
   return rows
+
+
+def first_goal_rows(rows: List[Dict]) -> List[Dict]:
+  """rows with evaluated = the evaluations to the first goal where one was found (a run's
+  success against the budget: with a smaller budget it returns its first goal's path)."""
+  return [dict(r, evaluated=r['first_goal_evaluated']) if r['found'] else r for r in rows]
 
 
 def summarise(name: str, rows: List[Dict], wall: float, compile_s: float) -> Dict:
@@ -123,6 +144,10 @@ def summarise(name: str, rows: List[Dict], wall: float, compile_s: float) -> Dic
       'instance_ci95_high': boot_high, 'batch_wall_s': wall, 'compile_s': compile_s,
       'time_s_success_mean': mean([r['time_s_est'] for r in ok]),
       'cost_success_mean': mean([r['cost'] for r in ok]),
+      'first_goal_cost_mean': mean([r['first_goal_cost'] for r in ok]),
+      'first_goal_evaluated_mean': mean([r['first_goal_evaluated'] for r in ok]),
+      'evaluated_success_mean': mean([r['evaluated'] for r in ok]),
+      'first_goal_time_s_mean': mean([r['first_goal_time_s_est'] for r in ok]),
       'evaluated_mean': mean([r['evaluated'] for r in rows]),
       'expanded_mean': mean([r['expanded'] for r in rows]),
       'evaluated_per_expanded': (sum(r['evaluated'] for r in rows)
@@ -185,8 +210,14 @@ def write_markdown(task: str, payload: Dict, path: str) -> None:
                'independent.\n')
   lines.append(common.markdown_table(rows, [
       'planner', 'success', 'wilson_runs', 'original', 'batch_wall_s', 'time_s_success_mean',
-      'cost_success_mean', 'evaluated_mean', 'expanded_mean', 'evaluated_per_expanded',
-      'edges_per_s', 'overflow_runs', 'within_time_limit', 'compile_s']))
+      'first_goal_time_s_mean', 'cost_success_mean', 'first_goal_cost_mean',
+      'evaluated_success_mean', 'first_goal_evaluated_mean', 'evaluated_mean', 'expanded_mean',
+      'evaluated_per_expanded', 'edges_per_s', 'overflow_runs', 'within_time_limit',
+      'compile_s']))
+  lines.append('\nSolved runs: time_s_success_mean, cost_success_mean and evaluated_success_mean '
+               "are the returned path's (evaluations and time to the search's end), first_goal_* "
+               "the first goal's (the same for a planner that stops at its first goal); the "
+               'success curve counts a run as solved from its first goal on.\n')
   if 'cost_ratios' in payload:
     names = list(payload['cost_ratios'])
     lines.append('\nPairwise cost ratios (row / column, mean over targets both solved; runs):\n')
@@ -213,7 +244,7 @@ def main():
                       help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
   flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
                                  'rollout_share', 'chain_restart', 'compact_fractions',
-                                 'widen_factors'])
+                                 'widen_factors', 'after_goal', 'improve_allowance'])
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
@@ -246,6 +277,12 @@ def main():
   mesh = sharding.instance_mesh(jax.devices()[:args.devices]) if args.devices > 1 else None
   names = (args.planners.split(',') if args.planners
            else list(SHELF_PLANNERS if shelf else PUSHT_PLANNERS))
+  unknown = [n for n in names if n not in PUSHT_PLANNERS + SHELF_PLANNERS
+             + tuple(AFTER_GOAL_PLANNERS)]
+  if unknown:
+    parser.error(f'unknown planner(s) {", ".join(unknown)}; valid: '
+                 f'{", ".join(PUSHT_PLANNERS + tuple(AFTER_GOAL_PLANNERS))} (PushT), '
+                 f'{", ".join(SHELF_PLANNERS)} (shelf)')
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/open_loop_{label}.json'
 
@@ -279,7 +316,7 @@ def main():
     print(summary, flush=True)
     payload['summary'].append(summary)
     payload['runs'][name] = rows
-    payload['success_curve'][name] = stats.success_curve(rows, budgets)
+    payload['success_curve'][name] = stats.success_curve(first_goal_rows(rows), budgets)
     payload['cost_ratios'] = stats.cost_ratios(payload['runs'])
     common.write_json(out, payload)
     write_markdown(args.task, payload, os.path.splitext(out)[0] + '.md')

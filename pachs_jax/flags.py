@@ -10,6 +10,7 @@ from pachs_jax import argtypes
 
 REALTIME_ANSWERS = ('best_f', 'min_h', 'min_cost')  # SearchConfig.realtime_answer
 CHAIN_RESTARTS = ('start', 'novel')  # SearchConfig.chain_restart
+AFTER_GOALS = ('stop', 'improve')  # SearchConfig.after_goal
 
 # SearchConfig field -> (flags, add_argument keywords); every default None: the task's
 SEARCH_FLAGS: Dict[str, tuple] = {
@@ -24,6 +25,13 @@ SEARCH_FLAGS: Dict[str, tuple] = {
     'chain_restart': (('--chain-restart',), dict(
         choices=CHAIN_RESTARTS, help="where a chain of the actor's edges restarts: the start, "
         "or a node of a rarely visited coarse cell (default: the task's)")),
+    'after_goal': (('--after-goal',), dict(
+        choices=AFTER_GOALS, help="what the first goal does: stop the search, or improve the "
+        "path with the evaluations that remain (default: the task's)")),
+    'improve_allowance': (('--improve-allowance',), dict(
+        type=float, help="with --after-goal improve, the evaluations spent after the first "
+        "goal as a multiple of those spent up to it ('inf': until the budget ends; default: "
+        "the task's)")),
     'lattice_resolution': (('--lattice-resolution',), dict(
         type=lambda s: argtypes.numbers(s, 'cell sizes'),
         help='lattice cell sizes, comma separated')),

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pachs_jax.flags import CHAIN_RESTARTS, REALTIME_ANSWERS
+from pachs_jax.flags import AFTER_GOALS, CHAIN_RESTARTS, REALTIME_ANSWERS
 
 
 def plain_number(value):
@@ -138,6 +138,12 @@ class SearchConfig(EdgeSearchConfig):
     of the actor) or 'novel' (a generated node drawn with weight 1 / the nodes in its coarse
     cell, `rules.restart_novel`; nodes whose next edge would pass an episode's length are left
     out); no effect without rollout lanes.
+  after_goal: what the first goal does: 'stop' (it ends the instance, the original's) or
+    'improve' (`improve`: the instance goes on, its chains restarting on the cheapest goal's
+    path and edges from nodes that cost as much as that goal pruned, and returns the cheapest
+    goal found).
+  improve_allowance: with 'improve', the evaluations spent after the first goal, as a multiple
+    of those spent up to it (inf: until the budget ends).
   """
 
   num_actions: int = 16
@@ -147,6 +153,8 @@ class SearchConfig(EdgeSearchConfig):
   edge_steps: int = 1
   rollout_share: float = 0.0
   chain_restart: str = 'start'
+  after_goal: str = 'stop'
+  improve_allowance: float = math.inf
 
   def __post_init__(self):
     super().__post_init__()
@@ -162,6 +170,15 @@ class SearchConfig(EdgeSearchConfig):
     if self.edge_steps > self.max_evaluations:
       raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds max_evaluations '
                        f'({self.max_evaluations}): no edge would fit the budget')
+    if self.after_goal not in AFTER_GOALS:
+      raise ValueError(f'SearchConfig.after_goal must be one of {AFTER_GOALS}, got '
+                       f'{self.after_goal!r}')
+    allowance = self.improve_allowance
+    if (isinstance(allowance, bool) or not isinstance(allowance, (int, float))
+        or math.isnan(allowance) or allowance < 0):
+      raise ValueError('SearchConfig.improve_allowance must be a number >= 0 (inf: the whole '
+                       f'budget), got {allowance!r}')
+    object.__setattr__(self, 'improve_allowance', float(allowance))
     if self.realtime_answer not in REALTIME_ANSWERS:
       raise ValueError(f'SearchConfig.realtime_answer must be one of {REALTIME_ANSWERS}, got '
                        f'{self.realtime_answer!r}')

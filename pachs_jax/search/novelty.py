@@ -54,18 +54,25 @@ def add(visits: Visits, node: jax.Array, new: jax.Array, cell: jax.Array) -> Vis
 
 def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> jax.Array:
   """[I, num] int32 pool nodes drawn with replacement among eligible [I, P] nodes, each with
-  weight about 1 / nodes_per_cell[its cell] (integer weights, so that the draw is exact and
-  never picks a node of weight 0); keys [I, 2]. An instance with no eligible node draws node
-  0."""
+  weight about 1 / nodes_per_cell[its cell] (`draw`); keys [I, 2]. An instance with no
+  eligible node draws node 0."""
   pool_size = eligible.shape[1]
   scale = (2**31 - 1) // pool_size  # the weights of a pool sum below 2**31
   in_cell = jnp.take_along_axis(visits.nodes_per_cell, jnp.maximum(visits.node_cell, 0), axis=1)
   weight = jnp.where(eligible & (visits.node_cell != NO_CELL),
                      scale // jnp.maximum(in_cell, 1), 0)
+  return draw(weight, keys, num)
+
+
+def draw(weight: jax.Array, keys: jax.Array, num: int) -> jax.Array:
+  """[I, num] int32 indices drawn with replacement with integer weights weight [I, P] >= 0
+  (summing below 2**31, so that the draw is exact and never picks an index of weight 0); keys
+  [I, 2]. An instance whose weights are all 0 draws index 0."""
+  pool_size = weight.shape[1]
   cdf = jnp.cumsum(weight, axis=1, dtype=jnp.int32)
   total = cdf[:, -1]
   u = jax.vmap(lambda key, t: jax.random.randint(key, (num,), 0, jnp.maximum(t, 1)))(keys, total)
   index = jax.vmap(lambda c, x: jnp.searchsorted(c, x, side='right'))(cdf, u)
   index = jnp.minimum(index, pool_size - 1)
-  drawn = jnp.take_along_axis(eligible, index, axis=1) & (total[:, None] > 0)
+  drawn = (jnp.take_along_axis(weight, index, axis=1) > 0) & (total[:, None] > 0)
   return jnp.where(drawn, index, 0).astype(jnp.int32)

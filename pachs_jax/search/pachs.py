@@ -15,6 +15,7 @@ from pachs_jax.envs import base
 from pachs_jax.search import capacity as capacity_lib
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
+from pachs_jax.search import improve
 from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
@@ -41,6 +42,7 @@ class SearchState(phases.EdgeSearchState):
     of one node otherwise).
   lanes_offered: [I] int32 the edges the iterations so far could have evaluated (K each, m K
     when widened).
+  incumbent: the cheapest goal found, the first goal's counts, the evaluation limit.
   """
 
   edge_heap: heap_lib.Heap
@@ -49,6 +51,7 @@ class SearchState(phases.EdgeSearchState):
   chain: jax.Array
   visits: novelty.Visits
   lanes_offered: jax.Array
+  incumbent: improve.Incumbent
 
 
 class Lanes(NamedTuple):
@@ -156,6 +159,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
   steps, r = edge_rule.steps, config.rollout_lanes
   widest = max(config.widen_factors, default=1)
+  improving = config.after_goal == 'improve'
 
   def lattice_cells(nodes):
     """[I, K, L] int32 lattice keys of nodes [I, K]."""
@@ -197,22 +201,24 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     q = cost_to_go(actor_critic.q_values(obs, actions[:, None]))
     return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
 
-  def next_chains(pool, visits, keys, tip, written, is_goal, found, goal, r):
-    """(chain [I, R], found [I], goal [I]) after the rollout lanes' successors tip [I, R] (nodes
-    of their own, not merged in the lattice): a chain goes on from its successor and restarts
-    (config.chain_restart) after an unusable edge or where its next edge would pass an
-    episode's length; a chain's goal (the cheapest, when several) ends the instance at once, as
-    a rollout's does."""
+  def next_chains(pool, visits, incumbent, keys, tip, written, is_goal, r):
+    """[I, R] the nodes the chains extend next, after the rollout lanes' successors tip [I, R]
+    (nodes of their own, not merged in the lattice): a chain goes on from its successor and
+    restarts (config.chain_restart; after the first goal with after_goal 'improve', on the
+    incumbent's path) after an unusable edge, a goal, a g at the incumbent's cost or where its
+    next edge would pass an episode's length."""
     if not r:
-      return tip, found, goal
+      return tip
     fits = lambda depth: depth + steps <= env.episode_length
-    go_on = written & fits(pool_lib.gather(pool.depth, tip))
-    chain = jnp.where(go_on, tip, restart.choose(pool, visits, keys, fits(pool.depth), r))
-    chain = chain.astype(jnp.int32)
-    at_goal = written & is_goal
-    cheapest = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, tip), jnp.inf), axis=1)
-    return (chain, found | jnp.any(at_goal, axis=1),
-            jnp.where(found, goal, tip[jnp.arange(tip.shape[0]), cheapest]))
+    tip_g = pool_lib.gather(pool.g, tip)
+    go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
+             & (tip_g < incumbent.cost[:, None]))
+    restarts = restart.choose(pool, visits, keys, fits(pool.depth), r)
+    if improving:
+      path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
+      restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
+          pool, incumbent, path_keys, fits(pool.depth), r), restarts)
+    return jnp.where(go_on, tip, restarts).astype(jnp.int32)
 
   def step(state: SearchState, lanes: Lanes) -> SearchState:
     k, r = lanes.widen * config.pop_size, lanes.widen * config.rollout_lanes
@@ -220,7 +226,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     limit = heap_lib.kth_key(state.edge_heap, k - r)
     dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
     fresh, found, goal = phases.goal_check(state.pool, popped, dummy)
-    working = state.active & ~found
+    incumbent = improve.offer(state.incumbent, state.pool, found, goal)
+    working = state.active if improving else state.active & ~found
     expanding = fresh & working[:, None]
     pool, new_edges = expand(state, popped, expanding)
     edge_heap = heap_lib.push(state.edge_heap, *new_edges)
@@ -235,10 +242,12 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
       parent, action, q = (jnp.concatenate(x, axis=1) for x in
                            ((parent, tips), (action, tip_action), (q, tip_q)))
       mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
+    if improving:  # prune the edges from nodes that cost as much as the incumbent
+      mask = mask & (pool_lib.gather(pool.g, parent) < incumbent.cost[:, None])
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
         edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
-        config.max_evaluations, lanes.size, steps)
+        incumbent.limit, lanes.size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
@@ -248,17 +257,26 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
         unmerged=chain_lane if r else None)
     new = write & (node >= size)  # not an open node whose g improved
     visits = restart.record(state.visits, node, new, cells)
-    chain, found, goal = next_chains(pool, visits, lane_keys(state, 3, 1)[:, 0],
-                                     node[:, k - r:], write[:, k - r:],
-                                     outcome.is_goal[:, k - r:], found, goal, r)
+    chain = next_chains(pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
+                        node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:], r)
+    # goals at generation: the chains' (as a rollout's), after the first goal every lane's
+    incumbent = improve.offer(incumbent, pool, *improve.cheapest(
+        pool, node, write & outcome.is_goal & (chain_lane | improving)))
     dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
     overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
-    return phases.finish(state, found, goal, open_empty, out_of_budget, overflow,
+    evaluated = state.evaluated + phases.count(within) * steps
+    incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
+                               config.improve_allowance, config.max_evaluations)
+    done = incumbent.found  # the first goal, or (improving) the end of the allowance
+    if improving:
+      done = done & ((evaluated >= incumbent.limit) | out_of_budget | open_empty | (overflow > 0)
+                     | (state.iterations + 1 >= sizes.iterations))
+    return phases.finish(state, done, incumbent.node, open_empty, out_of_budget, overflow,
                          sizes.iterations, expanding, within, usable, steps,
                          edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
                          chain=state.chain.at[:, :r].set(chain), visits=visits,
-                         lanes_offered=state.lanes_offered + k * state.active)
+                         incumbent=incumbent, lanes_offered=state.lanes_offered + k * state.active)
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
@@ -272,6 +290,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                        chain=jnp.zeros((num_instances, r * widest), jnp.int32),
                        visits=restart.visits(start_cells, sizes.pool),
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
+                       incumbent=improve.init(num_instances, config.max_evaluations),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, lanes: Optional[Lanes] = None,
@@ -309,7 +328,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     value, in_open = jnp.where(has, chosen, value), has | in_open
     out = path_lib.search_result(state, value, in_open, slots, k * steps,
                                  state.edge_heap.overflow + state.dummy_heap.overflow,
-                                 sizes.path)
+                                 sizes.path, state.incumbent)
     offered = state.lanes_offered * steps
     return out.replace(lane_utilization=jnp.where(
         offered > 0, state.evaluated / jnp.maximum(offered, 1), 0.0).astype(jnp.float32))

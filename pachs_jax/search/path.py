@@ -99,7 +99,7 @@ def min_cost_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax
 
 
 def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,
-                  heap_overflow: jax.Array, max_len: int) -> SearchResult:
+                  heap_overflow: jax.Array, max_len: int, incumbent=None) -> SearchResult:
   """The SearchResult [I] of an edge search whose state has pool, table, stop_reason,
   goal_node, expanded, evaluated, invalid and iterations ([I] each).
 
@@ -107,14 +107,23 @@ def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, 
   an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's,
   `min_h_answer`'s or `min_cost_answer`'s),
   or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
-  pop_size evaluations per iteration (K edges times their transitions).
+  pop_size evaluations per iteration (K edges times their transitions). incumbent: the
+  search's `improve.Incumbent` (None: the first goal ends a search): an instance stopped by
+  another rule (a time limit) answers with its incumbent goal.
   """
   pool = state.pool
   found = state.stop_reason == StopReason.GOAL
+  goal_node = state.goal_node
+  first = {}
+  if incumbent is not None:
+    found, goal_node = found | incumbent.found, jnp.where(found, goal_node, incumbent.node)
+    first = dict(first_goal_evaluated=incumbent.first_evaluated,
+                 first_goal_iterations=incumbent.first_iterations,
+                 first_goal_cost=incumbent.first_cost)
   exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
   best = jnp.where(in_open, best_value // slots,
                    jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
-  final = jnp.where(found, state.goal_node, best).astype(jnp.int32)
+  final = jnp.where(found, goal_node, best).astype(jnp.int32)
   path = extract(pool, final, max_len)
   rows = jnp.arange(final.shape[0])
   lanes = pop_size * state.iterations
@@ -127,4 +136,4 @@ def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, 
       lane_utilization=jnp.where(lanes > 0, state.evaluated / jnp.maximum(lanes, 1),
                                  0.0).astype(jnp.float32),
       heap_overflow=heap_overflow, pool_overflow=pool.overflow,
-      table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan))
+      table_overflow=state.table.overflow, wall_time_s=jnp.float32(jnp.nan), **first)

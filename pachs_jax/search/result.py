@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Optional
+
 import jax
 from flax import struct
 
@@ -52,6 +54,10 @@ class SearchResult:
   heap_overflow, pool_overflow, table_overflow: [I] int32 entries dropped for lack of space.
   wall_time_s: [] float32 host wall-clock seconds of the planning call without compilation
     (set by `plan`; NaN from `Search.result`).
+  first_goal_evaluated, first_goal_iterations: [I] int32 the evaluations and iterations when
+    the first goal was found (-1: none); first_goal_cost: [I] float32 that goal's path cost
+    (inf: none). None from a planner whose first goal is its answer (evaluated, iterations and
+    cost say it).
   """
 
   found: jax.Array
@@ -72,3 +78,6 @@ class SearchResult:
   pool_overflow: jax.Array
   table_overflow: jax.Array
   wall_time_s: jax.Array
+  first_goal_evaluated: Optional[jax.Array] = None
+  first_goal_iterations: Optional[jax.Array] = None
+  first_goal_cost: Optional[jax.Array] = None

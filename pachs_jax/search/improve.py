@@ -1,0 +1,105 @@
+"""After the first goal: the incumbent goal of each instance, and the improvement phase that
+spends an allowance of further evaluations on chains of the actor's edges restarted at nodes of
+the incumbent's path, keeping any goal reached at a lower cost (anytime search, shortcuts by
+re-simulation; docs/search_loop.md)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from pachs_jax.search import novelty
+from pachs_jax.search import pool as pool_lib
+
+NO_NODE = -1
+
+
+@struct.dataclass
+class Incumbent:
+  """Per instance [I]: node int32 the cheapest goal node found (NO_NODE: none), cost float32 its
+  g (inf: none); first_evaluated, first_iterations int32 the evaluations and iterations when the
+  first goal was found, first_cost float32 that goal's g (-1, -1, inf before); limit int32 the
+  evaluations the instance may spend (the budget, then the first goal's evaluations plus the
+  improvement allowance)."""
+
+  node: jax.Array
+  cost: jax.Array
+  first_evaluated: jax.Array
+  first_iterations: jax.Array
+  first_cost: jax.Array
+  limit: jax.Array
+
+  @property
+  def found(self) -> jax.Array:
+    return self.node != NO_NODE
+
+
+def init(num_instances: int, budget: int) -> Incumbent:
+  """No incumbent yet; every instance may spend the budget."""
+  none = jnp.full((num_instances,), -1, jnp.int32)
+  inf = jnp.full((num_instances,), jnp.inf, jnp.float32)
+  return Incumbent(node=none, cost=inf, first_evaluated=none, first_iterations=none,
+                   first_cost=inf, limit=jnp.full((num_instances,), budget, jnp.int32))
+
+
+def offer(incumbent: Incumbent, pool: pool_lib.NodePool, found: jax.Array,
+          goal: jax.Array) -> Incumbent:
+  """incumbent with the goal nodes goal [I] (where found [I]) that cost less than it."""
+  cost = pool_lib.gather(pool.g, goal[:, None].astype(jnp.int32))[:, 0]
+  better = found & (cost < incumbent.cost)
+  return incumbent.replace(node=jnp.where(better, goal, incumbent.node).astype(jnp.int32),
+                           cost=jnp.where(better, cost, incumbent.cost))
+
+
+def cheapest(pool: pool_lib.NodePool, node: jax.Array, at_goal: jax.Array):
+  """(found [I], goal [I]): the cheapest of the goal nodes node [I, K] where at_goal [I, K]."""
+  best = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, node), jnp.inf), axis=1)
+  return jnp.any(at_goal, axis=1), jnp.take_along_axis(node, best[:, None], axis=1)[:, 0]
+
+
+def settle(incumbent: Incumbent, evaluated: jax.Array, iterations: jax.Array,
+           allowance: float, budget: int) -> Incumbent:
+  """incumbent with the first goal recorded where it was found this iteration (evaluated,
+  iterations [I]: the counts after it) and the limit set to the first goal's evaluations times
+  1 + allowance, at most the budget (allowance inf: the budget)."""
+  first = incumbent.found & (incumbent.first_evaluated < 0)
+  extra = (jnp.full(evaluated.shape, float(budget)) if math.isinf(allowance) else
+           jnp.minimum(evaluated.astype(jnp.float32) * (1.0 + allowance), float(budget)))
+  return incumbent.replace(
+      first_evaluated=jnp.where(first, evaluated, incumbent.first_evaluated),
+      first_iterations=jnp.where(first, iterations, incumbent.first_iterations),
+      first_cost=jnp.where(first, incumbent.cost, incumbent.first_cost),
+      limit=jnp.where(first, jnp.ceil(extra).astype(jnp.int32), incumbent.limit))
+
+
+def on_path(pool: pool_lib.NodePool, final: jax.Array) -> jax.Array:
+  """[I, P] bool: the nodes of the path from the start to node final [I] (none where final is
+  NO_NODE)."""
+  rows = jnp.arange(final.shape[0])
+
+  def body(carry):
+    node, mask = carry
+    live = node >= 0
+    mask = mask.at[rows, jnp.where(live, node, pool.capacity)].set(True, mode='drop')
+    return jnp.where(live, pool.parent[rows, jnp.maximum(node, 0)], NO_NODE), mask
+
+  _, mask = jax.lax.while_loop(lambda carry: jnp.any(carry[0] >= 0), body,
+                               (final.astype(jnp.int32), jnp.zeros(pool.g.shape, bool)))
+  return mask
+
+
+def path_restarts(pool: pool_lib.NodePool, incumbent: Incumbent, keys: jax.Array,
+                  fits: jax.Array, num: int) -> jax.Array:
+  """[I, num] int32 restart nodes on the incumbent's path (goals and nodes whose next edge
+  would not fit, fits [I, P] False, left out), each drawn with weight incumbent cost - g (the
+  most a shortcut from it can save: early nodes first); keys [I, 2]. Node 0 without an
+  incumbent."""
+  eligible = on_path(pool, incumbent.node) & fits & ~pool.is_goal
+  saving = jnp.where(eligible, incumbent.cost[:, None] - pool.g, 0.0)
+  share = saving / jnp.maximum(jnp.max(saving, axis=1, keepdims=True), 1e-30)
+  scale = (2**31 - 1) // pool.capacity
+  weight = jnp.where(eligible, jnp.maximum(jnp.floor(share * scale), 1.0), 0.0)
+  return novelty.draw(weight.astype(jnp.int32), keys, num)
