@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 import re
+import statistics
 import sys
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
@@ -484,6 +485,45 @@ def warp_physics(src: Sources) -> str:
              'share of wall', 'lanes used'], lane_rows)])
 
 
+def after_goal(src: Sources) -> str:
+  """PACHS after its first goal, stop or improve, against the parallel rollout on the same runs
+  (10 instances per layout, MuJoCo C physics on a CPU)."""
+  groups = (('gate', ('gate_3', 'gate_a3', 'gate_prune_a3')),
+            ('wall', ('wall_base', 'wall_a3', 'wall_impinf', 'wall_prune_a3')),
+            ('detour', ('detour_3', 'detour_a3')), ('two-gaps', ('twogaps_3',)),
+            ('wall, instance set 1', ('wall_set1',)))
+  rows = []
+  for layout, names in groups:
+    payloads = [src.load(f'after_goal_cpu/{name}.json') for name in names]
+    runs = {}
+    for payload in payloads:
+      for planner, planner_runs in payload['runs'].items():
+        allowance = re.search(r'improve_allowance=([\d.inf]+)', payload['configs'].get(planner, ''))
+        label = planner if planner == 'parallel' else (
+            'pachs-stop' if planner in ('pachs', 'pachs-stop') else
+            f'{planner} ({allowance.group(1) if allowance else "?"})')
+        runs.setdefault(label, planner_runs)
+    parallel = {(r['instance'], r['round']): r for r in runs.pop('parallel') if r['found']}
+    for label, planner_runs in runs.items():
+      ok = [r for r in planner_runs if r['found']]
+      both = [r for r in ok if (r['instance'], r['round']) in parallel]
+      ratio = statistics.fmean([r['cost'] / parallel[(r['instance'], r['round'])]['cost'] for r in both])
+      rows.append([layout, label, f'{len(ok)}/{len(planner_runs)}', len(parallel),
+                   num(statistics.fmean([r['cost'] for r in both])),
+                   num(statistics.fmean([parallel[(r['instance'], r['round'])]['cost'] for r in both])),
+                   f'{ratio:.2f}', num(statistics.fmean([r.get('first_goal_evaluated', r['evaluated']) for r in ok])),
+                   num(statistics.fmean([r['evaluated'] for r in ok]))])
+  return '\n\n'.join([
+      'PACHS on PushT-Obs after its first goal: `stop` (the first goal is the answer) or '
+      '`improve` (chains restarted on the cheapest goal\'s path for up to the allowance times '
+      'the evaluations of the first goal; inf: to the budget); `prune`, the same without the '
+      'restarts on the path, lost and was removed. 10 instances x 1 round per layout, 100,000 '
+      'evaluations, MuJoCo C physics on a 2-core CPU. Cost: means over the runs that the planner '
+      'and the parallel rollout both solved; ratio: mean of the per-run ratios:',
+      table(['layout', 'planner', 'solved', 'parallel solved', 'cost', 'parallel cost', 'ratio',
+             'evaluations to the first goal', 'evaluations to the returned path'], rows)])
+
+
 def playground(src: Sources) -> str:
   """MuJoCo Playground's reacher tasks: the policy, the parallel rollout and PACHS."""
   rows = []
@@ -508,6 +548,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Speed and start-up', speed),
     ('MuJoCo Playground', playground),
     ('MuJoCo Warp physics', warp_physics),
+    ('PACHS after the first goal', after_goal),
 )
 
 
