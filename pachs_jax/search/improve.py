@@ -13,8 +13,7 @@ from flax import struct
 
 from pachs_jax.search import novelty
 from pachs_jax.search import pool as pool_lib
-
-NO_NODE = -1
+from pachs_jax.search.phases import NO_NODE
 
 
 @struct.dataclass
