@@ -490,7 +490,8 @@ def after_goal(src: Sources) -> str:
   (10 instances per layout, MuJoCo C physics on a CPU)."""
   groups = (('gate', ('gate_3', 'gate_a3', 'gate_prune_a3')),
             ('wall', ('wall_base', 'wall_a3', 'wall_impinf', 'wall_prune_a3')),
-            ('detour', ('detour_3', 'detour_a3')), ('two-gaps', ('twogaps_3',)),
+            ('slot', ('slot_3',)), ('detour', ('detour_3', 'detour_a3')),
+            ('two-gaps', ('twogaps_3',)),
             ('wall, instance set 1', ('wall_set1',)))
   rows = []
   for layout, names in groups:

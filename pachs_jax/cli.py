@@ -340,7 +340,8 @@ def _main(words, prefetch=None, guard=None) -> int:
                                'lattice_resolution'])
   plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
-  flags.add_search_flags(plan, ['compact_fractions', 'realtime_answer'])
+  flags.add_search_flags(plan, ['compact_fractions', 'realtime_answer', 'after_goal',
+                               'improve_allowance'])
   plan.add_argument('--devices', type=_devices_arg, default=1,
                     help="devices to shard the instances over: 1 (default, no sharding), N "
                          "(the first N of this host) or 'all' (every device; across hosts "
