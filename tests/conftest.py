@@ -40,7 +40,8 @@ def jax_cache_env(cache_dir, **extra):
   env = dict(os.environ, **extra)
   if cache_dir is not None:
     env.update(JAX_COMPILATION_CACHE_DIR=cache_dir,
-               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0')
+               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0',
+               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES='-1')
   return env
 
 
