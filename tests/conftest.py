@@ -1,11 +1,48 @@
-"""Helpers shared by the test files: `from conftest import take, assert_results_equal, ...`.
+"""Helpers shared by the test files: `from conftest import take, assert_results_equal, ...`,
+and the test run's one persistent compilation cache (`compilation_cache_dir`).
 
 pytest puts this directory on sys.path (the tests are not a package), so the plain import works.
 """
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
+
+from pachs_jax import compile_cache
+
+
+@pytest.fixture(scope='session', autouse=True)
+def compilation_cache_dir():
+  """The persistent compilation cache of the whole test run, the same the CLI uses
+  ($PACHS_COMPILATION_CACHE, else the user's cache directory): on in this process from the
+  first test on, and named in $PACHS_COMPILATION_CACHE for the `pachs` processes the tests
+  start, so a program compiled once (in this run or an earlier one) is loaded, not compiled
+  again. None where the variable turns the cache off."""
+  path = compile_cache.enable()
+  if path is None:
+    yield None
+    return
+  previous = os.environ.get(compile_cache.ENV_VAR)
+  os.environ[compile_cache.ENV_VAR] = path
+  yield path
+  if previous is None:
+    del os.environ[compile_cache.ENV_VAR]
+  else:
+    os.environ[compile_cache.ENV_VAR] = previous
+
+
+def jax_cache_env(cache_dir, **extra):
+  """The environment for a Python child process (a script, not `pachs`) that compiles with
+  JAX's persistent cache at cache_dir (None: no cache), plus the variables in extra."""
+  env = dict(os.environ, **extra)
+  if cache_dir is not None:
+    env.update(JAX_COMPILATION_CACHE_DIR=cache_dir,
+               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0',
+               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES='-1')
+  return env
 
 
 def take(tree, i):

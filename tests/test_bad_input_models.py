@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import jax_cache_env
 
 from pachs_jax.sac import checkpoint, train, verify
 from pachs_jax.sac.config import SACConfig
@@ -332,12 +333,10 @@ def _popen_with_default_signals(*args, **kwargs):
 
 
 @pytest.fixture(scope='module')
-def run_env(tmp_path_factory):
-  """Environment of the training subprocesses: one JAX compilation cache for all of them."""
-  cache = str(tmp_path_factory.mktemp('jax_cache'))
-  return dict(os.environ, JAX_COMPILATION_CACHE_DIR=cache,
-              JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS='0',
-              JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES='-1')
+def run_env(compilation_cache_dir, tmp_path_factory):
+  """Environment of the training subprocesses: one JAX compilation cache for all of them, the
+  test run's (conftest.py) or else the module's own."""
+  return jax_cache_env(compilation_cache_dir or str(tmp_path_factory.mktemp('jax_cache')))
 
 
 @pytest.fixture(scope='module')

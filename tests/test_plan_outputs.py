@@ -1,5 +1,5 @@
-"""What `pachs plan` writes of a result (plans in --json, a still, an animation), the drawings
-of PushT and shelf plans, and `pachs demo`'s scripted pusher."""
+"""A short `pachs plan` end to end and what it writes of a result (plans in --json, a still,
+an animation), the drawings of PushT and shelf plans, and `pachs demo`'s scripted pusher."""
 
 import json
 
@@ -10,20 +10,60 @@ import pytest
 from conftest import trees_equal
 from PIL import Image
 
-from pachs_jax import cli, demo, envs, outputs, plans
+from pachs_jax import cli, demo, envs, outputs, plans, programs
 from pachs_jax.envs import mujoco_c, render
+from pachs_jax.search import baselines as bl
 
 
-def test_plan_writes_plans_that_replay_bit_for_bit_and_animates(tmp_path, capsys):
+@pytest.fixture
+def captured_plans(monkeypatch):
+  """Records (env, starts, result) of every `programs.plan` call, so a test can replay the plan
+  `pachs plan` found on the very physics backend it planned with."""
+  calls = []
+  real = programs.plan
+
+  def recording(env, model, starts, config, key, **kwargs):
+    result = real(env, model, starts, config, key, **kwargs)
+    calls.append((env, starts, result))
+    return result
+
+  monkeypatch.setattr(programs, 'plan', recording)
+  return calls
+
+
+def test_short_pusht_plan_finds_paths_that_replay_and_writes_them(tmp_path, capsys,
+                                                                   captured_plans):
+  """One `pachs plan` of PushT-Fixed: both instances reach their goals; the result arrays
+  replay on the backend it planned with ('auto' on a CPU: MuJoCo C) to the costs in the rows;
+  the plans in --json replay bit for bit; the still and the animation show instance 1."""
+  # instances 0 and 1 need about 100 evaluations at K=16, N=8 (found at 96 and 88 with seed 0);
+  # 400 leaves room and stays a few seconds of MuJoCo C physics
   rows_path, png, gif = tmp_path / 'rows.json', tmp_path / 'still.png', tmp_path / 'plan.gif'
   code = cli.main(['plan', '--task', 'pusht-fixed', '--instances', '0,1', '--budget', '400',
                    '-K', '16', '-N', '8', '--json', str(rows_path), '--render', str(png),
                    '--animate', str(gif), '--show-instance', '1'])
   assert code == 0
   out = capsys.readouterr().out
+  assert 'found 2/2' in out
   assert 'drew instance 1' in out and 'animated instance 1' in out
   rows = json.loads(rows_path.read_text())['rows']
-  env = mujoco_c.make_backend(envs.make('pusht-fixed'), 'mujoco-c')  # the physics it planned in
+  assert [r['instance'] for r in rows] == [0, 1]
+  for row in rows:
+    assert row['found'] and row['stop'] == 'goal', row
+    assert 0 < row['evaluated'] <= 400 and row['path_length'] >= 1
+
+  # the returned result arrays, replayed from the starts on the backend it planned with, are
+  # valid, end at the goal and cost what the rows say
+  [(c_env, starts, result)] = captured_plans
+  assert type(c_env).__name__ == 'MujocoCEnv'
+  _, cost, valid, is_goal = bl.replay(c_env, starts, result.path_actions, result.path_length)
+  np.testing.assert_array_equal(np.asarray(valid), True)
+  np.testing.assert_array_equal(np.asarray(is_goal), True)
+  np.testing.assert_array_equal(np.asarray(result.path_length), [r['path_length'] for r in rows])
+  np.testing.assert_allclose(np.asarray(cost), [r['cost'] for r in rows], rtol=1e-5)
+
+  # the plans in the rows replay bit for bit on the same physics
+  env = mujoco_c.make_backend(envs.make('pusht-fixed'), 'mujoco-c')
   for row in rows:
     assert {'instance', 'found', 'cost', 'path_length', 'stop'} <= set(row)  # kept keys
     plan = plans.from_json(row['plan'])
@@ -34,7 +74,7 @@ def test_plan_writes_plans_that_replay_bit_for_bit_and_animates(tmp_path, capsys
     assert again.cost == pytest.approx(plan.cost, rel=1e-5)
   frames = Image.open(gif)
   assert frames.n_frames == rows[1]['path_length'] + 1  # every state, the start first
-  assert Image.open(png).size[0] > 300
+  assert Image.open(png).size[0] > 300 and png.stat().st_size > 10_000
 
 
 @pytest.mark.parametrize('argv, message', [

@@ -18,9 +18,10 @@ LONG_PLAN = ['plan', '--task', 'pusht-obs', '--instances', '2,3', '--budget', '2
 
 
 @pytest.fixture(scope='module')
-def cache_dir(tmp_path_factory):
-  """One compilation cache for the module: the later processes load what the first compiled."""
-  return str(tmp_path_factory.mktemp('cache'))
+def cache_dir(compilation_cache_dir, tmp_path_factory):
+  """One compilation cache for the processes: the test run's (conftest.py), else one of the
+  module's own; the later processes load what the first compiled."""
+  return compilation_cache_dir or str(tmp_path_factory.mktemp('cache'))
 
 
 def default_sigint():
@@ -44,7 +45,8 @@ def _start(args, cache_dir):
       lines.put(line)
     lines.put(None)
 
-  threading.Thread(target=read, daemon=True).start()
+  process.stderr_reader = threading.Thread(target=read, daemon=True)
+  process.stderr_reader.start()
   return process, lines, stderr
 
 
@@ -58,8 +60,18 @@ def _wait_for(lines, text, timeout=300):
 
 
 def _finish(process, stderr, timeout=120):
+  """(exit status, stdout, stderr) once the process ends; a process still running after
+  timeout seconds (a signal it missed: the search would run for minutes) is killed and
+  reported."""
+  try:
+    process.wait(timeout=timeout)  # stderr is read by _start's thread; stdout holds a few lines
+  except subprocess.TimeoutExpired:
+    process.kill()
+    process.wait()
+    raise AssertionError(f'still running {timeout} s after the signal; stderr:\n'
+                         + ''.join(stderr)) from None
   out = process.stdout.read()
-  process.wait(timeout=timeout)
+  process.stderr_reader.join(timeout=timeout)  # all of stderr read
   return process.returncode, out, ''.join(stderr)
 
 

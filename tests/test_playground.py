@@ -130,9 +130,10 @@ def test_tiny_pachs_plan(env):
                       jax.random.PRNGKey(0))
   assert np.asarray(result.evaluated).max() <= 96 and np.asarray(result.expanded).min() > 0
   node = jax.tree.map(lambda x: x[:1], starts)
+  evaluate = jax.jit(env.evaluate)  # compiled once: an eager MJX step compiles its loops anew
   total = 0.0
   for step in range(int(result.path_length[0])):
-    out = env.evaluate(node, result.path_actions[:1, step])
+    out = evaluate(node, result.path_actions[:1, step])
     total += float(out.cost[0])
     node = out.next_node
   np.testing.assert_allclose(total, float(result.cost[0]), rtol=1e-5)

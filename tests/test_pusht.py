@@ -124,21 +124,27 @@ def test_step_is_restore_and_evaluate_bit_for_bit(env, jitted):
 
 def test_restored_node_continues_a_carried_simulation_exactly(env):
   """Restoring from the compact node inside a rollout changes nothing against carrying the
-  whole mjx.Data: qpos, qvel, ctrl and qacc_warmstart hold the complete state."""
+  whole mjx.Data: qpos, qvel, ctrl and qacc_warmstart hold the complete state. (One program
+  for both rollouts: whether to restore is an argument.)"""
   start = env.node_from_pose(jnp.array([-0.3, -0.28, 0.3]), jnp.asarray(pusht.FIXED_GOAL))
   actions = jax.random.uniform(jax.random.PRNGKey(2), (4, 7), minval=-1, maxval=1)
 
-  def rollout(restore_each_step):
+  def restored(d):
+    return env.restore(env.node_from_pose(jnp.zeros(3), jnp.zeros(3)).replace(
+        qpos=d.qpos, qvel=d.qvel, ctrl=d.ctrl, qacc_warmstart=d.qacc_warmstart))
+
+  @jax.jit
+  def rollout(restore_each_step, node, acts):
     def body(d, a):
-      if restore_each_step:
-        d = env.restore(env.node_from_pose(jnp.zeros(3), jnp.zeros(3)).replace(
-            qpos=d.qpos, qvel=d.qvel, ctrl=d.ctrl, qacc_warmstart=d.qacc_warmstart))
+      d = jax.lax.cond(restore_each_step, restored, lambda x: x, d)
       d = d.replace(ctrl=jnp.clip(d.qpos[:7] + 0.1 * a, env._arm_lower, env._arm_upper))
       d = jax.lax.fori_loop(0, env.config.substeps, lambda _, x: mjx.step(env.mjx_model, x), d)
       return d, (d.qpos, d.qvel, d.qacc_warmstart)
-    return jax.jit(lambda n, acts: jax.lax.scan(body, env.restore(n), acts)[1])(start, actions)
+    return jax.lax.scan(body, env.restore(node), acts)[1]
 
-  for x, y in zip(rollout(False), rollout(True)):
+  carried, restarted = rollout(False, start, actions), rollout(True, start, actions)
+  assert np.abs(np.diff(np.asarray(carried[0]), axis=0)).max() > 1e-4  # the state moves
+  for x, y in zip(carried, restarted):
     np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import assert_results_equal, result_leaves
+from conftest import assert_results_equal, jax_cache_env, result_leaves
 from pachs_jax.search import SearchConfig, make_search
 from pachs_jax.programs import plan
 from pachs_jax import sharding
@@ -113,10 +113,11 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
 
 
 @pytest.fixture(scope='module')
-def four_devices():
-  """stdout of the 4-device script (run once for the module)."""
-  env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=4',
-             JAX_PLATFORMS='cpu')
+def four_devices(compilation_cache_dir):
+  """stdout of the 4-device script (run once for the module), which compiles with the test
+  run's persistent cache."""
+  env = jax_cache_env(compilation_cache_dir,
+                      XLA_FLAGS='--xla_force_host_platform_device_count=4', JAX_PLATFORMS='cpu')
   proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES], env=env, capture_output=True,
                         text=True, timeout=600)
   assert proc.returncode == 0, proc.stderr[-4000:]

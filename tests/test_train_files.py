@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import jax_cache_env
 
 from pachs_jax import files
 from pachs_jax.sac import checkpoint, reporting, train
@@ -149,7 +150,14 @@ def _train_cmd(out, *extra):
           '--no-tensorboard', '--nondeterministic', '--eval-instances', '0', *extra]
 
 
-def test_signals_are_handled_while_an_epoch_runs(tmp_path):
+@pytest.fixture
+def train_env(compilation_cache_dir):
+  """The training processes' environment: the test run's persistent compilation cache, so
+  that the processes of these tests compile the training programs once."""
+  return jax_cache_env(compilation_cache_dir)
+
+
+def test_signals_are_handled_while_an_epoch_runs(tmp_path, train_env):
   """An epoch of minutes: the first SIGINT is acknowledged and the second ends the process
   during it, not after it (as a deadlocked or very long epoch needs)."""
   out = str(tmp_path / 'run')
@@ -158,7 +166,7 @@ def test_signals_are_handled_while_an_epoch_runs(tmp_path):
   try:
     proc = subprocess.Popen(_train_cmd(out, '--steps', '10000000', '--steps-per-epoch',
                                        '1000000'), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=REPO)
+                            stderr=subprocess.PIPE, text=True, cwd=REPO, env=train_env)
   finally:
     for s, handler in previous.items():
       signal.signal(s, handler)
@@ -179,10 +187,10 @@ def test_signals_are_handled_while_an_epoch_runs(tmp_path):
   assert lines[-1] == f'stopped by SIGINT without saving; {out} keeps its latest checkpoint'
 
 
-def test_steps_below_one_epoch_are_named_before_work(tmp_path):
+def test_steps_below_one_epoch_are_named_before_work(tmp_path, train_env):
   out = str(tmp_path / 'run')
   proc = subprocess.run(_train_cmd(out, '--steps', '10'), capture_output=True, text=True,
-                        timeout=300, cwd=REPO)
+                        timeout=300, cwd=REPO, env=train_env)
   assert proc.returncode == 0, proc.stderr[-2000:]
   lines = proc.stdout.splitlines()
   note = [i for i, line in enumerate(lines) if line.startswith('note: --steps 10 is below one')]
@@ -191,10 +199,11 @@ def test_steps_below_one_epoch_are_named_before_work(tmp_path):
   assert 'this run takes 256 random prefill steps and one epoch, 656 env steps' in lines[note[0]]
 
 
-def test_resume_after_sigkill_has_one_row_per_epoch(tmp_path):
+def test_resume_after_sigkill_has_one_row_per_epoch(tmp_path, train_env):
   out = str(tmp_path / 'run')
   proc = subprocess.Popen(_train_cmd(out, '--steps', '10000000', '--checkpoint-every', '3'),
-                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO,
+                          env=train_env)
   csv_path = os.path.join(out, 'metrics.csv')
   try:
     deadline = time.time() + 240
@@ -209,7 +218,7 @@ def test_resume_after_sigkill_has_one_row_per_epoch(tmp_path):
   saved = train.read_run_config(out)['epoch']
   resumed = subprocess.run(_train_cmd(out, '--steps', '10000000', '--resume', '--minutes',
                                       '0.1'), capture_output=True, text=True, timeout=300,
-                           cwd=REPO)
+                           cwd=REPO, env=train_env)
   assert resumed.returncode == 0, resumed.stderr[-2000:]
   with open(csv_path) as f:
     epochs = [int(float(row.split(',')[1])) for row in f.read().splitlines()[1:]]
