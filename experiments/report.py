@@ -525,6 +525,32 @@ def after_goal(src: Sources) -> str:
              'evaluations to the first goal', 'evaluations to the returned path'], rows)])
 
 
+def physics(src: Sources) -> str:
+  """PushT physics candidates: MJX against the MuJoCo C float64 world after 10 control steps,
+  and the deepest penetration into the blocks (experiments/physics_agreement.py)."""
+  agree = {}
+  for name in ('agreement_suite_2', 'agreement_free_suite'):
+    for r in src.load(f'physics/{name}.json')['rows']:
+      if r['horizon'] == 10:
+        agree.setdefault(r['physics'], {})[r['layout']] = (
+            f'{r["position_mm_p90"]:.1f} / {r["angle_deg_p90"]:.1f}')
+  agree_rows = [[p] + [cells.get(layout, '-') for layout in LAYOUTS] for p, cells in agree.items()]
+  deep = {}
+  for name in ('penetration', 'penetration_free'):
+    for r in src.load(f'physics/{name}.json')['rows']:
+      deep.setdefault(r['physics'], {})[r['layout']] = (
+          f'{r["t_block_max_mm"]:.1f} / {r["stick_block_max_mm"]:.1f}')
+  deep_rows = [[p] + [cells.get(layout, '-') for layout in LAYOUTS] for p, cells in deep.items()]
+  return '\n\n'.join([
+      'MJX (float32, the GPU planners\' physics) against the MuJoCo C float64 world on the '
+      'shipped policy\'s pushes: the T\'s position (mm) / angle (degrees) error at the 90th '
+      'percentile after 10 control steps, per layout ("today": the planar T of the shipped '
+      'models; "free": the free T under gravity, friction 3):',
+      table(['physics'] + list(LAYOUTS), agree_rows),
+      'The deepest T-block / stick-block penetration (mm) over policy rollouts in MuJoCo C:',
+      table(['physics'] + list(LAYOUTS), deep_rows)])
+
+
 def playground(src: Sources) -> str:
   """MuJoCo Playground's reacher tasks: the policy, the parallel rollout and PACHS."""
   rows = []
@@ -550,6 +576,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('MuJoCo Playground', playground),
     ('MuJoCo Warp physics', warp_physics),
     ('PACHS after the first goal', after_goal),
+    ('PushT physics: agreement and penetration', physics),
 )
 
 
