@@ -35,7 +35,9 @@ class SignalGuard:
   """Routes SIGINT and SIGTERM for one command, as a context manager (main thread only; in
   another thread it installs nothing and `requested` stays None).
 
-  Until `keep()`, a signal raises `Interrupted` in the main thread (nothing to keep yet). From
+  Until `keep()`, a signal raises `Interrupted` in the main thread (nothing to keep yet; where
+  Python drops that exception, as inside a garbage-collector callback, the next `stop()` or
+  `keep()` raises it again). From
   then on, the first signal only records itself in `requested` (the work checks `stop()` at its
   next chunk and returns what it has, which is then written) and prints `notice`; a second one
   ends the process at once.
@@ -48,6 +50,7 @@ class SignalGuard:
     self.requested: Optional[int] = None
     self.phase: Optional[str] = None  # what runs now, for the line of a signal that stops it
     self._keeping = False
+    self._early: Optional[int] = None  # a signal before keep(), in case its raise is dropped
     self._previous = {}
 
   def __enter__(self) -> 'SignalGuard':
@@ -64,6 +67,7 @@ class SignalGuard:
   def _handle(self, signum, frame) -> None:
     del frame
     if not self._keeping:
+      self._early = signum
       raise Interrupted(signum)
     if self.requested is not None:  # the second signal: no waiting
       sys.stdout.flush()
@@ -76,12 +80,20 @@ class SignalGuard:
 
   def keep(self) -> Callable[[], bool]:
     """From now on, signals ask the work to stop instead of raising; returns `stop`."""
+    self._raise_early()
     self._keeping = True
     return self.stop
 
   def stop(self) -> bool:
     """Whether a signal asked the work to stop (a `stop` callable for `plan`)."""
+    self._raise_early()
     return self.requested is not None
+
+  def _raise_early(self) -> None:
+    """Raises `Interrupted` for a signal that arrived before keep() (in the main thread)."""
+    if (self._early is not None and not self._keeping
+        and threading.current_thread() is threading.main_thread()):
+      raise Interrupted(self._early)
 
   @property
   def exit_code(self) -> int:

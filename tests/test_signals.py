@@ -22,6 +22,22 @@ SCRIPT = textwrap.dedent('''
         except Interrupted as err:
           print('raised', err.exit_code)
         sys.exit(0)
+      if mode == 'dropped':  # the handler runs inside a gc callback, which drops its exception
+        import gc
+        def during_gc(phase, info):
+          if phase == 'start':
+            gc.callbacks.remove(during_gc)
+            os.kill(os.getpid(), signum)
+            time.sleep(0.5)
+        gc.callbacks.append(during_gc)
+        gc.collect()
+        print('dropped', flush=True)
+        try:
+          guard.keep()
+          print('not raised')
+        except Interrupted as err:
+          print('raised', err.exit_code)
+        sys.exit(0)
       stop = guard.keep()
       os.kill(os.getpid(), signum)
       for _ in range(100):  # a chunked loop that checks stop()
@@ -48,6 +64,15 @@ def test_signal_before_keep_raises_interrupted_with_the_shell_code(signame, code
   out = _run('before', signame)
   assert out.returncode == 0, out.stderr
   assert out.stdout.split() == ['raised', str(code)]
+
+
+def test_a_signal_whose_exception_python_dropped_is_raised_at_keep():
+  # Python drops an exception raised inside a garbage-collector callback ("Exception ignored"):
+  # the guard raises it again at the next safe point
+  out = _run('dropped', 'SIGINT')
+  assert out.returncode == 0, out.stderr
+  assert out.stdout.split() == ['dropped', 'raised', '130']
+  assert 'Exception ignored' in out.stderr  # the drop really happened
 
 
 @pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])
