@@ -324,8 +324,9 @@ def cpu_claims(src: Sources) -> Dict[str, str]:
   if placeholder(suite):
     out['suite'] = placeholder(suite)
   else:
+    cold = ', an empty compilation cache' if 'cache empty' in suite['provenance'].get('note', '') else ''
     out['suite'] = (f'{suite["process_wall_s"] / 60:.1f} min ({suite["summary"]}; '
-                    f'{suite["provenance"]["host_cpus"]} CPUs)')
+                    f'{suite["provenance"]["host_cpus"]} CPUs{cold})')
   return out
 
 
