@@ -19,7 +19,7 @@ PROTOCOL = ('task', 'instances', 'rounds', 'query_time', 'execute', 'max_queries
 
 def label(planner: str, settings: Dict) -> str:
   """The planner's name; PACHS run with an explicit `--realtime-answer A` is 'pachs-A'
-  (before session 12 the option's default was best_f, which keeps the plain name)."""
+  (best_f, the original's rule, keeps the plain name)."""
   answer = settings.get('realtime_answer')
   if planner == 'pachs' and answer not in (None, 'best_f'):
     return f'pachs-{answer}'
