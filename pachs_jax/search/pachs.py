@@ -213,11 +213,15 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     tip_g = pool_lib.gather(pool.g, tip)
     go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
              & (tip_g < incumbent.cost[:, None]))
-    restarts = restart.choose(pool, visits, keys, fits(pool.depth), r)
-    if improving:
+    restarts = jnp.broadcast_to(restart.choose(pool, visits, keys, fits(pool.depth), r),
+                                tip.shape).astype(jnp.int32)
+    if improving:  # the path walk and draw run only once some instance has a goal
       path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
-      restarts = jnp.where(incumbent.found[:, None], improve.path_restarts(
-          pool, incumbent, path_keys, fits(pool.depth), r), restarts)
+      restarts = jax.lax.cond(
+          jnp.any(incumbent.found),
+          lambda: jnp.where(incumbent.found[:, None], improve.path_restarts(
+              pool, incumbent, path_keys, fits(pool.depth), r), restarts),
+          lambda: restarts)
     return jnp.where(go_on, tip, restarts).astype(jnp.int32)
 
   def step(state: SearchState, lanes: Lanes) -> SearchState:
