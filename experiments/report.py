@@ -491,69 +491,105 @@ AFTER_GOAL_SETS = tuple((layout, layout) for layout in LAYOUTS) + (
     ('wall, instance set 1', 'wall_set1'), ('detour, instance set 1', 'detour_set1'))
 
 
-def most_behind(payload: Dict, planner: str, other: str, start: int = 3000) -> str:
-  """The most runs by which planner's success curve trails other's at a budget >= start
-  ('0' where it never trails)."""
-  runs = payload['summary'][0]['runs']
-  a, b = payload['success_curve'][planner], payload['success_curve'][other]
-  gap = max([round((y - x) * runs) for budget, x, y in zip(payload['curve_budgets'], a, b)
+def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> str:
+  """The most runs by which a_planner's success curve in payload a trails b_planner's in b at
+  a budget >= start ('0' where it never trails); both curves over the same budgets."""
+  runs = a['summary'][0]['runs']
+  gap = max([round((y - x) * runs) for budget, x, y in zip(
+      a['curve_budgets'], a['success_curve'][a_planner], b['success_curve'][b_planner])
              if budget >= start], default=0)
   return str(max(gap, 0))
 
 
+def paired_ratio(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
+  """Mean per-run cost ratio of a_planner's runs in payload a over b_planner's in b, on the
+  runs (instance, round) both solved."""
+  other = {(r['instance'], r['round']): r['cost'] for r in b['runs'][b_planner] if r['found']}
+  ratios = [r['cost'] / other[(r['instance'], r['round'])] for r in a['runs'][a_planner]
+            if r['found'] and (r['instance'], r['round']) in other]
+  return f'{statistics.fmean(ratios):.2f}' if ratios else '-'
+
+
+WIDEN_PAIRS = (  # (label, (file, planner) with compaction alone, (file, planner) with widening)
+    ('detour, seed 0', ('after_goal_gpu/detour', 'pachs-improve'), ('widen_gpu/suite/detour', 'pachs')),
+    ('detour, seed 0 again', ('widen_gpu/detour_repeat', 'pachs'),
+     ('widen_gpu/detour_widen', 'pachs')),
+    ('detour, seed 1', ('widen_gpu/detour_seed1', 'pachs'), ('widen_gpu/detour_widen_seed1', 'pachs')),
+    ('two-gaps, seed 0', ('after_goal_gpu/two-gaps', 'pachs-improve'),
+     ('widen_gpu/suite/two-gaps', 'pachs')),
+    ('two-gaps, seed 0 again', ('after_goal_gpu/two-gaps', 'pachs-improve'),
+     ('widen_gpu/two-gaps_widen', 'pachs')),
+    ('two-gaps, seed 1', ('widen_gpu/two-gaps_seed1', 'pachs'),
+     ('widen_gpu/two-gaps_widen_seed1', 'pachs')),
+    ('wall, seed 0', ('after_goal_gpu/wall', 'pachs-improve'), ('widen_gpu/wall_widen', 'pachs')))
+
+
 def after_goal_gpu(src: Sources) -> str:
-  """PushT-Obs's default (after_goal 'improve') beside 'stop' and the parallel rollout: 150 runs
-  per layout and instance set with Warp physics on a GPU."""
+  """PushT-Obs's default (after_goal 'improve') beside 'stop', the parallel rollout and the
+  default with widening: 150 runs per layout and instance set with Warp physics on a GPU."""
   rows, effort = [], []
   for label, name in AFTER_GOAL_SETS:
     p = src.load(f'after_goal_gpu/{name}.json')
+    widened = src.load(f'widen_gpu/suite/{name}.json')
     inf = src.load(f'after_goal_gpu/{name}_inf.json') if src.exists(
         f'after_goal_gpu/{name}_inf.json') else None
     improve, stop = summary_of(p, 'pachs-improve'), summary_of(p, 'pachs-stop')
     parallel = summary_of(p, 'parallel')
     lead = 100 * (improve['success_rate'] - parallel['success_rate'])
     rows.append([label, solved(improve), solved(stop), solved(parallel), f'{lead:+.1f}',
-                 most_behind(p, 'pachs-improve', 'parallel'),
+                 most_behind(p, 'pachs-improve', p, 'parallel'),
                  cost_ratio(p, 'pachs-improve', 'parallel'), cost_ratio(p, 'pachs-stop', 'parallel'),
                  '-' if inf is None else f'{solved(summary_of(inf, "pachs-improve"))}, '
-                 f'{_ratio_to(inf, p)}'])
+                 f'{paired_ratio(inf, "pachs-improve", p, "parallel")}',
+                 f'{solved(summary_of(widened, "pachs"))}, '
+                 f'{most_behind(widened, "pachs", p, "parallel")}'])
     effort.append([label, num(improve['first_goal_evaluated_mean']),
                    num(improve['evaluated_success_mean']), num(parallel['evaluated_success_mean']),
-                   num(improve['first_goal_time_s_mean'], 2), num(improve['time_s_success_mean'], 2),
-                   num(improve['batch_wall_s'], 3), num(stop['batch_wall_s'], 3),
-                   num(parallel['batch_wall_s'], 3)])
+                   num(improve['first_goal_time_s_mean'], 2),
+                   num(improve['time_s_success_mean'], 2), num(improve['batch_wall_s'], 3),
+                   num(stop['batch_wall_s'], 3), num(parallel['batch_wall_s'], 3),
+                   num(summary_of(widened, 'pachs')['batch_wall_s'], 3)])
+  tasks = []
+  for name in ('pusht-fixed', 'pusht-rand', 'shelf'):
+    row = summary_of(src.load(f'widen_gpu/suite/{name}.json'), 'pachs')
+    tasks.append([name, solved(row), num(row['batch_wall_s'], 3)])
+  widen = []
+  for label, without, with_ in WIDEN_PAIRS:
+    a, b = (summary_of(src.load(f'{name}.json'), planner) for name, planner in (without, with_))
+    widen.append([label, solved(a), num(a['batch_wall_s'], 3), solved(b),
+                  num(b['batch_wall_s'], 3)])
   return '\n\n'.join([
-      'The PushT-Obs default (`after_goal=\'improve\'`, allowance 3: after the first goal an '
-      'instance spends up to 3 times the evaluations it took to find it, restarting chains on '
-      'the cheapest goal\'s path) against `stop` (the first goal is the answer) and the parallel '
-      'rollout, 30 instances x 5 seeds = 150 runs each, 100,000 evaluations, MuJoCo Warp '
-      'physics on one GPU. Lead: points of success over the rollout. Behind: the most runs by '
-      'which the default\'s success curve trails the rollout\'s at any budget from 3,000 '
-      'evaluations. Cost: mean of the per-run ratios over the runs both solved. The allowance '
-      'changes nothing before an instance\'s first goal, yet the allowance 3 and inf runs of '
-      'detour solved different numbers of runs: with Warp physics a run\'s outcome varies from '
-      'call to call, and differences in success of that size between `stop` and `improve` '
-      '(which differ before the first goal only in counting a goal that a best-first lane '
-      'generates at once, not when it pops) are within that variation.',
-      table(['layout', 'default (improve)', 'stop', 'parallel rollout', 'lead', 'behind',
-             'cost / parallel', 'stop cost / parallel', 'allowance inf: solved, cost / parallel'],
-            rows),
-      'Evaluations to the first goal and to the returned path (means over solved runs), time '
-      'estimated per run from the batch\'s iterations (s), and each call\'s batch wall (s):',
+      'PushT-Obs\'s default: after the first goal an instance spends up to 3 times the '
+      'evaluations it took to find it (`after_goal=\'improve\'`, allowance 3), restarting chains '
+      'on the cheapest goal\'s path; on a GPU the physics batch shrinks to the live lanes '
+      '(compaction). Beside it: `stop` (the first goal is the answer), the parallel rollout, '
+      'the allowance inf, and the default with widening (the last instances pop 2, 4 or 8 x K '
+      'edges); 30 instances x 5 seeds = 150 runs each, 100,000 evaluations, MuJoCo Warp physics '
+      'on one GPU. Lead: points of success over the rollout. Behind: the most runs by which a '
+      'success curve trails the rollout\'s at any budget from 3,000 evaluations. Cost: mean of '
+      'the per-run ratios over the runs both solved. With Warp physics a run\'s outcome varies '
+      'from call to call (the same detour command twice: the first two rows of the widening '
+      'table\'s compaction column), so differences of a few runs between columns are within '
+      'that variation.',
+      table(['layout', 'default', 'stop', 'parallel rollout', 'lead', 'behind',
+             'cost / parallel', 'stop cost / parallel', 'allowance inf: solved, cost / parallel',
+             'with widening: solved, behind'], rows),
+      'Evaluations to the first goal and to the returned path (the default; means over solved '
+      'runs), time estimated per run from the batch\'s iterations (s), and each call\'s batch '
+      'wall (s):',
       table(['layout', 'evaluations to the first goal', 'to the returned path',
              'parallel: to its goal', 'time to the first goal', 'to the returned path',
-             'default wall', 'stop wall', 'parallel wall'], effort)])
-
-
-def _ratio_to(inf: Dict, paired: Dict) -> str:
-  """Mean per-run cost ratio of inf's pachs-improve runs over paired's parallel runs, on the
-  runs both solved."""
-  parallel = {(r['instance'], r['round']): r['cost'] for r in paired['runs']['parallel']
-              if r['found']}
-  ratios = [r['cost'] / parallel[(r['instance'], r['round'])]
-            for r in inf['runs']['pachs-improve']
-            if r['found'] and (r['instance'], r['round']) in parallel]
-  return f'{statistics.fmean(ratios):.2f}' if ratios else '-'
+             'default wall', 'stop wall', 'parallel wall', 'with widening'], effort),
+      'Widening on the tasks without obstacles and on the shelf (150 runs; shelf: 100 targets '
+      'at 20,000 evaluations), solved and batch wall (s):',
+      table(['task', 'solved', 'wall'], tasks),
+      'Widening against compaction alone, the rest of the default the same (150 runs each; '
+      'seed: the search\'s, `--seed`), solved and batch wall (s). Widening cuts the wall by '
+      '20-50% and solves as many runs at 100,000 evaluations within the variation, but it '
+      'spends evaluations less well: its success curves trail compaction alone\'s between '
+      'about 8,000 and 17,000 evaluations, where they fall behind the rollout\'s (the '
+      '"behind" column above), so it is not the default:',
+      table(['layout', 'compaction', 'wall', 'compaction + widening', 'wall'], widen)])
 
 
 def after_goal(src: Sources) -> str:
@@ -684,17 +720,17 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
   for task, name in (('PushT-Fixed', 'open_loop_pusht-fixed.json'),
                      ('PushT-Rand', 'open_loop_pusht-rand.json')):
     p = src.load(name)
-    rows.append((task, p))
-  for layout in LAYOUTS:  # the default with Warp physics; the policy alone from the MJX runs
+    rows.append((task, p, 'pachs', p))  # (runs, PACHS's default there, the policy alone's)
+  for layout in LAYOUTS:
     rows.append((f'PushT-Obs, {layout}', src.load(f'after_goal_gpu/{layout}.json'),
-                 src.load(f'open_loop_pusht-obs_{layout}.json')))
-  rows.append(('Panda-Shelf', src.load('open_loop_shelf.json')))
+                 'pachs-improve', src.load(f'open_loop_pusht-obs_{layout}.json')))
+  shelf = src.load('open_loop_shelf.json')
+  rows.append(('Panda-Shelf', shelf, 'pachs', shelf))
   body = []
-  for task, p, *policy_runs in rows:
-    name = 'pachs-improve' if policy_runs else 'pachs'
+  for task, p, name, policy in rows:
     pachs, parallel = summary_of(p, name), summary_of(p, 'parallel')
-    single = summary_of(policy_runs[0] if policy_runs else p, 'single')
-    at_10k = (f'{pct(curve_at(p, name, 10000)[1])} / {pct(curve_at(p, "parallel", 10000)[1])}')
+    single = summary_of(policy, 'single')
+    at_10k = f'{pct(curve_at(p, name, 10000)[1])} / {pct(curve_at(p, "parallel", 10000)[1])}'
     body.append([task, pct(pachs['success_rate']), pct(parallel['success_rate']),
                  pct(single['success_rate']) if single else '-', at_10k,
                  num(pachs['evaluated_mean']), f'{num(pachs["batch_wall_s"], 2)} s',

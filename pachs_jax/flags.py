@@ -43,9 +43,7 @@ SEARCH_FLAGS: Dict[str, tuple] = {
     'widen_factors': (('--widen-factors',), dict(
         type=lambda s: tuple(int(m) if m == int(m) else m for m in argtypes.numbers(s, 'factors')),
         help='once the instances still searching hold at most 1/m of the I x K lanes, each '
-        "pops m x K edges, for each m of these factors (comma separated; '' keeps K; default "
-        "on a GPU: planner.COMMAND_WIDEN_FACTORS, 2,4,8, used where the search moves between "
-        "lane layouts, not by `pachs plan`; on a CPU none)")),
+        "pops m x K edges, for each m of these factors (comma separated; '' keeps K)")),
     'realtime_answer': (('--realtime-answer',), dict(
         choices=REALTIME_ANSWERS, help="the state an unfinished search answers with: best_f "
         "(the best OPEN entry's; the original algorithm's and a user's task's default), min_h "

@@ -68,14 +68,13 @@ def test_command_config_budget_and_cpu_overrides():
   assert (gpu.pop_size, gpu.edge_steps, gpu.max_evaluations) == (256, 1, 100_000)
   assert gpu.lattice_resolution == (0.005, 0.005, 0.05, 0.01, 0.01)
   assert gpu.compact_fractions == planner.COMMAND_COMPACT_FRACTIONS != ()
-  assert gpu.widen_factors == planner.COMMAND_WIDEN_FACTORS != ()
   assert planner.command_config('pusht-obs', False, False, compact_fractions=()) \
       .compact_fractions == ()
   # CPU without a budget: the CPU budget of the physics backend and the CPU overrides
   cpu = planner.command_config('pusht-obs', on_cpu=True, mujoco_c=True, algorithm='original')
   assert (cpu.pop_size, cpu.max_evaluations) == (64, 20_000)
   assert cpu.lattice_resolution == (0.01, 0.01, 0.1, 0.02, 0.02)
-  assert cpu.compact_fractions == cpu.widen_factors == ()  # neither pays on the CPU
+  assert cpu.compact_fractions == ()  # compaction does not pay on the CPU
   assert planner.command_config('pusht-fixed', True, False).max_evaluations == 2_000
   # a given budget keeps the tuned settings; explicit values win over everything
   assert planner.command_config('pusht-obs', True, True, 50_000, 'original').pop_size == 256

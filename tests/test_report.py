@@ -68,12 +68,12 @@ def rewrite(root, name, change):
 
 
 def test_a_changed_result_makes_the_report_stale(copy_root):
-  """Fewer PACHS successes on the wall layout show in both outputs."""
+  """Fewer successes of PACHS's default on the wall layout show in both outputs."""
   def fewer(payload):
-    row = report.summary_of(payload, 'pachs')
+    row = report.summary_of(payload, 'pachs-improve')
     row['successes'], row['success_rate'] = 75, 0.5
 
-  rewrite(copy_root, 'open_loop_pusht-obs_wall.json', fewer)
+  rewrite(copy_root, 'after_goal_gpu/wall.json', fewer)
   written = report.generate(str(copy_root))
   assert written != report.generate()
   assert '| PushT-Obs, wall | 50% |' in written['README.md']
