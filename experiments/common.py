@@ -84,11 +84,18 @@ def git_revision(root: Optional[str] = None) -> str:
     return 'unknown'
 
 
+def command_line() -> str:
+  """The command that started this process as typed (a wrapper such as heldout_layouts.py
+  included), the interpreter by its base name."""
+  argv = list(getattr(sys, 'orig_argv', None) or [sys.executable] + sys.argv)
+  return ' '.join([os.path.basename(argv[0])] + argv[1:])
+
+
 def provenance() -> Dict[str, Any]:
   """Device, command, revision and versions for a results file."""
   dev = jax.devices()[0]
   return {
-      'command': ' '.join([os.path.basename(sys.executable)] + sys.argv),
+      'command': command_line(),
       'git_revision': git_revision(),
       'device': f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}',
       'host_cpus': os.cpu_count(),
