@@ -148,6 +148,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
 
   say = print if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
+  if getattr(args, 'improve_allowance', None) is not None:  # before the model loads
+    after_goal = args.after_goal or planner.default_config(args.task, args.algorithm).after_goal
+    if after_goal != 'improve':
+      raise ValueError(f'--improve-allowance applies with --after-goal improve; here the first '
+                       f'goal ends the search (after_goal {after_goal!r})')
   env, model = planner.load_model(args.task, args.checkpoint, args.backend, layout=args.layout)
   num_available = envs.spec(args.task).num_instances
   mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
