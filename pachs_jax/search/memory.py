@@ -107,10 +107,10 @@ def largest_budget(bytes_at, budget: int, available: int, minimum: int = 1) -> i
     fits = (probe_bytes := bytes_at(probe)) <= available
     if fits:
       low, low_bytes = probe, probe_bytes
-      probe = min(low + max(1, low // 200), high - 1)  # the smallest budget that closes it
+      probe = min(low + max(1, low // 200), high - 1)  # 0.5% above: not fitting, it ends it
     else:
       high, high_bytes = probe, probe_bytes
-      probe = max(high - max(1, high // 201), low + 1)
+      probe = max(high - max(1, high // 201), low + 1)  # 0.5% below: fitting, it ends it
     if not close(low, high):
       if (probe_bytes := bytes_at(probe)) <= available:
         low, low_bytes = probe, probe_bytes
