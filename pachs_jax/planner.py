@@ -124,14 +124,14 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
     flag = '--env' if envs.is_playground(model_task) else '--task'
     raise FileNotFoundError(f'no checkpoint at {path!r}; train one with experiments/train.py '
                             f'{flag} {model_task}')
-  env = _make_env(task, backend, nthread, layout)
-  if isinstance(task, envs.Env):
-    task = task.name
-  model = checkpoint_lib.load_actor_critic(path)
-  allowed = {task, model_task}
+  name = task.name if isinstance(task, envs.Env) else task
+  model = checkpoint_lib.load_actor_critic(path)  # a model of another task: refused at once
+  allowed = {name, model_task}
   if model.config.task not in allowed:
-    raise ValueError(f'{path!r} holds a model of task {model.config.task!r}; task {task!r} '
+    raise ValueError(f'{path!r} holds a model of task {model.config.task!r}; task {name!r} '
                      f'plans with a model of {" or ".join(sorted(allowed))}')
+  env = _make_env(task, backend, nthread, layout)
+  task = name
   if (model.config.observation_size, model.config.action_size) != (env.observation_size,
                                                                     env.action_size):
     raise ValueError(f'{path!r}: model sizes (observation {model.config.observation_size}, '

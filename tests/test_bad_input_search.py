@@ -167,6 +167,10 @@ def _fake_memory(monkeypatch, limit):
 
 
 def test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can(grid, monkeypatch):
+  """plan and plan_sharded refuse a budget whose state exceeds the (faked) device memory before
+  searching, naming a budget whose traced state fits while 5% more does not; the memory check
+  that plan runs (`programs.check_memory`) accepts the named budget and names the smallest
+  valid one (one edge's transitions) when nothing fits."""
   env, ac, nodes = grid
   limit = 40_000_000
   _fake_memory(monkeypatch, limit)
@@ -179,18 +183,18 @@ def test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can(grid, m
   size = lambda budget: memory.search_bytes(
       make_search(env, ac, dataclasses.replace(CONFIG, max_evaluations=budget)), nodes, 4)
   assert size(best) <= limit < size(int(best * 1.05))
-  plan(env, ac, nodes, dataclasses.replace(CONFIG, max_evaluations=best), jax.random.PRNGKey(0))
+  check = lambda config: programs.check_memory(env, ac, nodes, config)
+  assert size(best) < check(dataclasses.replace(CONFIG, max_evaluations=best)) <= limit
   with pytest.raises(ValueError, match='largest budget that fits'):
     sharding.plan_sharded(env, ac, nodes, huge, jax.random.PRNGKey(0))
   # edges of 4 transitions: the budgets tried stay at or above 4 (a smaller one is invalid)
-  segments = dataclasses.replace(huge, edge_steps=4)
   with pytest.raises(ValueError, match='largest budget that fits is about'):
-    plan(env, ac, nodes, segments, jax.random.PRNGKey(0))
+    check(dataclasses.replace(huge, edge_steps=4))
   _fake_memory(monkeypatch, 1000)
   with pytest.raises(ValueError, match='not even a budget of 1 fits: plan fewer instances'):
-    plan(env, ac, nodes, CONFIG, jax.random.PRNGKey(0))
+    check(CONFIG)
   with pytest.raises(ValueError, match='not even a budget of 4 fits'):
-    plan(env, ac, nodes, dataclasses.replace(CONFIG, edge_steps=4), jax.random.PRNGKey(0))
+    check(dataclasses.replace(CONFIG, edge_steps=4))
 
 
 def test_state_bytes_are_exact_and_checked_against_real_memory(grid):

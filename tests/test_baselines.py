@@ -317,8 +317,9 @@ def test_epase_finds_a_goal_on_the_shelf():
   assert 0 < int(result.evaluated[0]) < 2000 and int(result.expanded[0]) > 0
   length = int(result.path_length[0])
   assert length >= 1
-  _, cost, valid, is_goal = common.replay(env, start, result.path_actions, result.path_length,
-                                          edge_fn=setup.edge_fn)
+  replay = jax.jit(common.replay, static_argnums=0, static_argnames='edge_fn')  # one program
+  _, cost, valid, is_goal = replay(env, start, result.path_actions, result.path_length,
+                                   edge_fn=setup.edge_fn)
   assert bool(valid[0]) and bool(is_goal[0])
   np.testing.assert_allclose(float(cost[0]), float(result.cost[0]), rtol=1e-5)
   # each step moves one joint by +-7 degrees
@@ -326,8 +327,8 @@ def test_epase_finds_a_goal_on_the_shelf():
   assert np.all(np.sum(np.abs(steps) > 0, axis=1) == 1)
   np.testing.assert_allclose(np.abs(steps).max(axis=1), math.radians(7.0), rtol=1e-6)
   # the heuristic at the start is below the straight-line tip distance (26-connected BFS)
-  h = float(setup.heuristic.value(state.heuristic,
-                                  jax.tree.map(lambda x: x[:, None], start))[0, 0])
+  h = float(jax.jit(setup.heuristic.value)(state.heuristic,
+                                           jax.tree.map(lambda x: x[:, None], start))[0, 0])
   tip = np.asarray(env.tip_position(start.qpos[0]))
   assert 0 < h <= np.linalg.norm(tip - np.asarray(start.goal[0])) + 1e-6
 

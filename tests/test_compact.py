@@ -12,7 +12,6 @@ from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, compact, make_search, pachs
 from pachs_jax.programs import Programs, plan
-from pachs_jax import sharding
 
 
 def test_batch_sizes():
@@ -94,11 +93,7 @@ def test_pachs_with_compaction_equals_without():
   assert set(env.batches) == {32}, env.batches
   assert [name for name in search.compiled[(8, jax.default_backend())]
           if isinstance(name, tuple)] == [('loop', pachs.Lanes(None, 1))]
-  # the same inside shard_map (the default mesh)
-  compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
-  sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
-                                  search=make_search(env, ac, compacted))
-  assert_results_equal(sharded, want)
+  # (inside shard_map: test_segment.py, test_segments_with_compaction_equal_without)
   for bad in ((0.5, 1.0), 0.5, (float('nan'),)):
     with pytest.raises(ValueError, match='compact_fractions'):
       dataclasses.replace(config, compact_fractions=bad)

@@ -1,12 +1,11 @@
 """The MuJoCo Playground adapter (envs/playground.py) on PointMass, whose assets ship in the
 playground wheel: restore-then-step against the env's own step bit for bit, the goal rule,
-costs, the protocol check, and a tiny PACHS plan (CPU, MJX)."""
+costs, the protocol check; and `pachs plan` on ReacherEasy with its shipped model (CPU, MJX)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import UniformActorCritic
 
 pytest.importorskip('mujoco_playground')
 
@@ -98,7 +97,7 @@ def test_check_finds_a_node_that_does_not_restore(env):
 
   broken = NoTime(env.playground_env, env.config, name='playground:PointMass')
   assert broken.restore_mismatches(num_steps=2) == ['data.time']
-  assert env.restore_mismatches(num_steps=2) == []
+  assert env.restore_mismatches() == []  # the check the env fixture ran (its program stored)
 
 
 def test_negative_cost_is_named(env):
@@ -119,32 +118,14 @@ def test_bad_names_and_backend():
     envs.make('playground:PandaPickCube')
 
 
-def test_tiny_pachs_plan(env):
-  """PACHS with a stand-in actor-critic and a tiny budget: the loop runs on the adapter's
-  nodes, and its path replays through the env to the reported cost."""
-  from pachs_jax.planner import default_config
-  from pachs_jax import programs
-  config = default_config('playground:PointMass', max_evaluations=96, pop_size=8)
-  starts = env.canonical_instances(2)
-  result = programs.plan(env, UniformActorCritic(env.action_size), starts, config,
-                      jax.random.PRNGKey(0))
-  assert np.asarray(result.evaluated).max() <= 96 and np.asarray(result.expanded).min() > 0
-  node = jax.tree.map(lambda x: x[:1], starts)
-  evaluate = jax.jit(env.evaluate)  # compiled once: an eager MJX step compiles its loops anew
-  total = 0.0
-  for step in range(int(result.path_length[0])):
-    out = evaluate(node, result.path_actions[:1, step])
-    total += float(out.cost[0])
-    node = out.next_node
-  np.testing.assert_allclose(total, float(result.cost[0]), rtol=1e-5)
-
-
 def test_pachs_plan_command_with_the_shipped_model(tmp_path, capsys):
-  """`pachs plan --env playground:ReacherEasy` plans with the shipped model; a checkpoint of
-  another task and the MuJoCo C backend are refused with one line each."""
+  """`pachs plan --env playground:ReacherEasy` plans with the shipped model (PACHS on the
+  adapter's nodes, within the budget), and a found plan replays through the env's own
+  transition to its goal at the reported cost; a checkpoint of another task and the MuJoCo C
+  backend are refused with one line each."""
   import json
 
-  from pachs_jax import cli, planner
+  from pachs_jax import cli, planner, plans
   rows = str(tmp_path / 'rows.json')
   code = cli.main(['plan', '--env', 'playground:ReacherEasy', '--instances', '0-1',
                    '--budget', '200', '--no-cache', '--json', rows])
@@ -153,7 +134,22 @@ def test_pachs_plan_command_with_the_shipped_model(tmp_path, capsys):
     saved = json.load(f)
   assert saved['task'] == 'playground:ReacherEasy' and len(saved['rows']) == 2
   assert all(0 < r['evaluated'] <= 200 for r in saved['rows'])
-  assert any(r['found'] for r in saved['rows'])
+  found = [r for r in saved['rows'] if r['found']]
+  assert found
+  reacher = playground.make('playground:ReacherEasy', check=False)
+  plan = plans.from_json(found[0]['plan'],
+                         like=jax.eval_shape(reacher.sample_instance, jax.random.PRNGKey(0)))
+  assert plan.length > 0
+  evaluate = jax.jit(reacher.evaluate)  # one program for every step (an eager step compiles)
+  node, total = jax.tree.map(lambda x: x[:1], plan.states), 0.0
+  for step in range(plan.length):
+    out = evaluate(node, plan.actions[step:step + 1])
+    assert bool(out.is_valid[0])
+    total += float(out.cost[0])
+    node = out.next_node
+    np.testing.assert_allclose(np.asarray(node.qpos[0]), plan.states.qpos[step + 1], atol=1e-5)
+  assert bool(out.is_goal[0])
+  np.testing.assert_allclose(total, found[0]['cost'], rtol=1e-5)
   for argv, message in (
       (['--checkpoint', planner.checkpoint_path('shelf')],
        "holds a model of task 'shelf'; task 'playground:ReacherEasy' plans with a model of "

@@ -7,8 +7,11 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
+from conftest import pad_rows
 from pachs_jax import envs
 from pachs_jax.envs import coverage, panda, pusht
+
+BATCH = 64  # test_mujoco_c.BATCH
 
 
 @pytest.fixture(scope='module')
@@ -165,17 +168,18 @@ def test_stick_pushes_the_t(env, jitted):
 
 
 def test_bad_actions_and_states(env, jitted):
-  nodes = env.canonical_instances(2)
+  # a batch of BATCH rows, the batch test_mujoco_c.py's MJX evaluate compiles (one program)
+  nodes = pad_rows(env.canonical_instances(2), BATCH)
   with pytest.raises(ValueError, match=r'actions must have shape \[B, 7\]'):
-    env.evaluate(nodes, jnp.zeros((2, 6)))
+    env.evaluate(nodes, jnp.zeros((BATCH, 6)))
   with pytest.raises(ValueError, match=r'shape \[7\]'):
     env.step(jax.jit(env.reset)(jax.random.PRNGKey(0)), jnp.zeros(8))
-  actions = jnp.zeros((2, 7)).at[0, 3].set(jnp.nan)
+  actions = jnp.zeros((BATCH, 7)).at[0, 3].set(jnp.nan)
   out = jitted['evaluate'](nodes, actions)
-  assert not bool(out.is_valid[0]) and bool(out.is_valid[1])
+  assert not bool(out.is_valid[0]) and bool(out.is_valid[1:].all())
   assert np.all(np.isfinite(np.asarray(out.cost)))
   bad = nodes.replace(qvel=nodes.qvel.at[1, 2].set(jnp.inf))
-  out = jitted['evaluate'](bad, jnp.zeros((2, 7)))
+  out = jitted['evaluate'](bad, jnp.zeros((BATCH, 7)))
   assert bool(out.is_valid[0]) and not bool(out.is_valid[1])
   assert np.all(np.isfinite(np.asarray(out.cost)))
   assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(out.next_node))

@@ -112,8 +112,12 @@ def test_budget_counts_every_transition(grid):
   assert (r.stop_reason[:3][far] == StopReason.BUDGET).all()
 
 
-@pytest.mark.parametrize('share, restart', [(0.0, 'start'), (0.5, 'start'), (0.5, 'novel')])
-def test_segments_with_compaction_equal_without(grid, share, restart):
+@pytest.mark.parametrize('share, restart, sharded', [(0.0, 'start', False), (0.5, 'novel', True)])
+def test_segments_with_compaction_equal_without(grid, share, restart, sharded):
+  """Compacted evaluation (smaller physics batches as instances stop) gives the uncompacted
+  result leaf for leaf, for the original algorithm's chains (no rollout lanes, restarts at the
+  start) and the default's (rollout lanes, restarts at novel nodes); the default's also inside
+  shard_map (the default mesh)."""
   env, ac, nodes = grid
   key = jax.random.PRNGKey(2)
   config = dataclasses.replace(CONFIG, rollout_share=share, chain_restart=restart)
@@ -122,9 +126,10 @@ def test_segments_with_compaction_equal_without(grid, share, restart):
   got = plan(env, ac, nodes, compacted, key)
   assert len(set(np.asarray(want.iterations).tolist())) > 2
   assert_results_equal(got, want)
-  sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
-                                  search=make_search(env, ac, compacted))
-  assert_results_equal(sharded, want)
+  if sharded:
+    sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
+                                    search=make_search(env, ac, compacted))
+    assert_results_equal(sharded, want)
 
 
 @pytest.mark.parametrize('changes, match', [

@@ -85,29 +85,38 @@ def iteration_bytes(env: base.Env, config, num_instances: int) -> int:
 
 def largest_budget(bytes_at, budget: int, available: int, minimum: int = 1) -> int:
   """The largest budget in [minimum, budget] whose bytes_at(budget) <= available, within 0.5%
-  (0 when even `minimum` does not fit); bytes_at grows about linearly with the budget."""
+  (0 when even `minimum` does not fit). bytes_at must grow with the budget; it grows about
+  linearly, so each probe interpolates between the budgets known to fit and not to fit, and a
+  probe that fits is followed by one 0.5% above it (one that does not, by one 0.5% below),
+  which ends the search where the line was right (bisection where it was not)."""
   low, low_bytes = minimum, bytes_at(minimum)
   if low_bytes > available:
     return 0
   high, high_bytes = budget, bytes_at(budget)
   if high_bytes <= available:
     return budget
-  # a linear guess, then bisection on a log scale
-  slope = (high_bytes - low_bytes) / max(high - low, 1)
-  guess = int(low + (available - low_bytes) / max(slope, 1e-9))
-  for probe in (guess, int(guess * 0.9), int(guess * 1.1)):
-    if low < probe < high:
-      if bytes_at(probe) <= available:
-        low = probe
-      else:
-        high = probe
-  while high - low > max(1, low // 200):
-    mid = int(math.sqrt(low * high)) if high > 2 * low else (low + high) // 2
-    mid = min(max(mid, low + 1), high - 1)
-    if bytes_at(mid) <= available:
-      low = mid
+  close = lambda low, high: high - low <= max(1, low // 200)
+  interpolate = True
+  while not close(low, high):
+    if interpolate:
+      probe = low + int((available - low_bytes) * (high - low) // max(high_bytes - low_bytes, 1))
     else:
-      high = mid
+      probe = int(math.sqrt(low * high)) if high > 2 * low else (low + high) // 2
+    probe = min(max(probe, low + 1), high - 1)
+    width = high - low
+    fits = (probe_bytes := bytes_at(probe)) <= available
+    if fits:
+      low, low_bytes = probe, probe_bytes
+      probe = min(low + max(1, low // 200), high - 1)  # 0.5% above: not fitting, it ends it
+    else:
+      high, high_bytes = probe, probe_bytes
+      probe = max(high - max(1, high // 201), low + 1)  # 0.5% below: fitting, it ends it
+    if not close(low, high):
+      if (probe_bytes := bytes_at(probe)) <= available:
+        low, low_bytes = probe, probe_bytes
+      else:
+        high, high_bytes = probe, probe_bytes
+    interpolate = high - low < width // 4 or not interpolate  # bisect after a poor guess
   return low
 
 
