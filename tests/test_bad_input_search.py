@@ -291,6 +291,10 @@ def _one_line_error(argv, capsys):
     (['plan', '--lattice-resolution', '0.1,a'], 'argument --lattice-resolution: must be cell '
                                                 'sizes'),
     (['plan', '--task', 'pusht'], "invalid choice: 'pusht'"),
+    (['plan', '--after-goal', 'stop', '--improve-allowance', '2'],
+     '--improve-allowance applies with --after-goal improve'),
+    (['plan', '--task', 'pusht-fixed', '--improve-allowance', '2'],
+     "the first goal ends the search (after_goal 'stop')"),
 ])
 def test_bad_cli_input_is_one_line_before_any_work(argv, message, tmp_path, capsys, no_planning):
   (tmp_path / 'file.txt').write_text('x')
