@@ -128,8 +128,7 @@ def main():
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
   parser.add_argument('--test-suite', action='store_true',
-                      help='time the test suite (`python -m pytest`, the README\'s test '
-                      'command) instead')
+                      help='time the test suite (`python -m pytest`, one process) instead')
   parser.add_argument('--merge', default='',
                       help='comma-separated result files of earlier runs to merge into --out '
                       '(runs nothing)')
