@@ -182,8 +182,9 @@ def main():
 
 
 def test_suite() -> dict:
-  """Process wall (s), pytest's summary line and exit status of `python -m pytest` run from the
-  repository root with an empty compilation cache (a new temporary folder, removed after)."""
+  """Process wall (s), pytest's summary line, exit status and failed tests of `python -m pytest`
+  run from the repository root with an empty compilation cache (a new temporary folder, removed
+  after)."""
   import shutil
   import tempfile
   root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -196,8 +197,9 @@ def test_suite() -> dict:
     shutil.rmtree(cache, ignore_errors=True)
   wall = time.perf_counter() - began
   lines = [l.strip(' =') for l in done.stdout.splitlines() if l.strip()]
+  failed = [l for l in lines if l.startswith(('FAILED ', 'ERROR '))]
   return {'command': 'python -m pytest', 'process_wall_s': wall,
-          'summary': lines[-1] if lines else '', 'returncode': done.returncode}
+          'summary': lines[-1] if lines else '', 'returncode': done.returncode, 'failed': failed}
 
 
 def merge(paths: list, out: str):
