@@ -36,8 +36,8 @@ class SignalGuard:
   another thread it installs nothing and `requested` stays None).
 
   Until `keep()`, a signal raises `Interrupted` in the main thread (nothing to keep yet; where
-  Python drops that exception, as inside a garbage-collector callback, the next `stop()` or
-  `keep()` raises it again). From
+  Python drops that exception, as inside a garbage-collector callback, it prints nothing about
+  it and the next `stop()` or `keep()` raises it again). From
   then on, the first signal only records itself in `requested` (the work checks `stop()` at its
   next chunk and returns what it has, which is then written) and prints `notice`; a second one
   ends the process at once.
@@ -52,17 +52,29 @@ class SignalGuard:
     self._keeping = False
     self._early: Optional[int] = None  # a signal before keep(), in case its raise is dropped
     self._previous = {}
+    self._previous_unraisablehook = None
 
   def __enter__(self) -> 'SignalGuard':
     if threading.current_thread() is threading.main_thread():
       for signum in SIGNALS:
         self._previous[signum] = signal.signal(signum, self._handle)
+      self._previous_unraisablehook = sys.unraisablehook
+      sys.unraisablehook = self._unraisable
     return self
 
   def __exit__(self, *exc) -> None:
     for signum, handler in self._previous.items():
       signal.signal(signum, handler)
     self._previous.clear()
+    if self._previous_unraisablehook is not None:
+      sys.unraisablehook = self._previous_unraisablehook
+      self._previous_unraisablehook = None
+
+  def _unraisable(self, unraisable) -> None:
+    """sys.unraisablehook: an `Interrupted` that Python dropped is raised again later (see
+    `_raise_early`), so it prints no "Exception ignored" traceback; others go on as before."""
+    if not (unraisable.exc_type is Interrupted and self._early is not None):
+      self._previous_unraisablehook(unraisable)
 
   def _handle(self, signum, frame) -> None:
     del frame

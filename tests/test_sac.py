@@ -165,7 +165,7 @@ class _Killed(Exception):
 
 
 class _KillAfter:
-  """A reporter that aborts the run after `epochs` epochs (a kill between checkpoints)."""
+  """A reporter that aborts the run at the row of epoch `epochs` (a kill)."""
 
   def __init__(self, epochs):
     self.epochs, self.seen = epochs, 0
@@ -184,11 +184,12 @@ class _KillAfter:
 
 def test_resume_is_bit_exact(trainer, trained, tmp_path):
   _, uninterrupted = trained
-  # Killed after epoch 5 with checkpoints every 2 epochs: resumes from epoch 4.
+  # Checkpoints every 2 epochs, killed while writing epoch 4's row: an epoch's checkpoint
+  # comes after its row (else the resumed run would lack that row), so it resumes from epoch 2.
   killed = str(tmp_path / 'killed')
   with pytest.raises(_Killed):
-    train.train(trainer, killed, TOTAL_STEPS, checkpoint_every_epochs=2, reporter=_KillAfter(5))
-  assert train.read_run_config(killed)['epoch'] == 4
+    train.train(trainer, killed, TOTAL_STEPS, checkpoint_every_epochs=2, reporter=_KillAfter(4))
+  assert train.read_run_config(killed)['epoch'] == 2
   resumed = train.train(trainer, killed, TOTAL_STEPS, resume=True)
   assert resumed.finished and resumed.epoch == uninterrupted.epoch
   assert trees_equal(resumed.state, uninterrupted.state)

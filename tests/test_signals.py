@@ -67,12 +67,13 @@ def test_signal_before_keep_raises_interrupted_with_the_shell_code(signame, code
 
 
 def test_a_signal_whose_exception_python_dropped_is_raised_at_keep():
-  # Python drops an exception raised inside a garbage-collector callback ("Exception ignored"):
-  # the guard raises it again at the next safe point
+  # Python drops an exception raised inside a garbage-collector callback ('dropped' is printed
+  # after gc.collect() returned): the guard prints no "Exception ignored" traceback for it and
+  # raises it again at the next safe point
   out = _run('dropped', 'SIGINT')
   assert out.returncode == 0, out.stderr
   assert out.stdout.split() == ['dropped', 'raised', '130']
-  assert 'Exception ignored' in out.stderr  # the drop really happened
+  assert out.stderr == ''
 
 
 @pytest.mark.parametrize('signame,code', [('SIGINT', 130), ('SIGTERM', 143)])

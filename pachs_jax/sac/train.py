@@ -391,8 +391,26 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
     reporter_.start(trainer.env_steps(epoch), trainer.env_steps(num_epochs))
   timing = _Timing(trainer, evaluate is not None)
 
-  def save(state: TrainingState, epoch: int) -> Dict[str, float]:
-    """Saves, then evaluates when that fits in the time budget."""
+  def evaluation(state: TrainingState, epoch: int) -> Dict[str, float]:
+    """The evaluation's metrics at a save, or {} when it would not fit in the time budget
+    (with the save after it) or a signal asked to stop."""
+    if evaluate is None or stop.requested is not None:
+      return {}
+    estimate = timing.evaluation_estimate()
+    if deadline is not None and time.time() + estimate + timing.save_seconds > deadline:
+      note(f'epoch {epoch}: evaluation skipped (about {estimate:.0f} s, past the time budget)')
+      return {}
+    t = time.time()
+    result = evaluate(state)
+    first = timing.evaluation_seconds is None
+    timing.evaluation_seconds = time.time() - t
+    if first:
+      note(f'an evaluation ({evaluation_env_steps(trainer)} env steps at most) took '
+           f'{timing.evaluation_seconds:.1f} s here (compilation included)')
+    return result
+
+  def save(state: TrainingState, epoch: int) -> None:
+    """Saves the training checkpoint and the model of the epoch."""
     env_steps = trainer.env_steps(epoch)
     meta = {'format': TRAINING_FORMAT, 'task': env.name,
             'observation_size': env.observation_size, 'action_size': env.action_size,
@@ -404,20 +422,6 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
                                  extra={'sac_config': config_to_dict(config), 'epoch': epoch,
                                         'env_steps': env_steps})
     timing.save_seconds = time.time() - t
-    if evaluate is None or stop.requested is not None:
-      return {}
-    estimate = timing.evaluation_estimate()
-    if deadline is not None and time.time() + estimate > deadline:
-      note(f'epoch {epoch}: evaluation skipped (about {estimate:.0f} s, past the time budget)')
-      return {}
-    t = time.time()
-    result = evaluate(state)
-    first = timing.evaluation_seconds is None
-    timing.evaluation_seconds = time.time() - t
-    if first:
-      note(f'an evaluation ({evaluation_env_steps(trainer)} env steps at most) took '
-           f'{timing.evaluation_seconds:.1f} s here (compilation included)')
-    return result
 
   saved_epoch, last_save_time = epoch, time.time()
   try:
@@ -443,10 +447,14 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
       if not due and deadline is not None:
         due = time.time() + timing.next_epoch() > deadline
       if due:
-        metrics.update(save(state, epoch))
-        saved_epoch, last_save_time = epoch, time.time()
+        metrics.update(evaluation(state, epoch))
+      # The epoch's row before its checkpoint: a run killed between the two resumes at the
+      # earlier checkpoint and drops the rows past it, so each epoch keeps one row.
       if reporter_ is not None:
         reporter_.report(trainer.env_steps(epoch), metrics)
+      if due:
+        save(state, epoch)
+        saved_epoch, last_save_time = epoch, time.time()
     if saved_epoch != epoch:
       save(state, epoch)
   finally:
