@@ -128,7 +128,8 @@ def main():
   parser.add_argument('--out', default='experiments/results/bench_startup.json')
   parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
   parser.add_argument('--test-suite', action='store_true',
-                      help='time the test suite (`python -m pytest`, one process) instead')
+                      help='time the test suite instead (`python -m pytest` with the options '
+                      'of pyproject.toml: two worker processes)')
   parser.add_argument('--merge', default='',
                       help='comma-separated result files of earlier runs to merge into --out '
                       '(runs nothing)')
