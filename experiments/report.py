@@ -14,6 +14,8 @@ import statistics
 import sys
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
+import stats
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = 'experiments/results'
 README = 'README.md'
@@ -502,12 +504,10 @@ def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3
 
 
 def paired_ratio(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
-  """Mean per-run cost ratio of a_planner's runs in payload a over b_planner's in b, on the
-  runs (instance, round) both solved."""
-  other = {(r['instance'], r['round']): r['cost'] for r in b['runs'][b_planner] if r['found']}
-  ratios = [r['cost'] / other[(r['instance'], r['round'])] for r in a['runs'][a_planner]
-            if r['found'] and (r['instance'], r['round']) in other]
-  return f'{statistics.fmean(ratios):.2f}' if ratios else '-'
+  """`cost_ratio` across two payloads of the same runs: a_planner's in a over b_planner's in b."""
+  ratios = stats.cost_ratios({'a': a['runs'][a_planner], 'b': b['runs'][b_planner]})
+  ratio = ratios['a']['b']['mean_ratio']
+  return '-' if ratio is None else f'{ratio:.2f}'
 
 
 WIDEN_PAIRS = (  # (label, (file, planner) with compaction alone, (file, planner) with widening)
