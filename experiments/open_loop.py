@@ -67,8 +67,9 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
                                                          search=search)), config
     limit = args.time_limit
 
-    def fn(starts, keys):
-      return programs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search)
+    def fn(starts, keys):  # every program compiled before the clock starts
+      return programs.plan(env, model, starts, config, keys, time_limit_s=limit, search=search,
+                           compile_first=True)
     return fn, config
   if name == 'single':
     config = bl.SingleRolloutConfig()

@@ -166,7 +166,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          min_bucket: Optional[int] = None, shrink: bool = True,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
-         started: Optional[Callable[[], object]] = None) -> SearchResult:
+         started: Optional[Callable[[], object]] = None,
+         compile_first: bool = False) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -183,7 +184,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     The programs are compiled or loaded concurrently, beside the model check, and wall_time_s
     leaves them out: init, result and the loop of the live instances' lane layout before the
     clock starts; the loops of the other layouts the search can reach also before it with a
-    time limit, else beside the search (time spent waiting for one is not counted).
+    time limit or compile_first (a benchmark's search time: no compiling beside the search),
+    else beside the search (time spent waiting for one is not counted).
   search: a `Programs` to reuse (its compiled programs stay warm between calls), or a
     `make_search` result (compiled for this call only); None builds one.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
@@ -251,7 +253,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       check_memory(env, actor_critic, start_nodes, config, search, padded,
                    need=memory.tree_bytes((programs['init'].out_shapes,
                                            programs['result'].out_shapes)))
-    for lanes in reachable[:1] if time_limit_s is None else reachable:
+    for lanes in reachable[:1] if time_limit_s is None and not compile_first else reachable:
       if isinstance(programs[('loop', lanes)], concurrent.futures.Future):
         programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)
     if stop is not None and stop():

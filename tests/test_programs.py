@@ -1,0 +1,47 @@
+"""`programs.plan`'s compiling rule: with compile_first (a benchmark's pure search time) every
+loop a search can reach is compiled before the clock starts, and the result is the same."""
+
+import concurrent.futures
+import dataclasses
+
+import jax
+import numpy as np
+
+from conftest import assert_results_equal
+from pachs_jax.envs import gridworld
+from pachs_jax.programs import Programs, plan
+from pachs_jax.search import SearchConfig, make_search
+
+
+def _loops(search: Programs):
+  """{lanes layout: compiled program or Future} of the search's single bucket."""
+  (programs,) = search.compiled.values()
+  return {name[1]: p for name, p in programs.items() if isinstance(name, tuple)}
+
+
+def test_compile_first_compiles_every_reachable_loop_before_the_search():
+  env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
+  ac = gridworld.GridActorCritic(env)
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=200,
+                        compact_fractions=(0.25, 0.5))
+  nodes = env.node(np.array([[0, 0], [7, 7], [2, 6], [5, 1]]),
+                   np.array([[6, 5], [0, 1], [7, 0], [5, 6]]))
+  key = jax.random.PRNGKey(3)
+  pending = {}
+
+  def record(search):
+    return lambda: pending.update({
+        lanes: isinstance(p, concurrent.futures.Future) for lanes, p in _loops(search).items()})
+
+  first = Programs(make_search(env, ac, config))
+  got = plan(env, ac, nodes, config, key, search=first, compile_first=True,
+             started=record(first))
+  reachable = first.search.reachable(4, 4)
+  assert len(reachable) == 3 and set(pending) == set(reachable)
+  assert not any(pending.values()), pending  # all compiled when the search began
+  # without it the smaller loops may still compile while the search runs; the result is equal
+  second = Programs(make_search(env, ac, dataclasses.replace(config)))
+  pending.clear()
+  want = plan(env, ac, nodes, config, key, search=second, started=record(second))
+  assert set(pending) == set(reachable)
+  assert_results_equal(got, want)
