@@ -435,6 +435,13 @@ def warp_physics(src: Sources) -> str:
       ('first run on a fresh machine (Warp compiles its kernels)', 'first_on_fresh_machine'),
       ('cold (JAX caches empty, Warp kernels cached)', 'cold'), ('warm', 'warm'),
       ('warm, XLA_PYTHON_CLIENT_PREALLOCATE=false', 'warm, XLA_PYTHON_CLIENT_PREALLOCATE=false'))]
+  now = src.load('engines/plan_startup_improve_warp.json')['runs']
+  now_rows = [[label, span([r['process_wall_s'] for r in now if r['run'] == key]),
+               span([float(re.search(r'search time ([0-9.]+) s', r['printed']).group(1))
+                     for r in now if r['run'] == key])]
+              for label, key in (('first run on a fresh machine (Warp compiles its kernels)',
+                                  'first run on a fresh machine'),
+                                 ('cold', 'cold'), ('warm', 'warm'))]
   warm = next(p for p in start['phases'] if p['run'] == 'B' and p['label'] == 'warm')['phases']
   phase_rows = [[name, f'{warm[key]:.1f}'] for name, key in (
       ('import jax', 'import jax'), ('import MuJoCo, MJX and MuJoCo Warp',
@@ -469,7 +476,8 @@ def warp_physics(src: Sources) -> str:
       table(['K', 'solved', 'wall', 'mean evaluations', 'mean cost (solved)'], pop),
       'Keeping the GPU full at the tail of the suite (PACHS, K 64, Warp physics, 150 runs, '
       '100,000 evaluations, one H200): every lane simulated; compaction (the live instances\' '
-      'edges gathered into the smallest of 1/8 and 1/64 of the lanes; the accelerator default); '
+      'edges gathered into the smallest of 1/8 and 1/64 of the lanes; the accelerator default '
+      'then, see "the compaction ladder" below); '
       'compaction and widening (`--widen-factors 2,4,8`: once the instances still searching hold '
       'at most 1/m of the lanes, each pops m x 64 edges); and K 128 throughout. Solved, batch '
       'wall (s) and mean cost of the solved runs:',
@@ -478,6 +486,9 @@ def warp_physics(src: Sources) -> str:
       '`pachs plan --task pusht-obs` on one GPU with Warp physics (`--backend auto` picks it), '
       'process wall in s:',
       table(['run', 'process wall'], plan_rows),
+      'The same command with today\'s PushT-Obs default (after_goal \'improve\': the search '
+      'goes on after the first goal), process wall and the search time it prints (s):',
+      table(['run', 'process wall', 'search'], now_rows),
       'Where a warm run\'s time goes (s, one profiled run):',
       table(['phase', 's'], phase_rows),
       'PACHS run to budget with Warp physics against `env.evaluate` alone at the same batch:',
@@ -592,6 +603,97 @@ def after_goal_gpu(src: Sources) -> str:
       table(['layout', 'compaction', 'wall', 'compaction + widening', 'wall'], widen)])
 
 
+# The default's runs on more seeds and calls, and the two compaction ladders they were run with:
+# (file in default_gpu_runs/, layout label, instance set, search seed, compaction, how timed)
+DEFAULT_RUNS = (
+    ('two-gaps_seed0_eighth', 'two-gaps', 0, 0, 'eighth', 'beside'),
+    ('two-gaps_seed0_halving', 'two-gaps', 0, 0, 'halving', 'beside'),
+    ('two-gaps_seed0_eighth_2', 'two-gaps', 0, 0, 'eighth', 'beside'),
+    ('two-gaps_seed0_halving_2', 'two-gaps', 0, 0, 'halving', 'beside'),
+    ('two-gaps_seed0_eighth_first', 'two-gaps', 0, 0, 'eighth', 'first'),
+    ('two-gaps_seed0_halving_first', 'two-gaps', 0, 0, 'halving', 'first'),
+    ('wall_seed0_eighth', 'wall', 0, 0, 'eighth', 'beside'),
+    ('wall_seed0_halving', 'wall', 0, 0, 'halving', 'beside'),
+    ('detour_seed0_halving', 'detour', 0, 0, 'halving', 'beside'),
+    ('detour_set1_seed1_halving', 'detour', 1, 1, 'halving', 'beside'),
+    ('detour_set1_seed2_halving', 'detour', 1, 2, 'halving', 'beside'),
+    ('slot_seed0_halving', 'slot', 0, 0, 'halving', 'beside'),
+    ('slot_seed0_eighth_first', 'slot', 0, 0, 'eighth', 'first'),
+    ('slot_seed0_halving_first', 'slot', 0, 0, 'halving', 'first'),
+    ('gate_seed0_halving', 'gate', 0, 0, 'halving', 'beside'),
+    ('gate_seed1_halving', 'gate', 0, 1, 'halving', 'beside'),
+    ('gate_seed2_halving', 'gate', 0, 2, 'halving', 'beside'),
+    ('gate_seed0_eighth_first', 'gate', 0, 0, 'eighth', 'first'),
+    ('gate_seed0_halving_first', 'gate', 0, 0, 'halving', 'first'),
+    ('gate-mirror_seed1_halving', 'gate-mirror (held out)', 0, 1, 'halving', 'beside'),
+    ('gate-mirror_seed2_halving', 'gate-mirror (held out)', 0, 2, 'halving', 'beside'),
+    ('wall-right_seed0_halving', 'wall-right (held out)', 0, 0, 'halving', 'beside'))
+LADDERS = {'eighth': '1/8, 1/64', 'halving': '1/2, 1/4, 1/8, 1/64'}
+
+
+def default_runs(src: Sources) -> str:
+  """PushT-Obs's default on more search seeds, instance sets and calls (outcomes against the
+  rollout of the same call), and the physics batch sizes of compaction compared by wall."""
+  outcome, pooled = [], {}
+  for name, layout, instance_set, seed, ladder, timed in DEFAULT_RUNS:
+    p = src.load(f'default_gpu_runs/{name}.json')
+    if summary_of(p, 'parallel') is None:
+      continue
+    improve, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
+    lead = 100 * (improve['success_rate'] - parallel['success_rate'])
+    behind = most_behind(p, 'pachs-improve', p, 'parallel')
+    outcome.append([layout, str(instance_set), str(seed), solved(improve), solved(parallel),
+                    f'{lead:+.1f}', behind, cost_ratio(p, 'pachs-improve', 'parallel')])
+    pooled.setdefault((layout, instance_set), []).append((lead, int(behind)))
+  for label, name in AFTER_GOAL_SETS:  # the suite's call of each set (seed 0)
+    p = src.load(f'after_goal_gpu/{name}.json')
+    improve, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
+    key = (label.replace(', instance set 1', ''), 1 if 'instance set 1' in label else 0)
+    if key in pooled:
+      pooled[key].append((100 * (improve['success_rate'] - parallel['success_rate']),
+                          int(most_behind(p, 'pachs-improve', p, 'parallel'))))
+  pooled_rows = [[layout, str(instance_set), str(len(v)),
+                  f'{statistics.mean(x for x, _ in v):+.1f}',
+                  f'{min(x for x, _ in v):+.1f} to {max(x for x, _ in v):+.1f}',
+                  str(max(b for _, b in v)), str(sum(b > 0 for _, b in v))]
+                 for (layout, instance_set), v in pooled.items()]
+  walls = {}
+  for name, layout, instance_set, seed, ladder, timed in DEFAULT_RUNS:
+    if instance_set == 0 and seed == 0 and layout in LAYOUTS:
+      r = summary_of(src.load(f'default_gpu_runs/{name}.json'), 'pachs-improve')
+      walls.setdefault((layout, timed), {}).setdefault(ladder, []).append(
+          f'{r["successes"]}/{r["runs"]} in {r["batch_wall_s"]:.2f} s')
+  wall_rows = [[layout, 'compiled first' if timed == 'first' else 'compiling beside the search',
+                '; '.join(v.get('eighth', ['-'])), '; '.join(v.get('halving', ['-']))]
+               for (layout, timed), v in walls.items()]
+  same = [summary_of(src.load(f'default_gpu_runs/{name}.json'), 'pachs-improve')['successes']
+          for name, layout, instance_set, seed, _, _ in DEFAULT_RUNS
+          if (layout, instance_set, seed) == ('two-gaps', 0, 0)]
+  return '\n\n'.join([
+      'The default (after_goal \'improve\', allowance 3) and the parallel rollout in the same '
+      'call, on more search seeds (`--seed`), the second instance set (`--instance-seed 1`) and '
+      'repeated calls, 150 runs each at 100,000 evaluations with Warp physics on one H200. Lead, '
+      'behind and cost as in the section above. With Warp physics the same command gives '
+      f'different outcomes from call to call (two-gaps, seed 0: {min(same)} to {max(same)} of '
+      f'150 over {len(same)} calls), so each call is a sample:',
+      table(['layout', 'instance set', 'seed', 'default', 'parallel rollout', 'lead', 'behind',
+             'cost / parallel'], outcome),
+      'Pooled with the suite\'s call above: calls, mean lead (points), its range, the most runs '
+      'behind at any budget from 3,000 evaluations, and the calls that were behind at some '
+      'budget:',
+      table(['layout', 'instance set', 'calls', 'mean lead', 'lead range', 'most behind',
+             'calls behind'], pooled_rows),
+      'Compaction gathers the live instances\' edges into the smallest of a ladder of physics '
+      'batch sizes (fractions of the padded I x K lanes; 150 instances are padded to 256). '
+      f'Batch wall of PACHS\'s default with the ladder {LADDERS["eighth"]} against '
+      f'{LADDERS["halving"]} (the accelerator default since), solved and wall per call. '
+      '"Compiled first": every loop program compiled before the clock starts '
+      '(`programs.plan(compile_first=True)`, what `open_loop.py` does now); "compiling '
+      'beside": the smaller sizes\' loops compiled in threads while the search runs, as the '
+      'earlier walls of this page were measured:',
+      table(['layout', 'timed', LADDERS['eighth'], LADDERS['halving']], wall_rows)])
+
+
 def after_goal(src: Sources) -> str:
   """PACHS after its first goal, stop or improve, against the parallel rollout on the same runs
   (10 instances per layout, MuJoCo C physics on a CPU)."""
@@ -683,6 +785,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('MuJoCo Playground', playground),
     ('MuJoCo Warp physics', warp_physics),
     ('PACHS after the first goal', after_goal_gpu),
+    ('PACHS\'s default on more seeds, and the compaction ladder', default_runs),
     ('PACHS after the first goal: the CPU runs behind the default', after_goal),
     ('PushT physics: agreement and penetration', physics),
 )

@@ -25,11 +25,11 @@ CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
 
 # On an accelerator, where a physics call costs about the same from a few to thousands of
 # worlds: SearchConfig.compact_fractions, the smallest batch that holds the live instances'
-# lanes (docs/results.md). SearchConfig.widen_factors (2, 4, 8) cuts the wall further but
-# spends evaluations less well: the default with it solved fewer runs at 8,000-17,000
-# evaluations and fell behind the parallel rollout there, so it is not set by default. None
+# lanes, in halving sizes down to an eighth, then a 64th (docs/results.md, "Keeping the GPU
+# full"). SearchConfig.widen_factors cuts the wall further but spends evaluations less well
+# (behind the parallel rollout at 8,000-17,000 evaluations), so it is not set by default. None
 # applies on a CPU.
-COMMAND_COMPACT_FRACTIONS = (0.125, 0.015625)
+COMMAND_COMPACT_FRACTIONS = (0.5, 0.25, 0.125, 0.015625)
 
 
 def accelerator_settings(on_cpu: bool) -> dict:
