@@ -226,7 +226,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   shrinking = jax.device_put(np.bool_(shrink))
   programs = owner.compiled.setdefault((padded, jax.default_backend()), {})
   # every program compiled (or loaded from the store) at once, beside the model check; without
-  # a time limit the smaller loops go on beside the search
+  # a time limit or compile_first the smaller loops go on beside the search
   threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
   try:
     checked = threads.submit(check_model, env, actor_critic, start_nodes, config.num_actions,
