@@ -267,11 +267,14 @@ def main(argv=None) -> int:
   with signals.SignalGuard(command) as guard:
     try:
       return _main_prefetching(words, guard)
-    except signals.Interrupted as err:
+    except (signals.Interrupted, ImportError) as err:  # (an import the signal broke)
+      interrupted = signals.interrupted_by(err)
+      if interrupted is None:
+        raise
       name = guard.phase or ('start-up' if words[:1] == ['plan'] else 'the command')
-      print(f'{command}: {signal_name(err.signum)}: stopped during {name}; nothing written',
-            file=sys.stderr, flush=True)
-      return err.exit_code
+      print(f'{command}: {signal_name(interrupted.signum)}: stopped during {name}; nothing '
+            'written', file=sys.stderr, flush=True)
+      return interrupted.exit_code
 
 
 def signal_name(signum: int) -> str:

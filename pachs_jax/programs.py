@@ -237,6 +237,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     new = 'init' not in programs
     if new:
       programs['init'] = compiled_program(search.init, (start_nodes, keys, live), stored('init'))
+      # a budget that cannot fit is refused before the result and loops compile (traced only)
+      check_memory(env, actor_critic, start_nodes, config, search, padded,
+                   need=memory.tree_bytes((programs['init'].out_shapes, jax.eval_shape(
+                       search.result, programs['init'].out_shapes))))
       result = threads.submit(compiled_program, search.result,
                               (programs['init'].out_shapes,), stored('result'))
     for lanes in reachable:
@@ -250,9 +254,6 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     _wait(checked, stop)  # a bad model's error before anything runs
     if new:
       programs['result'] = _wait(result, stop)
-      check_memory(env, actor_critic, start_nodes, config, search, padded,
-                   need=memory.tree_bytes((programs['init'].out_shapes,
-                                           programs['result'].out_shapes)))
     for lanes in reachable[:1] if time_limit_s is None and not compile_first else reachable:
       if isinstance(programs[('loop', lanes)], concurrent.futures.Future):
         programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)

@@ -26,6 +26,18 @@ class Interrupted(BaseException):
     return 128 + self.signum
 
 
+def interrupted_by(err: BaseException) -> Optional[Interrupted]:
+  """The `Interrupted` that err is or that led to it (a signal during the initialization of a
+  C extension module surfaces as the ImportError that it caused); None otherwise."""
+  seen = set()
+  while err is not None and id(err) not in seen:
+    if isinstance(err, Interrupted):
+      return err
+    seen.add(id(err))
+    err = err.__cause__ or err.__context__
+  return None
+
+
 class StoppedBeforeSearch(Exception):
   """A `stop` callable turned True before the work began (e.g. while its programs compiled):
   there is nothing to keep."""

@@ -227,13 +227,14 @@ TWO_HOSTS = textwrap.dedent('''
 ''')
 
 
-def _run_two_processes(tmp_path, port):
-  """(return code, output) of each of the two processes joined at 127.0.0.1:port."""
+def _run_two_processes(tmp_path, port, cache_dir):
+  """(return code, output) of each of the two processes joined at 127.0.0.1:port, compiling
+  with the persistent cache at cache_dir (None: none)."""
   procs = []
   for i in range(2):
-    env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=2',
-               JAX_PLATFORMS='cpu', JAX_COORDINATOR_ADDRESS=f'127.0.0.1:{port}',
-               JAX_NUM_PROCESSES='2', JAX_PROCESS_ID=str(i))
+    env = jax_cache_env(cache_dir, XLA_FLAGS='--xla_force_host_platform_device_count=2',
+                        JAX_PLATFORMS='cpu', JAX_COORDINATOR_ADDRESS=f'127.0.0.1:{port}',
+                        JAX_NUM_PROCESSES='2', JAX_PROCESS_ID=str(i))
     log = open(tmp_path / f'process{i}_{port}.log', 'w+')  # files: no pipe can fill and stall
     procs.append((subprocess.Popen([sys.executable, '-c', TWO_HOSTS], env=env, text=True,
                                    stdout=log, stderr=subprocess.STDOUT), log))
@@ -254,12 +255,12 @@ def _run_two_processes(tmp_path, port):
   return results
 
 
-def test_two_processes_equal_unsharded(tmp_path):
+def test_two_processes_equal_unsharded(tmp_path, compilation_cache_dir):
   for attempt in range(2):  # a second port if another program took the first one meanwhile
     with socket.socket() as s:
       s.bind(('127.0.0.1', 0))
       port = s.getsockname()[1]
-    results = _run_two_processes(tmp_path, port)
+    results = _run_two_processes(tmp_path, port, compilation_cache_dir)
     if attempt == 0 and any('address already in use' in out.lower() for _, out in results):
       continue
     break

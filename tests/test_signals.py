@@ -92,3 +92,29 @@ def test_second_signal_exits_at_once(signame, code):
   assert 'still running' not in out.stdout
   assert f'prog: {signame} again: exiting now' in out.stderr
   assert 'Traceback' not in out.stderr
+
+
+def test_a_signal_that_breaks_an_import_during_start_up_prints_one_line(monkeypatch, capsys):
+  # a signal during a C extension's initialization (e.g. `import mujoco`) surfaces as the
+  # ImportError it caused: start-up stopped, one line, the signal's exit code; another
+  # ImportError is not taken for a signal
+  from pachs_jax import cli
+  from pachs_jax.signals import Interrupted
+
+  def broken_import(words, guard):
+    try:
+      raise Interrupted(signal.SIGINT)
+    except Interrupted as err:
+      raise ImportError('initialization failed') from err
+
+  monkeypatch.setattr(cli, '_main_prefetching', broken_import)
+  assert cli.main(['plan', '--no-cache']) == 130
+  assert capsys.readouterr().err == ('pachs plan: SIGINT: stopped during start-up; nothing '
+                                     'written\n')
+
+  def missing(words, guard):
+    raise ImportError('no module named x')
+
+  monkeypatch.setattr(cli, '_main_prefetching', missing)
+  with pytest.raises(ImportError, match='no module named x'):
+    cli.main(['plan', '--no-cache'])
