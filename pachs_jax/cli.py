@@ -263,6 +263,7 @@ def main(argv=None) -> int:
   # a one-shot command: GPU memory taken as needed, not 75% of the card up front (which takes
   # seconds on a large GPU; docs/startup_and_caching.md); read when JAX starts its backend
   os.environ.setdefault('XLA_PYTHON_CLIENT_PREALLOCATE', 'false')
+  skip_glfw_probe(os.environ)
   command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo']) else 'pachs'
   with signals.SignalGuard(command) as guard:
     try:
@@ -275,6 +276,26 @@ def main(argv=None) -> int:
       print(f'{command}: {signal_name(interrupted.signum)}: stopped during {name}; nothing '
             'written', file=sys.stderr, flush=True)
       return interrupted.exit_code
+
+
+def skip_glfw_probe(environ) -> None:
+  """Names pyglfw's bundled GLFW library (Linux: its x11 build, or wayland where the session or
+  PYGLFW_LIBRARY_VARIANT says so) in environ['PYGLFW_LIBRARY'], unless that is set or the
+  library is missing. `import mujoco` imports glfw, which otherwise starts a Python subprocess
+  to read each candidate library's version: a process start per command, and a traceback of
+  that process (a broken pipe) when a signal ends the command meanwhile."""
+  if environ.get('PYGLFW_LIBRARY'):
+    return
+  import importlib.util  # start-up path: only here
+  spec = importlib.util.find_spec('glfw')
+  if spec is None or not spec.submodule_search_locations:
+    return
+  variant = environ.get('PYGLFW_LIBRARY_VARIANT', '').lower()
+  if variant not in ('x11', 'wayland'):
+    variant = 'wayland' if environ.get('XDG_SESSION_TYPE') == 'wayland' else 'x11'
+  library = os.path.join(list(spec.submodule_search_locations)[0], variant, 'libglfw.so')
+  if sys.platform.startswith('linux') and os.path.isfile(library):
+    environ['PYGLFW_LIBRARY'] = library
 
 
 def signal_name(signum: int) -> str:

@@ -13,6 +13,12 @@ import pytest
 
 from pachs_jax import compile_cache
 
+try:  # the tests compile MuJoCo Warp's CPU kernels (once per machine) at -O0: on a new 2-core
+  import warp  # machine about 40 s of kernel compilation become 21 s
+  warp.config.optimization_level = 0
+except ImportError:
+  pass
+
 
 # The test files that take longest on an empty compilation cache (2 cores), longest first.
 # They run first, the other files after them in name order (pyproject.toml runs each file in one

@@ -1,5 +1,6 @@
 """The `pachs plan` command end to end on the CPU, with small budgets, and its input errors."""
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -100,3 +101,31 @@ def test_plan_leaves_the_opengl_backend_alone():
                         env=env, check=True)
   printed = [line for line in done.stdout.splitlines() if line.startswith('MUJOCO_GL=')]
   assert printed == ['MUJOCO_GL=None', 'MUJOCO_GL=egl'], done.stdout
+
+
+def test_the_command_imports_mujoco_without_starting_a_process():
+  """pyglfw (imported by mujoco) starts a Python process to probe each GLFW library unless
+  PYGLFW_LIBRARY names one; `pachs` names the bundled one, so that its start-up starts no
+  process (and a signal then leaves no traceback of that process)."""
+  names = {}
+  cli.skip_glfw_probe(names)
+  if importlib.util.find_spec('glfw') is None:
+    assert names == {}
+    return
+  assert os.path.isfile(names['PYGLFW_LIBRARY']) and '/x11/' in names['PYGLFW_LIBRARY']
+  mine = {'PYGLFW_LIBRARY': '/my/libglfw.so'}
+  cli.skip_glfw_probe(mine)
+  assert mine == {'PYGLFW_LIBRARY': '/my/libglfw.so'}
+  wayland = {'XDG_SESSION_TYPE': 'wayland'}
+  cli.skip_glfw_probe(wayland)
+  assert '/wayland/' in wayland.get('PYGLFW_LIBRARY', '/wayland/')
+  script = ('import os, sys; from pachs_jax import cli\n'
+            'started = []\n'
+            'sys.addaudithook(lambda e, a: started.append(e) if e == "subprocess.Popen" else None)\n'
+            'if sys.argv[1] == "skip": cli.skip_glfw_probe(os.environ)\n'
+            'import mujoco\n'
+            'print(len(started))')
+  env = {k: v for k, v in os.environ.items() if k not in ('PYGLFW_LIBRARY', 'MUJOCO_GL')}
+  counts = [subprocess.run([sys.executable, '-c', script, how], capture_output=True, text=True,
+                           env=env, check=True).stdout.split()[-1] for how in ('probe', 'skip')]
+  assert counts[1] == '0' and counts[0] != '0', counts
