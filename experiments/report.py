@@ -442,6 +442,27 @@ def warp_physics(src: Sources) -> str:
               for label, key in (('first run on a fresh machine (Warp compiles its kernels)',
                                   'first run on a fresh machine'),
                                  ('cold', 'cold'), ('warm', 'warm'))]
+  h100 = src.load('engines/plan_startup_h100.json')
+  search_s = lambda r: float(re.search(r'search time ([0-9.]+) s', r['printed']).group(1))
+  h100_rows = []
+  for job, label, keys in (
+      ('D', 'first run on a fresh machine (Warp compiles its kernels)', ('first_on_fresh_machine',)),
+      ('D', 'cold', ('cold',)), ('D', 'warm', ('warm1', 'warm2', 'warm3')),
+      ('C', 'cold, packages without compiled bytecode', ('cold',)),
+      ('C', 'warm, packages without compiled bytecode', ('warm1', 'warm2', 'warm3'))):
+    chosen = [r for r in h100['runs'] if r['job'] == job and r['run'] in keys]
+    h100_rows.append([label, span([r['process_wall_s'] for r in chosen]),
+                      span([search_s(r) for r in chosen])])
+  h100_imports = h100['imports_s']
+  h100_warm = next(p for p in h100['phases'] if p['label'] == 'warm')['phases']
+  h100_phases = [[name, f'{h100_warm[key]:.1f}'] for name, key in (
+      ('import jax', 'import jax'), ('checkpoint load', 'checkpoint load'),
+      ('model, env and Warp model', 'load_model (env + physics + checkpoint)'),
+      ('search loop: trace, lower, JAX cache load', 'trace+lower+XLA compile/JAX-cache load '
+                                                    '(not stored)'),
+      ('search', 'search run (result.wall_time_s, in pachs.plan)'),
+      ('the command in the profiling process (imports of MuJoCo and the package excluded)',
+       'cli.main (all of the command)'))]
   warm = next(p for p in start['phases'] if p['run'] == 'B' and p['label'] == 'warm')['phases']
   phase_rows = [[name, f'{warm[key]:.1f}'] for name, key in (
       ('import jax', 'import jax'), ('import MuJoCo, MJX and MuJoCo Warp',
@@ -491,6 +512,15 @@ def warp_physics(src: Sources) -> str:
       table(['run', 'process wall', 'search'], now_rows),
       'Where a warm run\'s time goes (s, one profiled run):',
       table(['phase', 's'], phase_rows),
+      f'The same command on an H100 host at a later revision (two fresh machines; process wall '
+      f'and printed search time). The GPU machine unpacks its packages without compiled '
+      f'bytecode (pip compiles it on install): there the imports of the package, JAX, MuJoCo, '
+      f'MJX and MuJoCo Warp took {span(h100_imports["without_bytecode"])}, and '
+      f'{span(h100_imports["with_bytecode"])} once compiled (`python -X importtime`):',
+      table(['run', 'process wall', 'search'], h100_rows),
+      'Where a warm run\'s time went on that H100 host (s, one profiled run, packages without '
+      'compiled bytecode):',
+      table(['phase', 's'], h100_phases),
       'PACHS run to budget with Warp physics against `env.evaluate` alone at the same batch:',
       table(['instances', 'K', 'edges/s', 'raw env steps/s', 'search / raw'], search),
       f'Iteration time against live instances, {runs} two-gaps runs stepped one iteration '
@@ -844,6 +874,9 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
   again = src.load('engines/plan_startup_improve_warp.json')['runs']  # another machine, later
   cold = [cold] + [r['process_wall_s'] for r in again if r['run'] == 'cold']
   warm = list(warm) + [r['process_wall_s'] for r in again if r['run'] == 'warm']
+  h100 = [r for r in src.load('engines/plan_startup_h100.json')['runs'] if r['job'] == 'D']
+  cold += [r['process_wall_s'] for r in h100 if r['run'] == 'cold']
+  warm += [r['process_wall_s'] for r in h100 if r['run'].startswith('warm')]
   claims = cpu_claims(src)
   devices = sorted({run['device'].split(': ')[-1].replace(' x1', '')
                     for r in rows for run in runs_of(r[1])})
@@ -857,7 +890,8 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       f'{" or one ".join(devices)}, each task\'s default (PushT-Obs: MuJoCo Warp physics, the '
       f'first goal\'s path improved; the policy alone there from MJX runs). Path cost: mean '
       f'ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` (30 '
-      f'instances, one GPU, Warp; two machines): {span(cold)} cold, {span(warm)} warm. On a '
+      f'instances, one GPU, Warp; three machines, H200 and H100): {span(cold)} cold, '
+      f'{span(warm)} warm. On a '
       f'2-core CPU: '
       f'{claims["job"]}. '
       f'Tests: {claims["suite"]}. Every table, its device, command and revision: '
