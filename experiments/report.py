@@ -454,6 +454,15 @@ def warp_physics(src: Sources) -> str:
     h100_rows.append([label, span([r['process_wall_s'] for r in chosen]),
                       span([search_s(r) for r in chosen])])
   h100_imports = h100['imports_s']
+  transfer = src.load('engines/plan_startup_first_transfer.json')['runs']
+  transfer_rows = []
+  for label, prefix in (('without', 'without'), ('with the first transfer in a thread', 'with')):
+    chosen = [r for r in transfer if re.fullmatch(prefix + r'\d', r['run'])]
+    outside = [r['process_wall_s'] - float(re.search(r'([0-9.]+) s with compilation',
+                                                     r['printed']).group(1)) for r in chosen]
+    transfer_rows.append([label, span([r['process_wall_s'] for r in chosen]),
+                          f'{sum(r["process_wall_s"] for r in chosen) / len(chosen):.1f} s',
+                          f'{sum(outside) / len(outside):.1f} s'])
   h100_warm = next(p for p in h100['phases'] if p['label'] == 'warm')['phases']
   h100_phases = [[name, f'{h100_warm[key]:.1f}'] for name, key in (
       ('import jax', 'import jax'), ('checkpoint load', 'checkpoint load'),
@@ -521,6 +530,12 @@ def warp_physics(src: Sources) -> str:
       'Where a warm run\'s time went on that H100 host (s, one profiled run, packages without '
       'compiled bytecode):',
       table(['phase', 's'], h100_phases),
+      'A process\'s first transfer to the GPU sets the device up (about 1 s of that host\'s '
+      'model load). Started in a thread beside the imports of MuJoCo and the package, it saved '
+      'nothing measurable (warm runs on one H100 host, alternating, 4 each; "outside": the '
+      'process wall less the planning call with its compilation), so it is not done:',
+      table(['warm runs', 'process wall', 'mean', 'mean outside the planning call'],
+            transfer_rows),
       'PACHS run to budget with Warp physics against `env.evaluate` alone at the same batch:',
       table(['instances', 'K', 'edges/s', 'raw env steps/s', 'search / raw'], search),
       f'Iteration time against live instances, {runs} two-gaps runs stepped one iteration '

@@ -75,24 +75,27 @@ def test_pachs_with_compaction_equals_without():
   config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
   key = jax.random.PRNGKey(1)
   want = plan(env, ac, nodes, config, key)
-  env.batches.clear()
-  got = plan(env, ac, nodes, dataclasses.replace(config, compact_fractions=(0.25, 0.5)), key)
-  jax.effects_barrier()
-  # 6 instances padded to 8 (programs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
-  # ran once at most 4 and then 2 instances were still searching
-  assert {8, 16} <= set(env.batches) and 32 in env.batches, env.batches
   assert np.asarray(want.found).sum() >= 4
   assert len(set(np.asarray(want.iterations).tolist())) > 1  # instances stop at different times
-  assert_results_equal(got, want)
-  # without shrinking (the one-shot command): the search stays in the first size's loop
   compacted = dataclasses.replace(config, compact_fractions=(0.25, 0.5))
   search = Programs(make_search(env, ac, compacted))
+  # without shrinking (the one-shot command): the search stays in the first size's loop
   env.batches.clear()
   assert_results_equal(plan(env, ac, nodes, compacted, key, search=search, shrink=False), want)
   jax.effects_barrier()
   assert set(env.batches) == {32}, env.batches
-  assert [name for name in search.compiled[(8, jax.default_backend())]
-          if isinstance(name, tuple)] == [('loop', pachs.Lanes(None, 1))]
+  loops = lambda: [name for name in search.compiled[(8, jax.default_backend())]
+                   if isinstance(name, tuple)]
+  assert loops() == [('loop', pachs.Lanes(None, 1))]
+  # shrinking, with the same programs (the smaller sizes' loops compile now)
+  env.batches.clear()
+  got = plan(env, ac, nodes, compacted, key, search=search)
+  jax.effects_barrier()
+  # 6 instances padded to 8 (programs.bucket_size) x K 4 = 32 lanes: the smaller batches (8, 16)
+  # ran once at most 4 and then 2 instances were still searching
+  assert {8, 16} <= set(env.batches) and 32 in env.batches, env.batches
+  assert len(loops()) == 3, loops()
+  assert_results_equal(got, want)
   # (inside shard_map: test_segment.py, test_segments_with_compaction_equal_without)
   for bad in ((0.5, 1.0), 0.5, (float('nan'),)):
     with pytest.raises(ValueError, match='compact_fractions'):

@@ -14,7 +14,7 @@ from conftest import assert_results_equal
 from pachs_jax import planner
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, make_search
-from pachs_jax.programs import plan
+from pachs_jax.programs import Programs, plan
 from pachs_jax import sharding
 from pachs_jax.search import capacity, segment
 
@@ -121,15 +121,19 @@ def test_segments_with_compaction_equal_without(grid, share, restart, sharded):
   env, ac, nodes = grid
   key = jax.random.PRNGKey(2)
   config = dataclasses.replace(CONFIG, rollout_share=share, chain_restart=restart)
-  # one smaller batch (two: test_compact.py)
+  # one smaller batch (two: test_compact.py); without shrinking the whole search runs in the
+  # full batch's loop, which the compacted search also runs first (one program for both;
+  # test_compact.py checks that this equals a config without compaction)
   compacted = dataclasses.replace(config, compact_fractions=(0.5,))
-  want = plan(env, ac, nodes, config, key)
-  got = plan(env, ac, nodes, compacted, key)
+  search = Programs(make_search(env, ac, compacted))
+  want = plan(env, ac, nodes, compacted, key, search=search, shrink=False)
+  got = plan(env, ac, nodes, compacted, key, search=search)
   assert len(set(np.asarray(want.iterations).tolist())) > 2
+  loops = [name for name in search.compiled[(8, jax.default_backend())] if isinstance(name, tuple)]
+  assert len(loops) == 2, loops  # the full batch's loop (both calls) and the half batch's
   assert_results_equal(got, want)
   if sharded:
-    sharded = sharding.plan_sharded(env, ac, nodes, compacted, key,
-                                    search=make_search(env, ac, compacted))
+    sharded = sharding.plan_sharded(env, ac, nodes, compacted, key, search=search.search)
     assert_results_equal(sharded, want)
 
 
