@@ -6,6 +6,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+import hashlib
 import os
 import threading
 from typing import List, Optional, Sequence
@@ -16,7 +17,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from pachs_jax.envs import base, pusht, warp_import, warp_physics
+from pachs_jax.envs import base, host_call, pusht, warp_import, warp_physics
 
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 BACKENDS = ('auto', 'mjx', 'mujoco-c', 'warp')
@@ -135,7 +136,9 @@ def rollout_to_batch(env: pusht.PushTEnv, state: np.ndarray, warmstart: np.ndarr
 # ---- the batched physics: one rollout call per batch ----
 
 class _Simulator:
-  """A persistent `mujoco.rollout.Rollout` over one model: held ctrl, `substeps` steps."""
+  """A persistent `mujoco.rollout.Rollout` over one model: held ctrl, `substeps` steps.
+  `close()` stops its threads; a later call starts them again (the custom call of a program
+  compiled for an env that was closed reaches an equal simulator: `host_call`)."""
 
   def __init__(self, model: mujoco.MjModel, substeps: int, nthread: int):
     self.model = model
@@ -161,9 +164,10 @@ class _Simulator:
     return out.reshape(lead + (3,))
 
   def close(self):
-    if self._runner is not None:
-      self._runner.close()
-      self._runner = None
+    with self._lock:
+      if self._runner is not None:
+        self._runner.close()
+        self._runner = None
 
   def __call__(self, qpos, qvel, warmstart, ctrl):
     """float32 (qpos [..., nq], qvel [..., nv], qacc_warmstart [..., nv], ok [...] bool) after
@@ -191,9 +195,9 @@ class _Simulator:
     ok = np.zeros((num,), bool)
     if num:
       state = _nodes_to_states(lay, qpos, qvel)
-      if self._runner is None:
-        raise RuntimeError('the MuJoCo C simulator was closed')
       with self._lock:
+        if self._runner is None:
+          self._runner = rollout.Rollout(nthread=self.nthread)
         traj, _ = self._runner.rollout([m] * num, self._datas[:max(self.nthread, 1)], state,
                                        ctrl[:, None, :], nstep=self.substeps,
                                        initial_warmstart=warm)
@@ -212,6 +216,13 @@ class _Simulator:
       out_warm = acc.astype(np.float32)
     return (out_qpos.reshape(lead + (m.nq,)), out_qvel.reshape(lead + (m.nv,)),
             out_warm.reshape(lead + (m.nv,)), ok.reshape(lead))
+
+
+def _model_digest(model: mujoco.MjModel) -> str:
+  """16 hex digits of the SHA-256 of the model's binary (MJB) form."""
+  buffer = np.empty(mujoco.mj_sizeModel(model), np.uint8)
+  mujoco.mj_saveModel(model, None, buffer)
+  return hashlib.sha256(buffer.tobytes()).hexdigest()[:16]
 
 
 # ---- the search / training backend ----
@@ -237,6 +248,14 @@ class MujocoCEnv(base.Env):
     self._sim = _Simulator(env.mj_model, env.config.substeps, nthread)
     self._lower = jnp.asarray(env._arm_lower)
     self._upper = jnp.asarray(env._arm_upper)
+    # the programs call the simulator as XLA custom calls named by what they compute (the
+    # model's bytes, the substeps, the site), so that JAX's persistent cache stores them
+    digest = _model_digest(env.mj_model)
+    self._step_target = f'pachs_mujoco_c_step_{digest}_{env.config.substeps}'
+    self._tip_target = f'pachs_mujoco_c_site_{digest}_{env._tip_site}'
+    host_call.register(self._step_target, self._sim)
+    host_call.register(self._tip_target, functools.partial(self._sim.site_position,
+                                                           env._tip_site))
 
   def __getattr__(self, name):
     # Only reached for attributes this wrapper lacks (config, mj_model, node_from_pose, ...).
@@ -267,8 +286,7 @@ class MujocoCEnv(base.Env):
     batch shape of node.qpos; one callback per call, also under vmap)."""
     qpos = jnp.asarray(node.qpos, jnp.float32)
     spec = jax.ShapeDtypeStruct(qpos.shape[:-1] + (3,), jnp.float32)
-    fn = functools.partial(self._sim.site_position, self.env._tip_site)
-    return jax.pure_callback(fn, spec, qpos, vmap_method='broadcast_all')
+    return host_call.call(self._tip_target, (spec,), qpos)[0]
 
   def goal_reached(self, node):
     return self.env.goal_reached(node)
@@ -301,7 +319,7 @@ class MujocoCEnv(base.Env):
     f32 = lambda n: jax.ShapeDtypeStruct(lead + (n,), jnp.float32)
     spec = (f32(m.nq), f32(m.nv), f32(m.nv), jax.ShapeDtypeStruct(lead, jnp.bool_))
     args = [jnp.asarray(x, jnp.float32) for x in (qpos, qvel, qacc_warmstart, ctrl)]
-    return jax.pure_callback(self._sim, spec, *args, vmap_method='broadcast_all')
+    return tuple(host_call.call(self._step_target, spec, *args))
 
   def evaluate(self, nodes: base.NodeState, actions: jax.Array) -> base.EdgeOutcome:
     """Evaluates B edges in MuJoCo C: nodes [B], actions [B, action_size] in [-1, 1]."""
