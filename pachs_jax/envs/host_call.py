@@ -125,12 +125,9 @@ def _handler(name: str):
     try:
       args = [_array(frame.args.values[i].contents) for i in range(frame.args.size)]
       outs = [_array(frame.rets.values[i].contents) for i in range(frame.rets.size)]
-      with _lock:
-        fn = _functions[name]
-      results = fn(*args)
-      results = (results,) if len(outs) == 1 and not isinstance(results, tuple) else results
-      for out, result in zip(outs, results):
-        np.copyto(out, np.asarray(result).reshape(out.shape), casting='same_kind')
+      specs = [jax.ShapeDtypeStruct(out.shape, out.dtype) for out in outs]
+      for out, result in zip(outs, _results(name, args, specs)):
+        out[...] = result.reshape(out.shape)
       return None
     except Exception as e:  # pylint: disable=broad-except  (reported by XLA as the call's error)
       message = f'{name}: {type(e).__name__}: {e}'.encode()
@@ -151,7 +148,27 @@ def register(name: str, fn: Callable[..., object]) -> None:
   jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(handler), platform='cpu', api_version=1)
 
 
-def call(name: str, results: Sequence[jax.ShapeDtypeStruct], *args):
+def _results(name: str, args: Sequence[np.ndarray], results: Sequence[jax.ShapeDtypeStruct]):
+  """The function behind name on host arrays, as arrays of the results' dtypes."""
+  with _lock:
+    fn = _functions[name]
+  out = fn(*args)
+  out = (out,) if len(results) == 1 and not isinstance(out, tuple) else out
+  return tuple(np.asarray(x, r.dtype) for x, r in zip(out, results))
+
+
+def call(name: str, results: Sequence[jax.ShapeDtypeStruct], *args) -> tuple:
   """The results of target name on args, from traced code; vmapped, one call takes the whole
-  batch (leading axes on every argument and result)."""
-  return jax.ffi.ffi_call(name, tuple(results), vmap_method='broadcast_all')(*args)
+  batch (leading axes on every argument and result). Lowered for the CPU it is the custom call;
+  for another platform (whose buffers live on the device) a `jax.pure_callback` of the same
+  function on host copies."""
+  results = tuple(results)
+
+  def on_cpu(*xs):
+    return tuple(jax.ffi.ffi_call(name, results, vmap_method='broadcast_all')(*xs))
+
+  def elsewhere(*xs):
+    return tuple(jax.pure_callback(lambda *a: _results(name, a, results), results, *xs,
+                                   vmap_method='broadcast_all'))
+
+  return jax.lax.platform_dependent(*args, cpu=on_cpu, default=elsewhere)
