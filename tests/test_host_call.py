@@ -48,6 +48,11 @@ def test_an_error_in_the_function_names_the_target_and_the_error():
   with pytest.raises(Exception, match="pachs_test_fails: ValueError: no such state"):
     jax.block_until_ready(jax.jit(lambda x: host_call.call('pachs_test_fails', spec, x))(
         jnp.ones(2)))
+  host_call.register('pachs_test_short', lambda x: (x,))
+  with pytest.raises(Exception, match='pachs_test_short: ValueError: gave 1 results, the call '
+                     'takes 2'):
+    jax.block_until_ready(jax.jit(lambda x: host_call.call('pachs_test_short', spec * 2, x))(
+        jnp.ones(2)))
 
 
 def test_programs_are_stored_by_the_persistent_cache(compilation_cache_dir):

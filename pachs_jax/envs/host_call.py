@@ -139,7 +139,8 @@ def _handler(name: str):
 
 def register(name: str, fn: Callable[..., object]) -> None:
   """Makes fn(*arrays) -> array or tuple of arrays the CPU target `name` of this process
-  (again: fn replaces the function behind the name; it must compute the same)."""
+  (again: fn replaces the function behind the name; it must compute the same). fn gets views
+  of XLA's buffers, valid during the call only."""
   with _lock:
     _functions[name] = fn
     if name in _handlers:
@@ -154,6 +155,8 @@ def _results(name: str, args: Sequence[np.ndarray], results: Sequence[jax.ShapeD
     fn = _functions[name]
   out = fn(*args)
   out = (out,) if len(results) == 1 and not isinstance(out, tuple) else out
+  if len(out) != len(results):
+    raise ValueError(f'gave {len(out)} results, the call takes {len(results)}')
   return tuple(np.asarray(x, r.dtype) for x, r in zip(out, results))
 
 
