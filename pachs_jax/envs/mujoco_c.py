@@ -283,7 +283,7 @@ class MujocoCEnv(base.Env):
 
   def tip_position(self, node: base.NodeState) -> jax.Array:
     """[3] world position of the stick tip (m), by MuJoCo C forward kinematics (any leading
-    batch shape of node.qpos; one callback per call, also under vmap)."""
+    batch shape of node.qpos; one simulator call per call, also under vmap)."""
     qpos = jnp.asarray(node.qpos, jnp.float32)
     spec = jax.ShapeDtypeStruct(qpos.shape[:-1] + (3,), jnp.float32)
     return host_call.call(self._tip_target, (spec,), qpos)[0]
