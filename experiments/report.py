@@ -435,15 +435,14 @@ def warp_physics(src: Sources) -> str:
       ('first run on a fresh machine (Warp compiles its kernels)', 'first_on_fresh_machine'),
       ('cold (JAX caches empty, Warp kernels cached)', 'cold'), ('warm', 'warm'),
       ('warm, XLA_PYTHON_CLIENT_PREALLOCATE=false', 'warm, XLA_PYTHON_CLIENT_PREALLOCATE=false'))]
+  search_s = lambda r: float(re.search(r'search time ([0-9.]+) s', r['printed']).group(1))
   now = src.load('engines/plan_startup_improve_warp.json')['runs']
   now_rows = [[label, span([r['process_wall_s'] for r in now if r['run'] == key]),
-               span([float(re.search(r'search time ([0-9.]+) s', r['printed']).group(1))
-                     for r in now if r['run'] == key])]
+               span([search_s(r) for r in now if r['run'] == key])]
               for label, key in (('first run on a fresh machine (Warp compiles its kernels)',
                                   'first run on a fresh machine'),
                                  ('cold', 'cold'), ('warm', 'warm'))]
   h100 = src.load('engines/plan_startup_h100.json')
-  search_s = lambda r: float(re.search(r'search time ([0-9.]+) s', r['printed']).group(1))
   h100_rows = []
   for job, label, keys in (
       ('D', 'first run on a fresh machine (Warp compiles its kernels)', ('first_on_fresh_machine',)),

@@ -1,15 +1,7 @@
-"""NumPy functions called from jitted programs on the CPU as XLA FFI custom calls.
-
-`jax.pure_callback` embeds a Python object in its program, so JAX's persistent compilation
-cache never stores a program that holds one: a MuJoCo C search loop was compiled again in every
-process. A custom call names its target instead. `register(name, fn)` makes `fn` the target
-`name` of this process (XLA's target table is per process, so this module keeps the functions
-behind the names it registered), and `call(name, ...)` calls it from traced code. A name must
-fix what its function computes (e.g. a digest of the model it simulates): a program stored
-under one process is run with the function registered under its name in another.
-
-The handler follows XLA's FFI C API (xla/ffi/api/c_api.h, API version 0.1) through ctypes.
-"""
+"""NumPy functions called from jitted programs as XLA FFI custom calls on the CPU (a
+`jax.pure_callback` elsewhere): programs that name a target, unlike those holding a callback,
+are stored by JAX's persistent cache (docs/startup_and_caching.md). The handler speaks XLA's
+FFI C API (xla/ffi/api/c_api.h, version 0.1) through ctypes."""
 
 from __future__ import annotations
 
@@ -89,7 +81,9 @@ class _CallFrame(ctypes.Structure):
 
 _Handler = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.POINTER(_CallFrame))
 
-# this process's targets: name -> the function behind it, and the ctypes handlers XLA holds
+# this process's targets (XLA's table of them is per process): name -> the function behind
+# it, and the ctypes handlers XLA holds. A name must fix what its function computes: a program
+# stored by one process runs with the function registered under the name in another.
 _functions: Dict[str, Callable] = {}
 _handlers: Dict[str, object] = {}
 _lock = threading.Lock()
@@ -125,8 +119,7 @@ def _handler(name: str):
     try:
       args = [_array(frame.args.values[i].contents) for i in range(frame.args.size)]
       outs = [_array(frame.rets.values[i].contents) for i in range(frame.rets.size)]
-      specs = [jax.ShapeDtypeStruct(out.shape, out.dtype) for out in outs]
-      for out, result in zip(outs, _results(name, args, specs)):
+      for out, result in zip(outs, _results(name, args, [out.dtype for out in outs])):
         out[...] = result.reshape(out.shape)
       return None
     except Exception as e:  # pylint: disable=broad-except  (reported by XLA as the call's error)
@@ -149,15 +142,13 @@ def register(name: str, fn: Callable[..., object]) -> None:
   jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(handler), platform='cpu', api_version=1)
 
 
-def _results(name: str, args: Sequence[np.ndarray], results: Sequence[jax.ShapeDtypeStruct]):
-  """The function behind name on host arrays, as arrays of the results' dtypes."""
-  with _lock:
-    fn = _functions[name]
-  out = fn(*args)
-  out = (out,) if len(results) == 1 and not isinstance(out, tuple) else out
-  if len(out) != len(results):
-    raise ValueError(f'gave {len(out)} results, the call takes {len(results)}')
-  return tuple(np.asarray(x, r.dtype) for x, r in zip(out, results))
+def _results(name: str, args: Sequence[np.ndarray], dtypes: Sequence) -> tuple:
+  """The function behind name on host arrays, as arrays of the given dtypes."""
+  out = _functions[name](*args)
+  out = (out,) if len(dtypes) == 1 and not isinstance(out, tuple) else out
+  if len(out) != len(dtypes):
+    raise ValueError(f'gave {len(out)} results, the call takes {len(dtypes)}')
+  return tuple(np.asarray(x, dtype) for x, dtype in zip(out, dtypes))
 
 
 def call(name: str, results: Sequence[jax.ShapeDtypeStruct], *args) -> tuple:
@@ -171,7 +162,8 @@ def call(name: str, results: Sequence[jax.ShapeDtypeStruct], *args) -> tuple:
     return tuple(jax.ffi.ffi_call(name, results, vmap_method='broadcast_all')(*xs))
 
   def elsewhere(*xs):
-    return tuple(jax.pure_callback(lambda *a: _results(name, a, results), results, *xs,
+    dtypes = [r.dtype for r in results]
+    return tuple(jax.pure_callback(lambda *a: _results(name, a, dtypes), results, *xs,
                                    vmap_method='broadcast_all'))
 
   return jax.lax.platform_dependent(*args, cpu=on_cpu, default=elsewhere)
