@@ -71,38 +71,33 @@ exec(SETUP, _scope)  # pylint: disable=exec-used
 ENV, AC, NODES, CONFIG = _scope['ENV'], _scope['AC'], _scope['NODES'], _scope['CONFIG']
 BASELINES = ('rollout', 'beam', 'epase', 'single')
 
-# 6 instances over 4 devices (padded to 8); compares every field but the wall time. Prints
-# NAME_OK per planner, or NAME_FAILED with the error (each planner is checked).
+# 6 instances over 4 devices (padded to 8), each planner's result compared, every field but the
+# wall time, with the unsharded result this process saved (`references`), so that the
+# subprocess compiles only the sharded programs. Prints NAME_OK per planner, or NAME_FAILED
+# with the error (each planner is checked).
 FOUR_DEVICES = SETUP + textwrap.dedent('''
+    import sys
     import traceback
     from pachs_jax.search import make_search
-    from pachs_jax.programs import plan
     assert len(jax.devices()) == 4, jax.devices()
     key = jax.random.PRNGKey(3)
     mesh = sharding.instance_mesh()
+    references = np.load(sys.argv[1])
 
-    def same(want, got):
+    def same(name, got):
       assert got.found.shape == (6,), got.found.shape
-      want_leaves = jax.tree.leaves(want.replace(wall_time_s=None))
       got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
-      assert len(want_leaves) == len(got_leaves) > 0
-      for w, g in zip(want_leaves, got_leaves):
-        assert np.array_equal(np.asarray(w), np.asarray(g)), (w, g)
+      assert len(got_leaves) == int(references[name + '_leaves']) > 0
+      for i, g in enumerate(got_leaves):
+        assert np.array_equal(references[f'{name}_{i}'], np.asarray(g)), (name, i)
       assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
       assert np.asarray(got.evaluated).sum() > 0
 
-    def check_pachs():
-      search = make_search(ENV, AC, CONFIG)
-      want = plan(ENV, AC, NODES, CONFIG, key, search=search)
-      got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=mesh, search=search)
-      assert np.asarray(want.found).sum() >= 4, want.found
-      same(want, got)
-
-    checks = {'pachs': check_pachs}
-    for name, (shard_fn, unsharded) in baselines().items():
-      checks[name] = (lambda s, u: lambda: same(u(NODES, key),
-                                                sharding.plan_sharded_fn(s, NODES, key, mesh)))(
-                                                    shard_fn, unsharded)
+    checks = {'pachs': lambda: same('pachs', sharding.plan_sharded(
+        ENV, AC, NODES, CONFIG, key, mesh=mesh, search=make_search(ENV, AC, CONFIG)))}
+    for name, (shard_fn, _) in baselines().items():
+      checks[name] = (lambda n, s: lambda: same(n, sharding.plan_sharded_fn(s, NODES, key,
+                                                                            mesh)))(name, shard_fn)
     for name, check in checks.items():
       try:
         check()
@@ -110,15 +105,43 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
       except Exception:  # pylint: disable=broad-except
         print(f'{name.upper()}_FAILED', traceback.format_exc(), flush=True)
 ''')
+REFERENCE_KEY = 3  # the key of the unsharded results the subprocesses compare with
 
 
 @pytest.fixture(scope='module')
-def four_devices(compilation_cache_dir):
+def search():
+  return make_search(ENV, AC, CONFIG)
+
+
+@pytest.fixture(scope='module')
+def baselines():
+  return _scope['baselines']()
+
+
+@pytest.fixture(scope='module')
+def references(tmp_path_factory, search, baselines):
+  """(the unsharded results of PACHS and each baseline with PRNGKey(REFERENCE_KEY), by name;
+  a .npz file of their arrays for the subprocesses: NAME_leaves, NAME_0, NAME_1, ...)."""
+  key = jax.random.PRNGKey(REFERENCE_KEY)
+  results = {'pachs': plan(ENV, AC, NODES, CONFIG, key, search=search)}
+  results.update((name, unsharded(NODES, key)) for name, (_, unsharded) in baselines.items())
+  arrays = {}
+  for name, result in results.items():
+    leaves = result_leaves(result)
+    arrays[name + '_leaves'] = np.asarray(len(leaves))
+    arrays.update((f'{name}_{i}', leaf) for i, leaf in enumerate(leaves))
+  path = tmp_path_factory.mktemp('sharding') / 'references.npz'
+  np.savez(path, **arrays)
+  return results, str(path)
+
+
+@pytest.fixture(scope='module')
+def four_devices(compilation_cache_dir, references):
   """stdout of the 4-device script (run once for the module), which compiles with the test
   run's persistent cache."""
   env = jax_cache_env(compilation_cache_dir,
                       XLA_FLAGS='--xla_force_host_platform_device_count=4', JAX_PLATFORMS='cpu')
-  proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES], env=env, capture_output=True,
+  proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES, references[1]], env=env, capture_output=True,
                         text=True, timeout=600)
   assert proc.returncode == 0, proc.stderr[-4000:]
   return proc.stdout
@@ -129,14 +152,9 @@ def test_four_devices_equal_unsharded(four_devices, name):
   assert f'{name.upper()}_OK' in four_devices, four_devices[-4000:]
 
 
-@pytest.fixture(scope='module')
-def search():
-  return make_search(ENV, AC, CONFIG)
-
-
-def test_default_mesh_equals_plan(search):
-  key = jax.random.PRNGKey(7)
-  want = plan(ENV, AC, NODES, CONFIG, key, search=search)
+def test_default_mesh_equals_plan(search, references):
+  key = jax.random.PRNGKey(REFERENCE_KEY)
+  want = references[0]['pachs']
   got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, search=search)
   assert np.asarray(want.found).sum() >= 4  # most instances finish with real paths
   assert (np.asarray(want.path_length) > 0).sum() >= 4
@@ -148,16 +166,11 @@ def test_default_mesh_equals_plan(search):
   assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
 
 
-@pytest.fixture(scope='module')
-def baselines():
-  return _scope['baselines']()
-
-
 @pytest.mark.parametrize('name', BASELINES)
-def test_baseline_default_mesh_equals_unsharded(baselines, name):
+def test_baseline_default_mesh_equals_unsharded(baselines, references, name):
   shard_fn, unsharded = baselines[name]
-  key = jax.random.PRNGKey(5)
-  want = unsharded(NODES, key)
+  key = jax.random.PRNGKey(REFERENCE_KEY)
+  want = references[0][name]
   got = sharding.plan_sharded_fn(shard_fn, NODES, key)
   assert got.found.shape == (NODES.qpos.shape[0],)
   assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
@@ -205,39 +218,40 @@ def test_bad_input_raises(search):
 
 # Two processes ("hosts") of 2 CPU devices each, joined by `initialize_multihost` through the
 # JAX_COORDINATOR_ADDRESS variables: 6 instances over the 4 global devices (padded to 8), the
-# result gathered whole on every process, equal to the unsharded plan field by field.
+# result gathered whole on every process, equal field by field to the unsharded plan this
+# process saved (`references`).
 TWO_HOSTS = textwrap.dedent('''
     from pachs_jax import sharding as _sharding
     assert _sharding.initialize_multihost(), 'the job was not joined'
 ''') + SETUP + textwrap.dedent('''
+    import sys
     from pachs_jax.search import make_search
-    from pachs_jax.programs import plan
     assert jax.process_count() == 2 and len(jax.devices()) == 4, jax.devices()
     assert len(jax.local_devices()) == 2
     key = jax.random.PRNGKey(3)
-    search = make_search(ENV, AC, CONFIG)
     got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=sharding.instance_mesh(),
-                                search=search)
-    want = plan(ENV, AC, NODES, CONFIG, key, search=search)
+                                search=make_search(ENV, AC, CONFIG))
+    references = np.load(sys.argv[1])
     assert np.asarray(got.found).shape == (6,) and np.asarray(got.found).sum() >= 4
-    for w, g in zip(jax.tree.leaves(want.replace(wall_time_s=None)),
-                    jax.tree.leaves(got.replace(wall_time_s=None))):
-      assert np.array_equal(np.asarray(w), np.asarray(g)), (w, g)
+    got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
+    assert len(got_leaves) == int(references['pachs_leaves'])
+    for i, g in enumerate(got_leaves):
+      assert np.array_equal(references[f'pachs_{i}'], np.asarray(g)), i
     print(f'PROCESS{jax.process_index()}_OK', flush=True)
 ''')
 
 
-def _run_two_processes(tmp_path, port, cache_dir):
+def _run_two_processes(tmp_path, port, cache_dir, references):
   """(return code, output) of each of the two processes joined at 127.0.0.1:port, compiling
-  with the persistent cache at cache_dir (None: none)."""
+  with the persistent cache at cache_dir (None: none), comparing with the .npz references."""
   procs = []
   for i in range(2):
     env = jax_cache_env(cache_dir, XLA_FLAGS='--xla_force_host_platform_device_count=2',
                         JAX_PLATFORMS='cpu', JAX_COORDINATOR_ADDRESS=f'127.0.0.1:{port}',
                         JAX_NUM_PROCESSES='2', JAX_PROCESS_ID=str(i))
     log = open(tmp_path / f'process{i}_{port}.log', 'w+')  # files: no pipe can fill and stall
-    procs.append((subprocess.Popen([sys.executable, '-c', TWO_HOSTS], env=env, text=True,
-                                   stdout=log, stderr=subprocess.STDOUT), log))
+    procs.append((subprocess.Popen([sys.executable, '-c', TWO_HOSTS, references], env=env,
+                                   text=True, stdout=log, stderr=subprocess.STDOUT), log))
   deadline = time.monotonic() + 600
   results = []
   try:
@@ -255,12 +269,12 @@ def _run_two_processes(tmp_path, port, cache_dir):
   return results
 
 
-def test_two_processes_equal_unsharded(tmp_path, compilation_cache_dir):
+def test_two_processes_equal_unsharded(tmp_path, compilation_cache_dir, references):
   for attempt in range(2):  # a second port if another program took the first one meanwhile
     with socket.socket() as s:
       s.bind(('127.0.0.1', 0))
       port = s.getsockname()[1]
-    results = _run_two_processes(tmp_path, port, compilation_cache_dir)
+    results = _run_two_processes(tmp_path, port, compilation_cache_dir, references[1])
     if attempt == 0 and any('address already in use' in out.lower() for _, out in results):
       continue
     break
