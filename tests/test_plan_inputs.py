@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import io
 
+import jax
 import numpy as np
 import pytest
 
@@ -142,12 +143,10 @@ def test_progress_in_a_log_prints_a_line_now_and_then():
 # -- memory: one iteration's working set ---------------------------------------------------------
 
 class _Env:
+  """The sizes `memory.iteration_bytes` reads: a node of 16 float32 positions and t."""
   observation_size, action_size = 20, 7
-
-  def sample_instance(self, key):
-    del key
-    import jax.numpy as jnp
-    return {'qpos': jnp.zeros(16), 't': jnp.zeros((), jnp.int32)}
+  node_spec = {'qpos': jax.ShapeDtypeStruct((16,), np.float32),
+               't': jax.ShapeDtypeStruct((), np.int32)}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,7 @@ pytest.importorskip('mujoco_playground')
 from pachs_jax import envs  # pylint: disable=wrong-import-position
 from pachs_jax.envs import playground  # pylint: disable=wrong-import-position
 
-BATCH, STEPS = 4, 6
+BATCH, STEPS = 4, 8  # the shapes of the protocol check's `restore_rollout` (one program)
 
 
 @pytest.fixture(scope='module')
@@ -22,27 +22,13 @@ def env():
 
 @pytest.fixture(scope='module')
 def rollout(env):
-  """The env's own reset and step (vmapped, jitted) against the adapter's nodes and evaluate
-  along one random-action rollout: (env states [STEPS], adapter edges [STEPS])."""
-  pg = env.playground_env
-
-  @jax.jit
-  def run(keys, actions):
-    states = jax.vmap(pg.reset)(keys)
-    nodes = jax.vmap(lambda s: env.node_from_state(s, 0))(states)
-
-    def body(carry, action):
-      states, nodes = carry
-      want = jax.vmap(pg.step)(states, action)
-      got = env.evaluate(nodes, action)
-      return (want, got.next_node), (want, got)
-
-    return jax.lax.scan(body, (states, nodes), actions)[1]
-
+  """The env's own reset and step (vmapped) beside the adapter's evaluate along random-action
+  rollouts (`restore_rollout`, the program the env fixture's check compiled): (env
+  States [STEPS, BATCH], adapter edges [STEPS, BATCH])."""
   keys = jax.random.split(jax.random.PRNGKey(7), BATCH)
   actions = jax.random.uniform(jax.random.PRNGKey(8), (STEPS, BATCH, env.action_size),
                                jnp.float32, -1.0, 1.0)
-  return run(keys, actions)
+  return env.restore_rollout(keys, actions)
 
 
 def _same(a, b) -> bool:
@@ -173,19 +159,13 @@ def test_warp_implementation_restores_and_matches_jax(env):
   warp_env = playground.from_playground(raw)  # check_task, restore included
   assert warp_env.impl == 'warp' and env.impl == 'jax'
   keys = jax.random.split(jax.random.PRNGKey(7), BATCH)
-  actions = jax.random.uniform(jax.random.PRNGKey(8), (BATCH, env.action_size), jnp.float32,
-                               -1.0, 1.0)
-
-  @jax.jit
-  def both(keys, actions):
-    states = jax.vmap(raw.reset)(keys)
-    nodes = jax.vmap(lambda s: warp_env.node_from_state(s, 0))(states)
-    return jax.vmap(raw.step)(states, actions), warp_env.evaluate(nodes, actions)
-
-  want, got = both(keys, actions)
+  actions = jax.random.uniform(jax.random.PRNGKey(8), (STEPS, BATCH, env.action_size),
+                               jnp.float32, -1.0, 1.0)
+  want, got = warp_env.restore_rollout(keys, actions)  # the check's program
   assert bool(np.all(np.asarray(got.is_valid)))
   assert _same((want.data.qpos, want.data.qvel, want.reward),
                (got.next_node.qpos, got.next_node.qvel, got.next_node.reward))
+  actions = actions[0]
   starts = env.canonical_instances(BATCH)
   assert _same(starts.qpos, warp_env.canonical_instances(BATCH).qpos)
   jax_out = jax.jit(env.evaluate)(starts, actions)

@@ -148,10 +148,14 @@ class Env(abc.ABC):
   # ---- training interface (Brax style), on a single environment ----
 
   @functools.cached_property
+  def node_spec(self) -> NodeState:
+    """The shapes and dtypes of one node, no batch axis (`sample_instance` traced once)."""
+    return jax.eval_shape(self.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
+
+  @functools.cached_property
   def observation_size(self) -> int:
     """Length O of `observation` (traced once, not computed)."""
-    node = jax.eval_shape(self.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
-    return int(jax.eval_shape(self.observation, node).shape[-1])
+    return int(jax.eval_shape(self.observation, self.node_spec).shape[-1])
 
   @property
   @abc.abstractmethod

@@ -7,6 +7,7 @@ so the core package imports without it."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from typing import Any, Callable, Dict, Mapping, Optional, Sequence, Union
 
@@ -291,28 +292,39 @@ class PlaygroundEnv(base.Env):
 
   # ---- the exactness check (protocol.check_task calls it) ----
 
-  def restore_mismatches(self, num_steps: int = 8, seed: int = 0) -> list:
-    """Names of the Playground State fields where `transition` (restore, then the env's step)
-    differs bit for bit from the env's own step along a random-action rollout; [] when exact.
-    """
+  @functools.cached_property
+  def restore_rollout(self):
+    """Jitted, one program per env and shapes: (keys [B, 2], actions [T, B, A]) -> (the env's
+    own States [T, B], this adapter's `EdgeOutcome`s [T, B]) along rollouts of the actions
+    from the env's resets with keys, stepped by the env's own step and, beside it, by
+    `evaluate` (restore, then step); exact when each next node restores its State bit for
+    bit."""
     env = self.playground_env
 
-    def rollout(key):
-      k_reset, k_act = jax.random.split(key)
-      actions = jax.random.uniform(k_act, (num_steps, self.action_size), jnp.float32, -1, 1)
+    def restore_rollout(keys, actions):
+      states = jax.vmap(env.reset)(keys)
 
       def body(carry, action):
-        state, node = carry
-        want = env.step(state, action)
-        got = self.transition(node, action)
-        return (want, got.next_node), (want, got.next_node)
+        states, nodes = carry
+        want = jax.vmap(env.step)(states, action)
+        got = self.evaluate(nodes, action)
+        return (want, got.next_node), (want, got)
 
-      state = env.reset(k_reset)
-      _, (want, got) = jax.lax.scan(body, (state, self.node_from_state(state, 0)), actions)
-      return want, got
+      nodes = jax.vmap(lambda state: self.node_from_state(state, 0))(states)
+      return jax.lax.scan(body, (states, nodes), actions)[1]
 
-    want, got = jax.jit(rollout)(jax.random.PRNGKey(seed))
-    restored = jax.vmap(self.state_from_node)(got)
+    return jax.jit(restore_rollout)
+
+  def restore_mismatches(self, num_steps: int = 8, num_rollouts: int = 4, seed: int = 0) -> list:
+    """Names of the Playground State fields where `transition` differs bit for bit from the
+    env's own step along num_rollouts random-action rollouts of num_steps (`restore_rollout`);
+    [] when exact."""
+    keys = jax.random.split(jax.random.PRNGKey(seed), num_rollouts + 1)
+    actions = jax.random.uniform(keys[0], (num_steps, num_rollouts, self.action_size),
+                                 jnp.float32, -1, 1)
+    want, out = self.restore_rollout(keys[1:], actions)
+    got = out.next_node
+    restored = jax.vmap(jax.vmap(self.state_from_node))(got)
     pairs = {f'data.{k}': (getattr(want.data, k), getattr(restored.data, k))
              for k in STATE_FIELDS if hasattr(want.data, k)}
     pairs.update({'obs': (want.obs, got.obs), 'reward': (want.reward, got.reward),

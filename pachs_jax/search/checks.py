@@ -81,15 +81,10 @@ def env_lattice_resolution(env: base.Env, resolution) -> jax.Array:
   return jax.device_put(resolution)
 
 
-def node_spec(env: base.Env) -> base.NodeState:
-  """The shapes of one node of env (no batch axis)."""
-  return jax.eval_shape(env.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
-
-
 def check_start_nodes(start_nodes: base.NodeState, env: base.Env) -> int:
   """The number of instances I of start_nodes [I, ...]; ValueError when the shapes do not fit
   env's NodeState."""
-  spec = node_spec(env)
+  spec = env.node_spec
   leaves, spec_leaves = jax.tree.leaves(start_nodes), jax.tree.leaves(spec)
   if (jax.tree.structure(start_nodes) != jax.tree.structure(spec)
       or any(jnp.ndim(x) != len(s.shape) + 1 or jnp.shape(x)[1:] != s.shape
@@ -109,7 +104,7 @@ def conform_start_nodes(start_nodes: base.NodeState, env: base.Env) -> base.Node
   """start_nodes with each field cast to the dtype of env's NodeState where that keeps its
   kind (int32 qpos -> float32, float64 -> float32); ValueError naming the field and both
   dtypes otherwise (e.g. float t). Fields of the right dtype are returned as given."""
-  spec = node_spec(env)
+  spec = env.node_spec
   if not dataclasses.is_dataclass(start_nodes) or type(start_nodes) is not type(spec):
     return start_nodes  # check_start_nodes names the mismatch
   changes = {}

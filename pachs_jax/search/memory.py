@@ -72,8 +72,7 @@ def iteration_bytes(env: base.Env, config, num_instances: int) -> int:
   of H transitions: a state, an action, a cost and flags per transition), each counted twice
   (inputs and outputs); a widened iteration (config.widen_factors, m) pops and expands m x K
   per instance. A physics engine's own buffers (MJX's per-world data) come on top."""
-  node = jax.eval_shape(env.sample_instance, jax.ShapeDtypeStruct((2,), jnp.uint32))
-  node_bytes = tree_bytes(node)
+  node_bytes = tree_bytes(env.node_spec)
   lanes = num_instances * config.pop_size
   steps = getattr(config, 'edge_steps', 1)
   expansion = node_bytes + 4 * env.observation_size + config.num_actions * 4 * (
