@@ -550,12 +550,16 @@ AFTER_GOAL_SETS = tuple((layout, layout) for layout in LAYOUTS) + (
 
 def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> str:
   """The most runs by which a_planner's success curve in payload a trails b_planner's in b at
-  a budget >= start ('0' where it never trails); both curves over the same budgets."""
-  runs = a['summary'][0]['runs']
-  gap = max([round((y - x) * runs) for budget, x, y in zip(
-      a['curve_budgets'], a['success_curve'][a_planner], b['success_curve'][b_planner])
-             if budget >= start], default=0)
-  return str(max(gap, 0))
+  a budget >= start, with the exact McNemar p of the paired runs there ('0' where it never
+  trails; `stats.most_behind`); both payloads of the same runs."""
+  runs, _, p = stats.most_behind(a['runs'][a_planner], b['runs'][b_planner],
+                                 a['curve_budgets'], start)
+  return '0' if not runs else f'{runs} (p {p:.2f})'
+
+
+def runs_behind(cell: str) -> int:
+  """The runs of a `most_behind` cell."""
+  return int(cell.split()[0])
 
 
 def paired_ratio(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
@@ -621,7 +625,10 @@ def after_goal_gpu(src: Sources) -> str:
       'the allowance inf, and the default with widening (the last instances pop 2, 4 or 8 x K '
       'edges); 30 instances x 5 seeds = 150 runs each, 100,000 evaluations, MuJoCo Warp physics '
       'on one GPU. Lead: points of success over the rollout. Behind: the most runs by which a '
-      'success curve trails the rollout\'s at any budget from 3,000 evaluations. Cost: mean of '
+      'success curve trails the rollout\'s at any budget from 3,000 evaluations, with the exact '
+      'McNemar p of the paired runs (same instance and seed) at that budget: a p this large says '
+      'the lag is within chance (the p-value treats the 5 rounds of an instance as independent, '
+      'so it understates the uncertainty). Cost: mean of '
       'the per-run ratios over the runs both solved. With Warp physics a run\'s outcome varies '
       'from call to call (the same detour command twice: the first two rows of the widening '
       'table\'s compaction column), so differences of a few runs between columns are within '
@@ -688,14 +695,14 @@ def default_runs(src: Sources) -> str:
     behind = most_behind(p, 'pachs-improve', p, 'parallel')
     outcome.append([layout, str(instance_set), str(seed), solved(improve), solved(parallel),
                     f'{lead:+.1f}', behind, cost_ratio(p, 'pachs-improve', 'parallel')])
-    pooled.setdefault((layout, instance_set), []).append((lead, int(behind)))
+    pooled.setdefault((layout, instance_set), []).append((lead, runs_behind(behind)))
   for label, name in AFTER_GOAL_SETS:  # the suite's call of each set (seed 0)
     p = src.load(f'after_goal_gpu/{name}.json')
     improve, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
     key = (label.replace(', instance set 1', ''), 1 if 'instance set 1' in label else 0)
     if key in pooled:
       pooled[key].append((100 * (improve['success_rate'] - parallel['success_rate']),
-                          int(most_behind(p, 'pachs-improve', p, 'parallel'))))
+                          runs_behind(most_behind(p, 'pachs-improve', p, 'parallel'))))
   pooled_rows = [[layout, str(instance_set), str(len(v)),
                   f'{statistics.mean(x for x, _ in v):+.1f}',
                   f'{min(x for x, _ in v):+.1f} to {max(x for x, _ in v):+.1f}',

@@ -22,6 +22,35 @@ def wilson_interval(successes: int, total: int, z: float = 1.96):
   return (low, high)
 
 
+def mcnemar_p(only_a: int, only_b: int) -> float:
+  """Exact two-sided McNemar p-value of paired binary outcomes: only_a pairs where only the
+  first succeeded, only_b where only the second did (the other pairs carry no information)."""
+  n, k = only_a + only_b, min(only_a, only_b)
+  if n == 0:
+    return 1.0
+  return min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2**n)
+
+
+def most_behind(rows_a: List[Dict], rows_b: List[Dict], budgets, start: int = 3000):
+  """Where planner a's success curve trails planner b's most, at the budgets >= start, on runs
+  paired by (instance, round), a run solved at every budget >= its first goal's evaluations:
+  (the runs behind, 0 where a never trails; that budget, None; the exact McNemar p of the
+  paired outcomes there, None). The rounds of one instance are not independent runs, so the
+  p-value understates the uncertainty: a large p says that the lag is within chance."""
+  b_of = {(r['instance'], r['round']): r for r in rows_b}
+  solved = lambda r, budget: bool(r['found']) and r.get('first_goal_evaluated',
+                                                         r['evaluated']) <= budget
+  worst = (0, None, None)
+  for budget in (b for b in budgets if b >= start):
+    pairs = [(solved(r, budget), solved(b_of[(r['instance'], r['round'])], budget))
+             for r in rows_a]
+    only_a = sum(x and not y for x, y in pairs)
+    only_b = sum(y and not x for x, y in pairs)
+    if only_b - only_a > worst[0]:
+      worst = (only_b - only_a, budget, mcnemar_p(only_a, only_b))
+  return worst
+
+
 def instance_bootstrap_interval(found, instance, repeats: int = 10_000, seed: int = 0):
   """95% interval of the success rate with the instances resampled (a cluster bootstrap): the
   rounds of one instance are not independent runs (a deterministic planner repeats itself), so

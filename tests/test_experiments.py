@@ -34,6 +34,27 @@ def test_success_curve_counts_runs_found_within_budget():
   assert stats.success_curve(rows, [10, 50, 499, 500, 10_000]) == [0, 0.25, 0.25, 0.5, 0.75]
 
 
+def test_mcnemar_p_known_values():
+  assert stats.mcnemar_p(0, 0) == 1.0
+  assert stats.mcnemar_p(0, 5) == pytest.approx(2 / 32)  # all 5 discordant pairs one way
+  assert stats.mcnemar_p(2, 7) == pytest.approx(2 * (1 + 9 + 36) / 512)  # scipy.stats.binomtest
+  assert stats.mcnemar_p(4, 4) == 1.0
+
+
+def test_most_behind_pairs_runs_and_counts_first_goals():
+  run = lambda i, found, first, total=None: {'instance': i, 'round': 0, 'found': found,
+                                             'first_goal_evaluated': first,
+                                             'evaluated': total or first}
+  # a: runs 0-2 solved at 100, 4000 and 9000 (run 1 improves its path until 20,000);
+  # b: runs 0-2 solved at 100, 3500, 3500; run 3 unsolved by both; b's list in another order
+  a = [run(0, True, 100), run(1, True, 4000, 20_000), run(2, True, 9000), run(3, False, 0, 50)]
+  b = [run(2, True, 3500), run(3, False, 0, 50), run(1, True, 3500), run(0, True, 100)]
+  runs, budget, p = stats.most_behind(a, b, [100, 3000, 3500, 5000, 10_000])
+  assert (runs, budget) == (2, 3500) and p == pytest.approx(stats.mcnemar_p(0, 2))
+  assert stats.most_behind(b, a, [100, 3000, 3500, 5000, 10_000]) == (0, None, None)
+  assert stats.most_behind(a, b, [100, 3000, 3500], start=4000) == (0, None, None)
+
+
 def test_cost_ratios_use_runs_both_solved():
   rows = {'a': [{'found': True, 'cost': 2.0}, {'found': True, 'cost': 4.0},
                 {'found': False, 'cost': 9.0}],
