@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-import jax
 import jax.numpy as jnp
 
 from pachs_jax.search import novelty
@@ -66,13 +65,11 @@ def restart_at_start() -> Restart:
       lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
-def restart_novel(coarsening: int = 4, start_share: float = 0.0) -> Restart:
+def restart_novel(coarsening: int = 4) -> Restart:
   """Chains restart at a generated node drawn with weight 1 / the nodes in its coarse cell:
   lattice cells merged `coarsening` to a side, hashed into the power of two >= 2 * pool size
-  cells; each restart is at the start state instead with probability start_share."""
+  cells."""
   coarsening = positive_int('restart_novel', 'coarsening', coarsening)
-  if not 0 <= start_share <= 1:
-    raise ValueError(f'restart_novel.start_share must be in [0, 1], got {start_share!r}')
   coarse = lambda cells, num_cells: novelty.coarse_cells(cells, coarsening, num_cells)
 
   def visits(cells, pool_size):
@@ -85,11 +82,7 @@ def restart_novel(coarsening: int = 4, start_share: float = 0.0) -> Restart:
   def choose(pool, visits, keys, fits, num):
     index = jnp.arange(pool.capacity)[None, :]
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
-    drawn = novelty.sample(visits, keys, eligible, num)
-    if not start_share:
-      return drawn
-    u = jax.vmap(lambda key: jax.random.uniform(jax.random.fold_in(key, 2), (num,)))(keys)
-    return jnp.where(u < start_share, pool_lib.ROOT_INDEX, drawn).astype(jnp.int32)
+    return novelty.sample(visits, keys, eligible, num)
 
   return Restart(visits, record, choose)
 
