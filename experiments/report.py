@@ -548,18 +548,18 @@ AFTER_GOAL_SETS = tuple((layout, layout) for layout in LAYOUTS) + (
     ('wall, instance set 1', 'wall_set1'), ('detour, instance set 1', 'detour_set1'))
 
 
-def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> str:
-  """The most runs by which a_planner's success curve in payload a trails b_planner's in b at
-  a budget >= start, with the exact McNemar p of the paired runs there ('0' where it never
-  trails; `stats.most_behind`); both payloads of the same runs."""
+def lag(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> Tuple[int, str]:
+  """(the most runs by which a_planner's success curve in payload a trails b_planner's in b at
+  a budget >= start, 0 where it never trails; that number as a table cell, with the exact
+  McNemar p of the paired runs there: `stats.most_behind`); both payloads of the same runs."""
   runs, _, p = stats.most_behind(a['runs'][a_planner], b['runs'][b_planner],
                                  a['curve_budgets'], start)
-  return '0' if not runs else f'{runs} (p {p:.2f})'
+  return runs, ('0' if not runs else f'{runs} (p {p:.2f})')
 
 
-def runs_behind(cell: str) -> int:
-  """The runs of a `most_behind` cell."""
-  return int(cell.split()[0])
+def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
+  """The table cell of `lag`."""
+  return lag(a, a_planner, b, b_planner)[1]
 
 
 def paired_ratio(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
@@ -692,17 +692,17 @@ def default_runs(src: Sources) -> str:
       continue
     improve, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
     lead = 100 * (improve['success_rate'] - parallel['success_rate'])
-    behind = most_behind(p, 'pachs-improve', p, 'parallel')
+    runs_behind, behind = lag(p, 'pachs-improve', p, 'parallel')
     outcome.append([layout, str(instance_set), str(seed), solved(improve), solved(parallel),
                     f'{lead:+.1f}', behind, cost_ratio(p, 'pachs-improve', 'parallel')])
-    pooled.setdefault((layout, instance_set), []).append((lead, runs_behind(behind)))
+    pooled.setdefault((layout, instance_set), []).append((lead, runs_behind))
   for label, name in AFTER_GOAL_SETS:  # the suite's call of each set (seed 0)
     p = src.load(f'after_goal_gpu/{name}.json')
     improve, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
     key = (label.replace(', instance set 1', ''), 1 if 'instance set 1' in label else 0)
     if key in pooled:
       pooled[key].append((100 * (improve['success_rate'] - parallel['success_rate']),
-                          runs_behind(most_behind(p, 'pachs-improve', p, 'parallel'))))
+                          lag(p, 'pachs-improve', p, 'parallel')[0]))
   pooled_rows = [[layout, str(instance_set), str(len(v)),
                   f'{statistics.mean(x for x, _ in v):+.1f}',
                   f'{min(x for x, _ in v):+.1f} to {max(x for x, _ in v):+.1f}',
@@ -768,9 +768,9 @@ def start_share(src: Sources) -> str:
       'commands in the sources; their option left with the variant); one call of each on one '
       'H100, 150 runs per layout at 100,000 evaluations, '
       'Warp physics. Behind: as above, against the rollout of the default\'s call; the column '
-      '"start share behind the default" compares the variant with the default. The variant removes no lag '
-      'on gate and solves fewer runs than the default on two-gaps and detour, so it was '
-      'removed:',
+      '"start share behind the default" compares the variant with the default. The variant '
+      'removes no lag on gate and solves fewer runs than the default on two-gaps and detour, '
+      'so it was removed:',
       table(['layout', 'default', 'start share', 'parallel rollout', 'default behind',
              'start share behind', 'start share behind the default', 'default cost / parallel',
              'start share cost / parallel'], rows)])

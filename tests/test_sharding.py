@@ -19,7 +19,7 @@ from pachs_jax.search import SearchConfig, make_search
 from pachs_jax.programs import plan
 from pachs_jax import sharding
 
-# Shared by the in-process tests and the 4-device subprocess (the same source text).
+# Shared by the in-process tests and the subprocesses (the same source text).
 SETUP = textwrap.dedent('''
     import jax
     import numpy as np
@@ -65,10 +65,21 @@ SETUP = textwrap.dedent('''
       return {'rollout': (rollout.plan, rollout.plan), 'beam': (beam, beam),
               'epase': (sharding.keyless(epase.plan), lambda s, k: epase.plan(s)),
               'single': (sharding.keyless(single), lambda s, k: single(s))}
+
+    REFERENCE_KEY = 3  # the key of the unsharded results the subprocesses compare with
+
+    def assert_matches_reference(name, result, path):
+      # result's arrays, its wall time aside, equal NAME_0, NAME_1, ... of the .npz at path
+      saved = np.load(path)
+      leaves = jax.tree.leaves(result.replace(wall_time_s=None))
+      assert len(leaves) == int(saved[name + '_leaves']) > 0
+      for i, leaf in enumerate(leaves):
+        assert np.array_equal(saved[f'{name}_{i}'], np.asarray(leaf)), (name, i)
 ''')
 _scope = {}
 exec(SETUP, _scope)  # pylint: disable=exec-used
 ENV, AC, NODES, CONFIG = _scope['ENV'], _scope['AC'], _scope['NODES'], _scope['CONFIG']
+REFERENCE_KEY = _scope['REFERENCE_KEY']
 BASELINES = ('rollout', 'beam', 'epase', 'single')
 
 # 6 instances over 4 devices (padded to 8), each planner's result compared, every field but the
@@ -80,16 +91,12 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
     import traceback
     from pachs_jax.search import make_search
     assert len(jax.devices()) == 4, jax.devices()
-    key = jax.random.PRNGKey(3)
+    key = jax.random.PRNGKey(REFERENCE_KEY)
     mesh = sharding.instance_mesh()
-    references = np.load(sys.argv[1])
 
     def same(name, got):
       assert got.found.shape == (6,), got.found.shape
-      got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
-      assert len(got_leaves) == int(references[name + '_leaves']) > 0
-      for i, g in enumerate(got_leaves):
-        assert np.array_equal(references[f'{name}_{i}'], np.asarray(g)), (name, i)
+      assert_matches_reference(name, got, sys.argv[1])
       assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
       assert np.asarray(got.evaluated).sum() > 0
 
@@ -105,9 +112,6 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
       except Exception:  # pylint: disable=broad-except
         print(f'{name.upper()}_FAILED', traceback.format_exc(), flush=True)
 ''')
-REFERENCE_KEY = 3  # the key of the unsharded results the subprocesses compare with
-
-
 @pytest.fixture(scope='module')
 def search():
   return make_search(ENV, AC, CONFIG)
@@ -141,8 +145,8 @@ def four_devices(compilation_cache_dir, references):
   run's persistent cache."""
   env = jax_cache_env(compilation_cache_dir,
                       XLA_FLAGS='--xla_force_host_platform_device_count=4', JAX_PLATFORMS='cpu')
-  proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES, references[1]], env=env, capture_output=True,
-                        text=True, timeout=600)
+  proc = subprocess.run([sys.executable, '-c', FOUR_DEVICES, references[1]], env=env,
+                        capture_output=True, text=True, timeout=600)
   assert proc.returncode == 0, proc.stderr[-4000:]
   return proc.stdout
 
@@ -228,15 +232,11 @@ TWO_HOSTS = textwrap.dedent('''
     from pachs_jax.search import make_search
     assert jax.process_count() == 2 and len(jax.devices()) == 4, jax.devices()
     assert len(jax.local_devices()) == 2
-    key = jax.random.PRNGKey(3)
+    key = jax.random.PRNGKey(REFERENCE_KEY)
     got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=sharding.instance_mesh(),
                                 search=make_search(ENV, AC, CONFIG))
-    references = np.load(sys.argv[1])
     assert np.asarray(got.found).shape == (6,) and np.asarray(got.found).sum() >= 4
-    got_leaves = jax.tree.leaves(got.replace(wall_time_s=None))
-    assert len(got_leaves) == int(references['pachs_leaves'])
-    for i, g in enumerate(got_leaves):
-      assert np.array_equal(references[f'pachs_{i}'], np.asarray(g)), i
+    assert_matches_reference('pachs', got, sys.argv[1])
     print(f'PROCESS{jax.process_index()}_OK', flush=True)
 ''')
 
