@@ -62,6 +62,23 @@ def test_sample_never_draws_a_node_of_weight_zero_in_a_large_pool():
   assert len(np.unique(drawn)) > 0.9 * ok.sum()
 
 
+def test_below_is_the_high_word_of_random_bits_times_the_bound():
+  key = jax.random.PRNGKey(5)
+  bits = np.asarray(jax.random.bits(key, (50_000,), jnp.uint32)).astype(np.uint64)
+  for bound in (1, 3, 65_537, 805_306_362, 2**31 - 1):
+    drawn = np.asarray(novelty.below(key, jnp.int32(bound), 50_000))
+    np.testing.assert_array_equal(drawn, (bits * np.uint64(bound)) >> np.uint64(32))
+
+
+def test_draw_follows_its_weights_when_they_sum_near_two_to_the_31():
+  # three equal thirds of a total of 805,306,362: jax.random.randint(0, total) reduces one
+  # word modulo the total and draws the first third 37.5% of the time
+  weight = jnp.array([[268_435_455] + [67_108_863] * 4 + [268_435_455, 0]], jnp.int32)
+  drawn = np.asarray(novelty.draw(weight, jax.random.PRNGKey(0)[None], 200_000))[0]
+  share = np.bincount(drawn, minlength=7) / drawn.size
+  np.testing.assert_allclose([share[0], share[1:5].sum(), share[5]], [1 / 3] * 3, atol=0.005)
+
+
 @pytest.fixture(scope='module')
 def novel_search():
   env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=24)

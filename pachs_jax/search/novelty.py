@@ -52,26 +52,49 @@ def add(visits: Visits, node: jax.Array, new: jax.Array, cell: jax.Array) -> Vis
   return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 
 
-def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> jax.Array:
+def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int,
+           power: float = 0.0) -> jax.Array:
   """[I, num] int32 pool nodes drawn with replacement among eligible [I, P] nodes, each with
-  weight about 1 / nodes_per_cell[its cell] (`draw`); keys [I, 2]. An instance with no
-  eligible node draws node 0."""
+  weight about 1 / nodes_per_cell[its cell] ** (1 + power), so that a cell of n nodes weighs
+  n ** -power (0: every cell alike; 0.5: Go-Explore's 1 / sqrt(count)) (`draw`); keys [I, 2].
+  An instance with no eligible node draws node 0."""
   pool_size = eligible.shape[1]
   scale = (2**31 - 1) // pool_size  # the weights of a pool sum below 2**31
   in_cell = jnp.take_along_axis(visits.nodes_per_cell, jnp.maximum(visits.node_cell, 0), axis=1)
-  weight = jnp.where(eligible & (visits.node_cell != NO_CELL),
-                     scale // jnp.maximum(in_cell, 1), 0)
+  eligible = eligible & (visits.node_cell != NO_CELL)
+  if power:
+    relative = jnp.maximum(in_cell, 1).astype(jnp.float32) ** -(1.0 + power)
+    relative = relative / jnp.max(jnp.where(eligible, relative, 0.0), axis=1, keepdims=True)
+    weight = jnp.where(eligible, jnp.maximum((relative * scale).astype(jnp.int32), 1), 0)
+  else:
+    weight = jnp.where(eligible, scale // jnp.maximum(in_cell, 1), 0)
   return draw(weight, keys, num)
+
+
+def below(key: jax.Array, bound: jax.Array, num: int) -> jax.Array:
+  """[num] int32 integers drawn uniformly from [0, bound), 1 <= bound < 2**31: the high word of
+  32 random bits times bound, so that every value has floor or ceil(2**32 / bound) of the 2**32
+  bit patterns, spread evenly over the range (`jax.random.randint` reduces one word modulo
+  bound for bounds above 2**16, which favours the values below 2**32 mod bound: up to 3 / 2 as
+  likely)."""
+  bits = jax.random.bits(key, (num,), jnp.uint32)
+  bound = jnp.asarray(bound).astype(jnp.uint32)
+  lo16 = jnp.uint32(0xFFFF)
+  b_hi, b_lo, t_hi, t_lo = bits >> 16, bits & lo16, bound >> 16, bound & lo16
+  cross_a, cross_b = b_hi * t_lo, b_lo * t_hi  # each below 2**32
+  carry = ((b_lo * t_lo) >> 16) + (cross_a & lo16) + (cross_b & lo16)
+  high = b_hi * t_hi + (cross_a >> 16) + (cross_b >> 16) + (carry >> 16)
+  return high.astype(jnp.int32)
 
 
 def draw(weight: jax.Array, keys: jax.Array, num: int) -> jax.Array:
   """[I, num] int32 indices drawn with replacement with integer weights weight [I, P] >= 0
-  (summing below 2**31, so that the draw is exact and never picks an index of weight 0); keys
+  (summing below 2**31, so that the draw never picks an index of weight 0, `below`); keys
   [I, 2]. An instance whose weights are all 0 draws index 0."""
   pool_size = weight.shape[1]
   cdf = jnp.cumsum(weight, axis=1, dtype=jnp.int32)
   total = cdf[:, -1]
-  u = jax.vmap(lambda key, t: jax.random.randint(key, (num,), 0, jnp.maximum(t, 1)))(keys, total)
+  u = jax.vmap(lambda key, t: below(key, jnp.maximum(t, 1), num))(keys, total)
   index = jax.vmap(lambda c, x: jnp.searchsorted(c, x, side='right'))(cdf, u)
   index = jnp.minimum(index, pool_size - 1)
   drawn = (jnp.take_along_axis(weight, index, axis=1) > 0) & (total[:, None] > 0)
