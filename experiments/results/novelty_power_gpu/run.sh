@@ -24,6 +24,6 @@ printf '%s\n' \
   "wall wall_power05 --planners pachs-improve --novelty-power 0.5" \
   "gate-mirror gate-mirror --planners pachs-improve,parallel" \
   "gate-mirror gate-mirror_power05 --planners pachs-improve --novelty-power 0.5" \
-  | xargs -P 3 -I{} bash -c 'one {}'
-summ $O/*.json
+  | timeout 500 xargs -P 3 -I{} bash -c 'one {}'
+summ $O/*.json; cat $O/walls.txt
 cd $OUT && tar czf r.tgz r && rm -rf r
