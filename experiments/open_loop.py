@@ -20,7 +20,6 @@ import stats
 from pachs_jax import envs, flags, planner, programs, sharding
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs
-from pachs_jax.search import rules as rules_lib
 from pachs_jax.search.result import StopReason
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
@@ -62,11 +61,7 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
           float(x) * args.lattice_scale for x in base))
-    rules = None
-    if args.novelty_power:  # novel restarts with cells weighted (nodes in it) ** -power
-      rules = rules_lib.from_config(env, model, config)._replace(
-          restart=rules_lib.restart_novel(power=args.novelty_power))
-    search = programs.Programs(pachs.make_search(env, model, config, rules=rules))
+    search = programs.Programs(pachs.make_search(env, model, config))
     if mesh is not None:
       return (lambda starts, keys: sharding.plan_sharded(env, model, starts, config, keys, mesh,
                                                          search=search)), config
@@ -254,8 +249,6 @@ def main():
   parser.add_argument('--lattice-scale', type=float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
-  parser.add_argument('--novelty-power', type=float, default=0.0,
-                      help='PACHS with novel chain restarts: a cell of n nodes weighs n ** -this')
   parser.add_argument('--instance-seed', type=int, default=0,
                       help='the seed of the instance set (default 0: the canonical set; another '
                       'seed draws a new set from the same start region, by the same rules)')
@@ -306,7 +299,6 @@ def main():
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'instance_seed': args.instance_seed, 'budget': args.budget,
                           'time_limit_s': args.time_limit, 'devices': args.devices,
-                          **({'novelty_power': args.novelty_power} if args.novelty_power else {}),
                           **({'epase_weight': args.epase_weight,
                               'epase_spread_cells': args.epase_spread}
                              if 'epase' in names else {})},

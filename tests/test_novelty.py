@@ -28,7 +28,7 @@ def test_add_counts_new_nodes_in_their_cells():
     novelty.init(jnp.array([0]), pool_size=6, num_cells=12)
 
 
-def test_sample_weighs_each_node_by_one_over_its_cells_count():
+def test_sample_weighs_each_cell_by_one_over_the_root_of_its_count():
   # instance 0: nodes 0-2 share cell 4 (3 nodes), node 3 alone in cell 1, node 4 not eligible,
   # node 5 unused; instance 1: nothing eligible
   visits = novelty.Visits(
@@ -39,8 +39,9 @@ def test_sample_weighs_each_node_by_one_over_its_cells_count():
   keys = jax.random.split(jax.random.PRNGKey(0), 2)
   drawn = np.asarray(novelty.sample(visits, keys, eligible, 40_000))
   share = np.bincount(drawn[0], minlength=6) / drawn.shape[1]
-  # the cells are equally likely: cell 4's three nodes 1/6 each, node 3 1/2
-  np.testing.assert_allclose(share, [1 / 6, 1 / 6, 1 / 6, 1 / 2, 0, 0], atol=0.01)
+  # cell 4 weighs 1 / sqrt(3), shared by its three nodes; cell 1 weighs 1
+  cell_4 = 3**-0.5 / (3**-0.5 + 1)
+  np.testing.assert_allclose(share, [cell_4 / 3] * 3 + [1 - cell_4, 0, 0], atol=0.01)
   assert (drawn[1] == 0).all()
 
 

@@ -135,9 +135,9 @@ class SearchConfig(EdgeSearchConfig):
     chain_restart says after an unusable edge or an episode's length) instead of popping OPEN's
     best edges; their successors join the search, and a chain's goal ends the instance at once.
   chain_restart: where a chain restarts: 'start' (the start state, so that chains are rollouts
-    of the actor) or 'novel' (a generated node drawn with weight 1 / the nodes in its coarse
-    cell, `rules.restart_novel`; nodes whose next edge would pass an episode's length are left
-    out); no effect without rollout lanes.
+    of the actor) or 'novel' (a generated node of a rarely visited coarse cell, a cell of n
+    nodes drawn with weight 1 / sqrt(n), `rules.restart_novel`; nodes whose next edge would
+    pass an episode's length are left out); no effect without rollout lanes.
   after_goal: what the first goal does: 'stop' (it ends the instance, the original's) or
     'improve' (`improve`: the instance goes on, its chains restarting on the cheapest goal's
     path and edges from nodes that cost as much as that goal pruned, and returns the cheapest

@@ -1,6 +1,6 @@
-"""Coarse-cell visit counts over the search's nodes, and restart nodes drawn by novelty: each
-node weighs 1 / (nodes generated in its coarse cell), so every cell found so far is about as
-likely to be drawn (Go-Explore's return to rarely visited cells)."""
+"""Coarse-cell visit counts over the search's nodes, and restart nodes drawn by novelty: a cell
+of n generated nodes weighs 1 / sqrt(n), shared by its nodes (Go-Explore's count-based return to
+rarely visited cells)."""
 
 from __future__ import annotations
 
@@ -52,23 +52,17 @@ def add(visits: Visits, node: jax.Array, new: jax.Array, cell: jax.Array) -> Vis
   return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 
 
-def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int,
-           power: float = 0.0) -> jax.Array:
+def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> jax.Array:
   """[I, num] int32 pool nodes drawn with replacement among eligible [I, P] nodes, each with
-  weight about 1 / nodes_per_cell[its cell] ** (1 + power), so that a cell of n nodes weighs
-  n ** -power (0: every cell alike; 0.5: Go-Explore's 1 / sqrt(count)) (`draw`); keys [I, 2].
-  An instance with no eligible node draws node 0."""
-  pool_size = eligible.shape[1]
-  scale = (2**31 - 1) // pool_size  # the weights of a pool sum below 2**31
+  weight n ** -1.5 for the n nodes generated in its cell, so that a cell weighs 1 / sqrt(n)
+  (`draw`, the weights scaled to sum to about 2**30); keys [I, 2]. An instance with no eligible
+  node draws node 0."""
   in_cell = jnp.take_along_axis(visits.nodes_per_cell, jnp.maximum(visits.node_cell, 0), axis=1)
   eligible = eligible & (visits.node_cell != NO_CELL)
-  if power:
-    relative = jnp.maximum(in_cell, 1).astype(jnp.float32) ** -(1.0 + power)
-    relative = relative / jnp.max(jnp.where(eligible, relative, 0.0), axis=1, keepdims=True)
-    weight = jnp.where(eligible, jnp.maximum((relative * scale).astype(jnp.int32), 1), 0)
-  else:
-    weight = jnp.where(eligible, scale // jnp.maximum(in_cell, 1), 0)
-  return draw(weight, keys, num)
+  weight = jnp.where(eligible, jnp.maximum(in_cell, 1).astype(jnp.float32) ** -1.5, 0.0)
+  share = weight / jnp.maximum(jnp.sum(weight, axis=1, keepdims=True), 1e-30)
+  return draw(jnp.where(eligible, jnp.maximum(jnp.floor(share * 2.0**30), 1.0), 0.0)
+              .astype(jnp.int32), keys, num)
 
 
 def below(key: jax.Array, bound: jax.Array, num: int) -> jax.Array:

@@ -65,9 +65,9 @@ def restart_at_start() -> Restart:
       lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
-def restart_novel(coarsening: int = 4, power: float = 0.0) -> Restart:
-  """Chains restart at a generated node drawn with weight 1 / the nodes in its coarse cell
-  (to the power 1 + power, `novelty.sample`): lattice cells merged `coarsening` to a side,
+def restart_novel(coarsening: int = 4) -> Restart:
+  """Chains restart at a generated node of a rarely visited coarse cell, a cell of n nodes drawn
+  with weight 1 / sqrt(n) (`novelty.sample`): lattice cells merged `coarsening` to a side,
   hashed into the power of two >= 2 * pool size cells."""
   coarsening = positive_int('restart_novel', 'coarsening', coarsening)
   coarse = lambda cells, num_cells: novelty.coarse_cells(cells, coarsening, num_cells)
@@ -82,7 +82,7 @@ def restart_novel(coarsening: int = 4, power: float = 0.0) -> Restart:
   def choose(pool, visits, keys, fits, num):
     index = jnp.arange(pool.capacity)[None, :]
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
-    return novelty.sample(visits, keys, eligible, num, power)
+    return novelty.sample(visits, keys, eligible, num)
 
   return Restart(visits, record, choose)
 
