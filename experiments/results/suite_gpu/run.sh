@@ -5,8 +5,9 @@
 # run as: bash experiments/results/suite_gpu/run.sh
 source experiments/results/default_gpu_runs/common.sh
 python3 -m compileall -q -j 16 /tmp/site > /dev/null 2>&1
+END=$((SECONDS + 560))  # the calls share the device tool's 600 s
 for L in slot gate wall two-gaps detour; do
-  LABEL=$L wall timeout 150 $OL --layout $L --planners pachs-improve,parallel --out $O/$L.json > $O/$L.log 2>&1
+  LABEL=$L wall timeout $((END - SECONDS)) $OL --layout $L --planners pachs-improve,parallel --out $O/$L.json > $O/$L.log 2>&1
   summ $O/$L.json
 done
 cat $O/walls.txt
