@@ -165,6 +165,10 @@ def open_loop_layouts(src: Sources) -> str:
   variants = [[layout] + [solved(summary_of(p, name)) for name, _ in VARIANTS]
               for layout, p in payloads.items()]
   return '\n\n'.join([
+      'PACHS here is its default before the first goal\'s path was improved and before novel '
+      'restarts weighed cells by 1 / sqrt(nodes) (the first goal ends the search, cells drawn '
+      'alike): the baselines and the variants that chose the default\'s edges and chains. The '
+      'default of today is in "PushT-Obs suite at the default". '
       f'{first["instances"]} canonical instances x {first["rounds"]} seeds = '
       f'{first["instances"] * first["rounds"]} runs per planner and layout, '
       f'{first["budget"]:,} edge evaluations per run, each planner\'s runs in one batched call. '
@@ -618,7 +622,8 @@ def after_goal_gpu(src: Sources) -> str:
     widen.append([label, solved(a), num(a['batch_wall_s'], 3), solved(b),
                   num(b['batch_wall_s'], 3)])
   return '\n\n'.join([
-      'PushT-Obs\'s default: after the first goal an instance spends up to 3 times the '
+      'PushT-Obs\'s default as it was then (novel restarts drew every coarse cell alike, see '
+      '"Rarely visited cells first"): after the first goal an instance spends up to 3 times the '
       'evaluations it took to find it (`after_goal=\'improve\'`, allowance 3), restarting chains '
       'on the cheapest goal\'s path; on a GPU the physics batch shrinks to the live lanes '
       '(compaction). Beside it: `stop` (the first goal is the answer), the parallel rollout, '
@@ -721,7 +726,8 @@ def default_runs(src: Sources) -> str:
           for name, layout, instance_set, seed, _, _ in DEFAULT_RUNS
           if (layout, instance_set, seed) == ('two-gaps', 0, 0)]
   return '\n\n'.join([
-      'The default (after_goal \'improve\', allowance 3) and the parallel rollout in the same '
+      'The default as it was then (after_goal \'improve\', allowance 3, novel restarts drawing '
+      'every coarse cell alike) and the parallel rollout in the same '
       'call, on more search seeds (`--seed`), the second instance set (`--instance-seed 1`) and '
       'repeated calls, 150 runs each at 100,000 evaluations with Warp physics on one H200. Lead, '
       'behind and cost as in the section above. With Warp physics the same command gives '
@@ -774,6 +780,101 @@ def start_share(src: Sources) -> str:
       table(['layout', 'default', 'start share', 'parallel rollout', 'default behind',
              'start share behind', 'start share behind the default', 'default cost / parallel',
              'start share cost / parallel'], rows)])
+
+
+def suite(src: Sources) -> str:
+  """PushT-Obs's default and the parallel rollout on the five suite layouts, one call each on
+  one GPU with Warp physics (the README's headline reads these files)."""
+  rows, effort = [], []
+  for layout in LAYOUTS:
+    p = src.load(f'suite_gpu/{layout}.json')
+    pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
+    lead = 100 * (pachs['success_rate'] - parallel['success_rate'])
+    rows.append([layout, solved(pachs), solved(parallel), f'{lead:+.1f}',
+                 most_behind(p, 'pachs-improve', p, 'parallel'),
+                 cost_ratio(p, 'pachs-improve', 'parallel')])
+    effort.append([layout, num(pachs['first_goal_evaluated_mean']),
+                   num(pachs['evaluated_success_mean']), num(parallel['evaluated_success_mean']),
+                   num(pachs['first_goal_time_s_mean'], 2), num(pachs['time_s_success_mean'], 2),
+                   num(pachs['batch_wall_s'], 3), num(parallel['batch_wall_s'], 3)])
+  return '\n\n'.join([
+      'PACHS\'s PushT-Obs default (edges of 8 transitions, 56 of 64 lanes extending chains of '
+      'the actor\'s edges that restart at rarely visited cells, the first goal\'s path improved '
+      'with up to 3 times the evaluations it took) and the parallel rollout of 256 copies, one '
+      'call per layout, the calls one after another on one GPU with MuJoCo Warp physics '
+      '(Warp\'s kernels compiled before the first): 30 instances x 5 seeds = 150 runs each, '
+      '100,000 evaluations. Lead: points of success over the rollout. Behind: the most runs by '
+      'which PACHS\'s success curve trails the rollout\'s at any budget from 3,000 '
+      'evaluations, with the exact McNemar p of the paired runs there (`stats.most_behind`). '
+      'Cost: mean of the per-run ratios over the runs both solved:',
+      table(['layout', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows),
+      'Evaluations to the first goal and to the returned path (means over solved runs), the '
+      'time a run took, estimated from its batch\'s iterations (s), and each call\'s batch '
+      'wall (s):',
+      table(['layout', 'evaluations to the first goal', 'to the returned path',
+             'parallel: to its goal', 'time to the first goal', 'to the returned path',
+             'PACHS wall', 'parallel wall'], effort)])
+
+
+# The calls that compare novel restarts drawing every coarse cell alike with cells of n nodes
+# weighed 1 / sqrt(n): (label, file stem in novelty_power_gpu/), each with its _power05 twin
+NOVELTY_CALLS = (
+    ('gate, seed 0', 'gate'), ('wall, seed 0', 'wall'), ('detour, seed 0', 'detour'),
+    ('two-gaps, seed 0', 'two-gaps'), ('gate-mirror (held out), seed 0', 'gate-mirror'),
+    ('detour, instance set 1, seed 1', 'detour_set1_seed1'),
+    ('wall, instance set 1, seed 1', 'wall_set1_seed1'), ('two-gaps, seed 1', 'two-gaps_seed1'),
+    ('gate-mirror (held out), seed 1', 'gate-mirror_seed1'),
+    ('wall-right (held out), seed 1', 'wall-right_seed1'))
+
+
+def novelty_weights(src: Sources) -> str:
+  """Novel restarts drawing every coarse cell alike against cells weighed 1 / sqrt(nodes), with
+  the parallel rollout of the first's call: ten calls of 150 runs, Warp, one GPU."""
+  rows, pooled = [], {'alike': [], 'root': [], 'parallel': []}
+  for i, (label, name) in enumerate(NOVELTY_CALLS):
+    p = src.load(f'novelty_power_gpu/{name}.json')
+    v = src.load(f'novelty_power_gpu/{name}_power05.json')
+    rows.append([label, solved(summary_of(p, 'pachs-improve')),
+                 solved(summary_of(v, 'pachs-improve')), solved(summary_of(p, 'parallel')),
+                 most_behind(p, 'pachs-improve', p, 'parallel'),
+                 most_behind(v, 'pachs-improve', p, 'parallel'),
+                 most_behind(p, 'pachs-improve', v, 'pachs-improve'),
+                 most_behind(v, 'pachs-improve', p, 'pachs-improve'),
+                 cost_ratio(p, 'pachs-improve', 'parallel'),
+                 paired_ratio(v, 'pachs-improve', p, 'parallel')])
+    for key, payload, planner in (('alike', p, 'pachs-improve'), ('root', v, 'pachs-improve'),
+                                  ('parallel', p, 'parallel')):
+      pooled[key] += [dict(r, instance=(i, r['instance'])) for r in payload['runs'][planner]]
+  budgets = src.load(f'novelty_power_gpu/{NOVELTY_CALLS[0][1]}.json')['curve_budgets']
+  alike, root = pooled['alike'], pooled['root']
+  solved_of = lambda rows: sum(bool(r['found']) for r in rows)
+  alike_of = {(r['instance'], r['round']): r['found'] for r in alike}
+  only_root = sum(bool(r['found']) and not alike_of[(r['instance'], r['round'])] for r in root)
+  only_alike = sum(not r['found'] and bool(alike_of[(r['instance'], r['round'])]) for r in root)
+  rollout_by = lambda budget: sum(bool(r['found']) and r['first_goal_evaluated'] <= budget
+                                  for r in pooled['parallel'])
+  behind = lambda a, b: '{} at {:,} evaluations (p {:.2g})'.format(
+      *stats.most_behind(a, b, budgets))
+  return '\n\n'.join([
+      'A chain that ends restarts at a node drawn by novelty. The earlier default drew every '
+      'coarse cell found so far alike (each node 1 / n for the n nodes of its cell); the '
+      'default now draws a cell of n nodes with weight 1 / sqrt(n), Go-Explore\'s count bonus, '
+      'so that rarely visited cells come first (`search/novelty.py`). Ten calls of each on '
+      'one H100, the rollout in the first\'s call, 150 runs per call at 100,000 evaluations, '
+      'Warp physics, three calls at a time on the GPU (the commands in the sources; their '
+      'option left with the losing weights). Behind: as in the suite above; "alike behind '
+      '1/sqrt(n)" compares the two variants on the same runs:',
+      table(['call', 'cells alike', '1 / sqrt(n)', 'parallel rollout', 'alike behind rollout',
+             '1/sqrt(n) behind rollout', 'alike behind 1/sqrt(n)', '1/sqrt(n) behind alike',
+             'alike cost / parallel', '1/sqrt(n) cost / parallel'], rows),
+      f'Pooled over the ten calls ({len(root):,} paired runs): every cell alike solved '
+      f'{solved_of(alike):,}, 1 / sqrt(n) {solved_of(root):,} and the rollout '
+      f'{solved_of(pooled["parallel"]):,} at 100,000 evaluations; {only_root} runs only 1 / '
+      f'sqrt(n) solved against {only_alike} only every cell alike did (McNemar p '
+      f'{stats.mcnemar_p(only_root, only_alike):.2g}). Every cell alike trails 1 / sqrt(n) by '
+      f'{behind(alike, root)}; 1 / sqrt(n) trails every cell alike by {behind(root, alike)}, '
+      f'where the rollout has solved {rollout_by(stats.most_behind(root, alike, budgets)[1])} '
+      'runs. 1 / sqrt(n) is the default.'])
 
 
 def after_goal(src: Sources) -> str:
@@ -866,6 +967,8 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Speed and start-up', speed),
     ('MuJoCo Playground', playground),
     ('MuJoCo Warp physics', warp_physics),
+    ('PushT-Obs suite at the default', suite),
+    ('Rarely visited cells first', novelty_weights),
     ('PACHS after the first goal', after_goal_gpu),
     ('PACHS\'s default on more seeds, and the compaction ladder', default_runs),
     ('Chains restarting at the start', start_share),
@@ -908,7 +1011,7 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
     p = src.load(name)
     rows.append((task, p, 'pachs', p))  # (runs, PACHS's default there, the policy alone's)
   for layout in LAYOUTS:
-    rows.append((f'PushT-Obs, {layout}', src.load(f'after_goal_gpu/{layout}.json'),
+    rows.append((f'PushT-Obs, {layout}', src.load(f'suite_gpu/{layout}.json'),
                  'pachs-improve', src.load(f'open_loop_pusht-obs_{layout}.json')))
   shelf = src.load('open_loop_shelf.json')
   rows.append(('Panda-Shelf', shelf, 'pachs', shelf))
