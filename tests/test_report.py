@@ -73,7 +73,7 @@ def test_a_changed_result_makes_the_report_stale(copy_root):
     row = report.summary_of(payload, 'pachs-improve')
     row['successes'], row['success_rate'] = 75, 0.5
 
-  rewrite(copy_root, 'after_goal_gpu/wall.json', fewer)
+  rewrite(copy_root, 'suite_gpu/wall.json', fewer)
   written = report.generate(str(copy_root))
   assert written != report.generate()
   assert '| PushT-Obs, wall | 50% |' in written['README.md']
