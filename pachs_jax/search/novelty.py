@@ -68,8 +68,8 @@ def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> ja
 def below(key: jax.Array, bound: jax.Array, num: int) -> jax.Array:
   """[num] int32 integers drawn uniformly from [0, bound), 1 <= bound < 2**31: the high word of
   32 random bits times bound, so that every value has floor or ceil(2**32 / bound) of the 2**32
-  bit patterns, spread evenly over the range (`jax.random.randint` reduces one word modulo
-  bound for bounds above 2**16, which favours the values below 2**32 mod bound: up to 3 / 2 as
+  bit patterns, spread evenly over the range (`jax.random.randint` of jax 0.10 reduces one word
+  modulo bounds above 2**16, which favours the values below 2**32 mod bound, up to 3 / 2 as
   likely)."""
   bits = jax.random.bits(key, (num,), jnp.uint32)
   bound = jnp.asarray(bound).astype(jnp.uint32)
