@@ -561,7 +561,9 @@ def lag(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> 
   McNemar p of the paired runs there: `stats.most_behind`); both payloads of the same runs."""
   runs, _, p = stats.most_behind(a['runs'][a_planner], b['runs'][b_planner],
                                  a['curve_budgets'], start)
-  return runs, ('0' if not runs else f'{runs} (p {p:.2f})')
+  if not runs:
+    return runs, '0'
+  return runs, f'{runs} (p {p:.2f})' if p >= 0.01 else f'{runs} (p < 0.01)'
 
 
 def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
