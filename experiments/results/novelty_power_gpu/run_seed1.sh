@@ -1,5 +1,6 @@
 # The comparison of run.sh again with search seed 1, on the second instance set for detour and
 # wall, and on both held-out layouts; three calls at a time on one GPU (walls are upper bounds).
+# Runs at its revision only, as run.sh.
 # run as: bash experiments/results/novelty_power_gpu/run_seed1.sh
 source experiments/results/default_gpu_runs/common.sh
 python3 -m compileall -q -j 16 /tmp/site > /dev/null 2>&1
