@@ -787,11 +787,23 @@ def start_share(src: Sources) -> str:
              'start share cost / parallel'], rows)])
 
 
+# The suite's calls at the default: (label, file stem in suite_gpu/)
+SUITE_CALLS = tuple((layout, layout) for layout in LAYOUTS) + (
+    ('gate, seed 1', 'gate_seed1'), ('gate, seed 2', 'gate_seed2'))
+
+
+# The calls of the earlier default (every coarse cell drawn alike) on gate beside the rollout
+EARLIER_GATE = ('after_goal_gpu/gate', 'default_gpu_runs/gate_seed0_eighth_first',
+                'default_gpu_runs/gate_seed0_halving', 'default_gpu_runs/gate_seed1_halving',
+                'default_gpu_runs/gate_seed2_halving', 'start_share_gpu/gate',
+                'novelty_power_gpu/gate')
+
+
 def suite(src: Sources) -> str:
   """PushT-Obs's default and the parallel rollout on the five suite layouts, one call each on
   one GPU with Warp physics (the README's headline reads these files)."""
   rows, effort, default, rollout = [], [], [], []
-  calls = ([(f'suite_gpu/{layout}', f'suite_gpu/{layout}') for layout in LAYOUTS]
+  calls = ([(f'suite_gpu/{name}', f'suite_gpu/{name}') for _, name in SUITE_CALLS]
            + [(f'novelty_power_gpu/{name}_power05', f'novelty_power_gpu/{name}')
               for _, name in NOVELTY_CALLS])
   for i, (pachs_file, rollout_file) in enumerate(calls):
@@ -804,13 +816,22 @@ def suite(src: Sources) -> str:
   pooled_lag = ('at no budget' if not lag_runs else
                 f'by at most {lag_runs} runs ({lag_budget:,} evaluations, p {lag_p:.2g})')
   solved_of = lambda rows: sum(bool(r['found']) for r in rows)
-  for layout in LAYOUTS:
-    p = src.load(f'suite_gpu/{layout}.json')
+  earlier, earlier_rollout = [], []
+  for i, name in enumerate(EARLIER_GATE):
+    p = src.load(f'{name}.json')
+    earlier += [dict(r, instance=(i, r['instance'])) for r in p['runs']['pachs-improve']]
+    earlier_rollout += [dict(r, instance=(i, r['instance'])) for r in p['runs']['parallel']]
+  earlier_lag = '{} runs behind at {:,} evaluations, p {:.2g}'.format(*stats.most_behind(
+      earlier, earlier_rollout, p['curve_budgets']))
+  for layout, name in SUITE_CALLS:
+    p = src.load(f'suite_gpu/{name}.json')
     pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
     lead = 100 * (pachs['success_rate'] - parallel['success_rate'])
     rows.append([layout, solved(pachs), solved(parallel), f'{lead:+.1f}',
                  most_behind(p, 'pachs-improve', p, 'parallel'),
                  cost_ratio(p, 'pachs-improve', 'parallel')])
+    if layout not in LAYOUTS:  # a repeat with another seed: its wall may hold Warp's compile
+      continue
     effort.append([layout, num(pachs['first_goal_evaluated_mean']),
                    num(pachs['evaluated_success_mean']), num(parallel['evaluated_success_mean']),
                    num(pachs['first_goal_time_s_mean'], 2), num(pachs['time_s_success_mean'], 2),
@@ -821,14 +842,19 @@ def suite(src: Sources) -> str:
       'with up to 3 times the evaluations it took) and the parallel rollout of 256 copies, one '
       'call per layout, the calls one after another on one GPU with MuJoCo Warp physics '
       '(Warp\'s kernels compiled before the first): 30 instances x 5 seeds = 150 runs each, '
-      '100,000 evaluations. Lead: points of success over the rollout. Behind: the most runs by '
+      '100,000 evaluations; gate again with the search seeds 1 and 2 (`--seed`), the layout '
+      f'where the earlier default trailed the rollout on the most calls (pooled over its '
+      f'{len(EARLIER_GATE)} '
+      f'GPU calls on gate, {len(earlier):,} paired runs: {earlier_lag}). Lead: points of success '
+      'over the rollout. Behind: the most runs by '
       'which PACHS\'s success curve trails the rollout\'s at any budget from 3,000 '
       'evaluations, with the exact McNemar p of the paired runs there (`stats.most_behind`). '
       'Cost: mean of the per-run ratios over the runs both solved:',
       table(['layout', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows),
       f'Pooled with the ten calls of the same default in "Rarely visited cells first" (the '
-      f'column 1 / sqrt(n) there, each against the rollout of its call; {len(default):,} paired '
-      f'runs on seven layouts and two instance sets), PACHS solved {solved_of(default):,} and '
+      f'column 1 / sqrt(n) there, each against the rollout of its call; {len(calls)} calls, '
+      f'{len(default):,} paired runs on seven layouts and two instance sets), PACHS solved '
+      f'{solved_of(default):,} and '
       f'the rollout {solved_of(rollout):,}, and PACHS trails the rollout {pooled_lag} from '
       '3,000 evaluations.',
       'Evaluations to the first goal and to the returned path (means over solved runs), the '
