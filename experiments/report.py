@@ -787,6 +787,18 @@ def start_share(src: Sources) -> str:
              'start share cost / parallel'], rows)])
 
 
+def pooled_runs(src: Sources, calls) -> Tuple[List[Dict], List[Dict]]:
+  """The runs of two planners over several calls, each call ((file a, planner a), (file b,
+  planner b)) of the same runs: (runs of a, runs of b), every run's instance tagged with its call
+  so that `stats` pairs runs within a call."""
+  pooled = ([], [])
+  for i, pair in enumerate(calls):
+    for rows, (name, planner) in zip(pooled, pair):
+      rows += [dict(r, instance=(i, r['instance']))
+               for r in src.load(f'{name}.json')['runs'][planner]]
+  return pooled
+
+
 # The suite's calls at the default: (label, file stem in suite_gpu/)
 SUITE_CALLS = tuple((layout, layout) for layout in LAYOUTS) + (
     ('gate, seed 1', 'gate_seed1'), ('gate, seed 2', 'gate_seed2'))
@@ -802,27 +814,21 @@ EARLIER_GATE = ('after_goal_gpu/gate', 'default_gpu_runs/gate_seed0_eighth_first
 def suite(src: Sources) -> str:
   """PushT-Obs's default and the parallel rollout on the five suite layouts, one call each on
   one GPU with Warp physics (the README's headline reads these files)."""
-  rows, effort, default, rollout = [], [], [], []
-  calls = ([(f'suite_gpu/{name}', f'suite_gpu/{name}') for _, name in SUITE_CALLS]
-           + [(f'novelty_power_gpu/{name}_power05', f'novelty_power_gpu/{name}')
-              for _, name in NOVELTY_CALLS])
-  for i, (pachs_file, rollout_file) in enumerate(calls):
-    for rows_of, name, planner in ((default, pachs_file, 'pachs-improve'),
-                                   (rollout, rollout_file, 'parallel')):
-      rows_of += [dict(r, instance=(i, r['instance']))
-                  for r in src.load(f'{name}.json')['runs'][planner]]
-  lag_runs, lag_budget, lag_p = stats.most_behind(
-      default, rollout, src.load('suite_gpu/gate.json')['curve_budgets'])
+  rows, effort = [], []
+  calls = ([((f'suite_gpu/{name}', 'pachs-improve'), (f'suite_gpu/{name}', 'parallel'))
+            for _, name in SUITE_CALLS]
+           + [((f'novelty_power_gpu/{name}_power05', 'pachs-improve'),
+               (f'novelty_power_gpu/{name}', 'parallel')) for _, name in NOVELTY_CALLS])
+  default, rollout = pooled_runs(src, calls)
+  budgets = src.load('suite_gpu/gate.json')['curve_budgets']
+  lag_runs, lag_budget, lag_p = stats.most_behind(default, rollout, budgets)
   pooled_lag = ('at no budget' if not lag_runs else
                 f'by at most {lag_runs} runs ({lag_budget:,} evaluations, p {lag_p:.2g})')
-  solved_of = lambda rows: sum(bool(r['found']) for r in rows)
-  earlier, earlier_rollout = [], []
-  for i, name in enumerate(EARLIER_GATE):
-    p = src.load(f'{name}.json')
-    earlier += [dict(r, instance=(i, r['instance'])) for r in p['runs']['pachs-improve']]
-    earlier_rollout += [dict(r, instance=(i, r['instance'])) for r in p['runs']['parallel']]
-  earlier_lag = '{} runs behind at {:,} evaluations, p {:.2g}'.format(*stats.most_behind(
-      earlier, earlier_rollout, p['curve_budgets']))
+  solved_of = lambda runs: sum(bool(r['found']) for r in runs)
+  earlier = pooled_runs(src, [((name, 'pachs-improve'), (name, 'parallel'))
+                              for name in EARLIER_GATE])
+  earlier_lag = '{} runs behind at {:,} evaluations, p {:.2g}'.format(
+      *stats.most_behind(*earlier, budgets))
   for layout, name in SUITE_CALLS:
     p = src.load(f'suite_gpu/{name}.json')
     pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
@@ -843,19 +849,18 @@ def suite(src: Sources) -> str:
       'call per layout, the calls one after another on one GPU with MuJoCo Warp physics '
       '(Warp\'s kernels compiled before the first): 30 instances x 5 seeds = 150 runs each, '
       '100,000 evaluations; gate again with the search seeds 1 and 2 (`--seed`), the layout '
-      f'where the earlier default trailed the rollout on the most calls (pooled over its '
-      f'{len(EARLIER_GATE)} '
-      f'GPU calls on gate, {len(earlier):,} paired runs: {earlier_lag}). Lead: points of success '
-      'over the rollout. Behind: the most runs by '
-      'which PACHS\'s success curve trails the rollout\'s at any budget from 3,000 '
+      'where the earlier default trailed the rollout on the most calls (pooled over its '
+      f'{len(EARLIER_GATE)} GPU calls on gate, {len(earlier[0]):,} paired runs: {earlier_lag}). '
+      'Lead: points of success over the rollout. Behind: the most runs by which PACHS\'s '
+      'success curve trails the rollout\'s at any budget from 3,000 '
       'evaluations, with the exact McNemar p of the paired runs there (`stats.most_behind`). '
       'Cost: mean of the per-run ratios over the runs both solved:',
       table(['layout', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows),
       f'Pooled with the ten calls of the same default in "Rarely visited cells first" (the '
       f'column 1 / sqrt(n) there, each against the rollout of its call; {len(calls)} calls, '
       f'{len(default):,} paired runs on seven layouts and two instance sets), PACHS solved '
-      f'{solved_of(default):,} and '
-      f'the rollout {solved_of(rollout):,}, and PACHS trails the rollout {pooled_lag} from '
+      f'{solved_of(default):,} and the rollout {solved_of(rollout):,}, and PACHS trails the '
+      f'rollout {pooled_lag} from '
       '3,000 evaluations.',
       'Evaluations to the first goal and to the returned path (means over solved runs), the '
       'time a run took, estimated from its batch\'s iterations (s), and each call\'s batch '
@@ -879,8 +884,8 @@ NOVELTY_CALLS = (
 def novelty_weights(src: Sources) -> str:
   """Novel restarts drawing every coarse cell alike against cells weighed 1 / sqrt(nodes), with
   the parallel rollout of the first's call: ten calls of 150 runs, Warp, one GPU."""
-  rows, pooled = [], {'alike': [], 'root': [], 'parallel': []}
-  for i, (label, name) in enumerate(NOVELTY_CALLS):
+  rows = []
+  for label, name in NOVELTY_CALLS:
     p = src.load(f'novelty_power_gpu/{name}.json')
     v = src.load(f'novelty_power_gpu/{name}_power05.json')
     rows.append([label, solved(summary_of(p, 'pachs-improve')),
@@ -891,17 +896,17 @@ def novelty_weights(src: Sources) -> str:
                  most_behind(v, 'pachs-improve', p, 'pachs-improve'),
                  cost_ratio(p, 'pachs-improve', 'parallel'),
                  paired_ratio(v, 'pachs-improve', p, 'parallel')])
-    for key, payload, planner in (('alike', p, 'pachs-improve'), ('root', v, 'pachs-improve'),
-                                  ('parallel', p, 'parallel')):
-      pooled[key] += [dict(r, instance=(i, r['instance'])) for r in payload['runs'][planner]]
-  budgets = src.load(f'novelty_power_gpu/{NOVELTY_CALLS[0][1]}.json')['curve_budgets']
-  alike, root = pooled['alike'], pooled['root']
-  solved_of = lambda rows: sum(bool(r['found']) for r in rows)
+  files = [f'novelty_power_gpu/{name}' for _, name in NOVELTY_CALLS]
+  alike, parallel = pooled_runs(src, [((f, 'pachs-improve'), (f, 'parallel')) for f in files])
+  root, _ = pooled_runs(src, [((f'{f}_power05', 'pachs-improve'), (f, 'parallel'))
+                              for f in files])
+  budgets = src.load(f'{files[0]}.json')['curve_budgets']
+  solved_of = lambda runs: sum(bool(r['found']) for r in runs)
   alike_of = {(r['instance'], r['round']): r['found'] for r in alike}
   only_root = sum(bool(r['found']) and not alike_of[(r['instance'], r['round'])] for r in root)
   only_alike = sum(not r['found'] and bool(alike_of[(r['instance'], r['round'])]) for r in root)
   rollout_by = lambda budget: sum(bool(r['found']) and r['first_goal_evaluated'] <= budget
-                                  for r in pooled['parallel'])
+                                  for r in parallel)
   behind = lambda a, b: '{} at {:,} evaluations (p {:.2g})'.format(
       *stats.most_behind(a, b, budgets))
   return '\n\n'.join([
@@ -918,7 +923,7 @@ def novelty_weights(src: Sources) -> str:
              'alike cost / parallel', '1/sqrt(n) cost / parallel'], rows),
       f'Pooled over the ten calls ({len(root):,} paired runs): every cell alike solved '
       f'{solved_of(alike):,}, 1 / sqrt(n) {solved_of(root):,} and the rollout '
-      f'{solved_of(pooled["parallel"]):,} at 100,000 evaluations; {only_root} runs only 1 / '
+      f'{solved_of(parallel):,} at 100,000 evaluations; {only_root} runs only 1 / '
       f'sqrt(n) solved against {only_alike} only every cell alike did (McNemar p '
       f'{stats.mcnemar_p(only_root, only_alike):.2g}). Every cell alike trails 1 / sqrt(n) by '
       f'{behind(alike, root)}; 1 / sqrt(n) trails every cell alike by {behind(root, alike)}, '
