@@ -168,7 +168,7 @@ def open_loop_layouts(src: Sources) -> str:
       'PACHS here is its default before the first goal\'s path was improved and before novel '
       'restarts weighed cells by 1 / sqrt(nodes) (the first goal ends the search, cells drawn '
       'alike): the baselines and the variants that chose the default\'s edges and chains. The '
-      'default of today is in "PushT-Obs suite at the default". '
+      'default of today is in [PushT-Obs suite at the default](#pusht-obs-suite-at-the-default). '
       f'{first["instances"]} canonical instances x {first["rounds"]} seeds = '
       f'{first["instances"] * first["rounds"]} runs per planner and layout, '
       f'{first["budget"]:,} edge evaluations per run, each planner\'s runs in one batched call. '
@@ -204,8 +204,8 @@ def open_loop_beyond(src: Sources) -> str:
       'The same protocol on instances drawn by the same rules with another seed, and on two '
       'layouts held out from every choice of defaults (the gate mirrored, the wall moved right); '
       'PACHS as in the section above, before the first goal\'s path was improved. The default '
-      'of today on these instances and layouts: "Rarely visited cells first" and "PACHS after '
-      'the first goal".',
+      'of today on these instances and layouts: [Rarely visited cells '
+      'first](#rarely-visited-cells-first).',
       table(['layout', 'PACHS', 'parallel rollout', f'solved within {budgets} (PACHS / parallel)',
              'PACHS / parallel cost'], rows)])
 
