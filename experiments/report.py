@@ -204,8 +204,8 @@ def open_loop_beyond(src: Sources) -> str:
       'The same protocol on instances drawn by the same rules with another seed, and on two '
       'layouts held out from every choice of defaults (the gate mirrored, the wall moved right); '
       'PACHS as in the section above, before the first goal\'s path was improved. The default '
-      'of today on these instances and layouts: [Rarely visited cells '
-      'first](#rarely-visited-cells-first).',
+      'of today on the second instance set (detour, wall) and on the held-out layouts: [Rarely '
+      'visited cells first](#rarely-visited-cells-first).',
       table(['layout', 'PACHS', 'parallel rollout', f'solved within {budgets} (PACHS / parallel)',
              'PACHS / parallel cost'], rows)])
 
@@ -555,6 +555,11 @@ AFTER_GOAL_SETS = tuple((layout, layout) for layout in LAYOUTS) + (
     ('wall, instance set 1', 'wall_set1'), ('detour, instance set 1', 'detour_set1'))
 
 
+def p_value(p: float) -> str:
+  """A p-value as the report prints it: 'p 0.xx', or 'p < 0.01'."""
+  return f'p {p:.2f}' if p >= 0.01 else 'p < 0.01'
+
+
 def lag(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> Tuple[int, str]:
   """(the most runs by which a_planner's success curve in payload a trails b_planner's in b at
   a budget >= start, 0 where it never trails; that number as a table cell, with the exact
@@ -563,7 +568,7 @@ def lag(a: Dict, a_planner: str, b: Dict, b_planner: str, start: int = 3000) -> 
                                  a['curve_budgets'], start)
   if not runs:
     return runs, '0'
-  return runs, f'{runs} (p {p:.2f})' if p >= 0.01 else f'{runs} (p < 0.01)'
+  return runs, f'{runs} ({p_value(p)})'
 
 
 def most_behind(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
@@ -823,12 +828,14 @@ def suite(src: Sources) -> str:
   budgets = src.load('suite_gpu/gate.json')['curve_budgets']
   lag_runs, lag_budget, lag_p = stats.most_behind(default, rollout, budgets)
   pooled_lag = ('at no budget' if not lag_runs else
-                f'by at most {lag_runs} runs ({lag_budget:,} evaluations, p {lag_p:.2g})')
+                f'by at most {lag_runs} runs ({lag_budget:,} evaluations, {p_value(lag_p)})')
   solved_of = lambda runs: sum(bool(r['found']) for r in runs)
   earlier = pooled_runs(src, [((name, 'pachs-improve'), (name, 'parallel'))
                               for name in EARLIER_GATE])
-  earlier_lag = '{} runs behind at {:,} evaluations, p {:.2g}'.format(
-      *stats.most_behind(*earlier, budgets))
+  earlier_runs, earlier_budget, earlier_p = stats.most_behind(*earlier, budgets)
+  earlier_lag = f'{earlier_runs} runs behind at {earlier_budget:,} evaluations, {p_value(earlier_p)}'
+  settings = src.load('suite_gpu/gate.json')['settings']
+  layouts = {name.split('_')[0] for _, name in SUITE_CALLS + NOVELTY_CALLS}
   for layout, name in SUITE_CALLS:
     p = src.load(f'suite_gpu/{name}.json')
     pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
@@ -847,18 +854,21 @@ def suite(src: Sources) -> str:
       'the actor\'s edges that restart at rarely visited cells, the first goal\'s path improved '
       'with up to 3 times the evaluations it took) and the parallel rollout of 256 copies, one '
       'call per layout, the calls one after another on one GPU with MuJoCo Warp physics '
-      '(Warp\'s kernels compiled before the first): 30 instances x 5 seeds = 150 runs each, '
-      '100,000 evaluations; gate again with the search seeds 1 and 2 (`--seed`), the layout '
-      'where the earlier default trailed the rollout on the most calls (pooled over its '
+      f'(Warp\'s kernels compiled before the first): {settings["instances"]} instances x '
+      f'{settings["rounds"]} seeds = {settings["instances"] * settings["rounds"]} runs each, '
+      f'{settings["budget"]:,} evaluations; gate again with the search seeds 1 and 2 '
+      '(`--seed`), where the earlier default trailed the rollout (pooled over its '
       f'{len(EARLIER_GATE)} GPU calls on gate, {len(earlier[0]):,} paired runs: {earlier_lag}). '
       'Lead: points of success over the rollout. Behind: the most runs by which PACHS\'s '
       'success curve trails the rollout\'s at any budget from 3,000 '
       'evaluations, with the exact McNemar p of the paired runs there (`stats.most_behind`). '
       'Cost: mean of the per-run ratios over the runs both solved:',
       table(['layout', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows),
-      f'Pooled with the ten calls of the same default in "Rarely visited cells first" (the '
-      f'column 1 / sqrt(n) there, each against the rollout of its call; {len(calls)} calls, '
-      f'{len(default):,} paired runs on seven layouts and two instance sets), PACHS solved '
+      f'Pooled with the {len(NOVELTY_CALLS)} calls of the same cell weights in "Rarely visited '
+      'cells first" (the column 1 / sqrt(n) there, the weights then scaled to integers a '
+      'little differently; each paired with the rollout of the every-cell-alike call of the '
+      f'same command line; {len(calls)} calls, {len(default):,} paired runs on '
+      f'{len(layouts)} layouts and two instance sets), PACHS solved '
       f'{solved_of(default):,} and the rollout {solved_of(rollout):,}, and PACHS trails the '
       f'rollout {pooled_lag} from '
       '3,000 evaluations.',
@@ -901,34 +911,47 @@ def novelty_weights(src: Sources) -> str:
   root, _ = pooled_runs(src, [((f'{f}_power05', 'pachs-improve'), (f, 'parallel'))
                               for f in files])
   budgets = src.load(f'{files[0]}.json')['curve_budgets']
+  settings = src.load(f'{files[0]}.json')['settings']
   solved_of = lambda runs: sum(bool(r['found']) for r in runs)
   alike_of = {(r['instance'], r['round']): r['found'] for r in alike}
   only_root = sum(bool(r['found']) and not alike_of[(r['instance'], r['round'])] for r in root)
   only_alike = sum(not r['found'] and bool(alike_of[(r['instance'], r['round'])]) for r in root)
   rollout_by = lambda budget: sum(bool(r['found']) and r['first_goal_evaluated'] <= budget
                                   for r in parallel)
-  behind = lambda a, b: '{} at {:,} evaluations (p {:.2g})'.format(
-      *stats.most_behind(a, b, budgets))
+  def behind(a, b):
+    runs, budget, p = stats.most_behind(a, b, budgets)
+    return f'{runs} at {budget:,} evaluations ({p_value(p)})'
+  wins = sum(summary_of(src.load(f'{f}_power05.json'), 'pachs-improve')['successes']
+             > summary_of(src.load(f'{f}.json'), 'pachs-improve')['successes'] for f in files)
+  losses = sum(summary_of(src.load(f'{f}_power05.json'), 'pachs-improve')['successes']
+               < summary_of(src.load(f'{f}.json'), 'pachs-improve')['successes'] for f in files)
   return '\n\n'.join([
       'A chain that ends restarts at a node drawn by novelty. The earlier default drew every '
       'coarse cell found so far alike (each node 1 / n for the n nodes of its cell); the '
       'default now draws a cell of n nodes with weight 1 / sqrt(n), Go-Explore\'s count bonus, '
-      'so that rarely visited cells come first (`search/novelty.py`). Ten calls of each on '
-      'one H100, the rollout in the first\'s call, 150 runs per call at 100,000 evaluations, '
-      'Warp physics, three calls at a time on the GPU (the commands in the sources; their '
-      'option left with the losing weights). Behind: as in the suite above; "alike behind '
-      '1/sqrt(n)" compares the two variants on the same runs:',
+      'so that rarely visited cells come first (`search/novelty.py`). '
+      f'{len(NOVELTY_CALLS)} calls of each on one H100, the rollout in the every-cell-alike '
+      f'call, {settings["instances"] * settings["rounds"]} runs per call at '
+      f'{settings["budget"]:,} evaluations, Warp physics; the first job\'s gate call alone (it '
+      'compiled Warp\'s kernels), the others three at a time on the GPU (the commands in the '
+      'sources; their option left with the '
+      'losing weights). Behind: as in the suite above; "alike behind 1/sqrt(n)" compares the '
+      'two variants on the same runs:',
       table(['call', 'cells alike', '1 / sqrt(n)', 'parallel rollout', 'alike behind rollout',
              '1/sqrt(n) behind rollout', 'alike behind 1/sqrt(n)', '1/sqrt(n) behind alike',
              'alike cost / parallel', '1/sqrt(n) cost / parallel'], rows),
-      f'Pooled over the ten calls ({len(root):,} paired runs): every cell alike solved '
-      f'{solved_of(alike):,}, 1 / sqrt(n) {solved_of(root):,} and the rollout '
-      f'{solved_of(parallel):,} at 100,000 evaluations; {only_root} runs only 1 / '
-      f'sqrt(n) solved against {only_alike} only every cell alike did (McNemar p '
-      f'{stats.mcnemar_p(only_root, only_alike):.2g}). Every cell alike trails 1 / sqrt(n) by '
-      f'{behind(alike, root)}; 1 / sqrt(n) trails every cell alike by {behind(root, alike)}, '
-      f'where the rollout has solved {rollout_by(stats.most_behind(root, alike, budgets)[1])} '
-      'runs. 1 / sqrt(n) is the default.'])
+      f'Pooled over the {len(NOVELTY_CALLS)} calls ({len(root):,} paired runs): every cell '
+      f'alike solved {solved_of(alike):,}, 1 / sqrt(n) {solved_of(root):,} and the rollout '
+      f'{solved_of(parallel):,} at {settings["budget"]:,} evaluations; 1 / sqrt(n) solved more '
+      f'runs in {wins} calls and fewer in {losses}; {only_root} runs only 1 / sqrt(n) solved '
+      f'against {only_alike} only every cell alike did (McNemar '
+      f'{p_value(stats.mcnemar_p(only_root, only_alike))}). Every cell alike trails 1 / '
+      f'sqrt(n) by {behind(alike, root)}; 1 / sqrt(n) trails every cell alike by '
+      f'{behind(root, alike)}, where the rollout has solved '
+      f'{rollout_by(stats.most_behind(root, alike, budgets)[1])} runs. These p-values treat '
+      'the runs as independent; the rounds of one instance are not, so they understate the '
+      'uncertainty. 1 / sqrt(n) is the default: it reaches goals sooner at middle budgets and '
+      'solves at least as many runs by the end of the budget.'])
 
 
 def after_goal(src: Sources) -> str:

@@ -71,7 +71,7 @@ def test_below_is_the_high_word_of_random_bits_times_the_bound():
     np.testing.assert_array_equal(drawn, (bits * np.uint64(bound)) >> np.uint64(32))
 
 
-def test_draw_follows_its_weights_when_they_sum_near_two_to_the_31():
+def test_draw_follows_its_weights_at_a_total_where_randint_is_biased():
   # three equal thirds of a total of 805,306,362: jax.random.randint(0, total) reduces one
   # word modulo the total and draws the first third 37.5% of the time
   weight = jnp.array([[268_435_455] + [67_108_863] * 4 + [268_435_455, 0]], jnp.int32)

@@ -1,6 +1,6 @@
 """Coarse-cell visit counts over the search's nodes, and restart nodes drawn by novelty: a cell
-of n generated nodes weighs 1 / sqrt(n), shared by its nodes (Go-Explore's count-based return to
-rarely visited cells)."""
+of n generated nodes weighs 1 / sqrt(n), shared by those of its nodes that may restart a chain
+(Go-Explore's count-based return to rarely visited cells)."""
 
 from __future__ import annotations
 
