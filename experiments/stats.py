@@ -63,6 +63,23 @@ def instance_bootstrap_interval(found, instance, repeats: int = 10_000, seed: in
   return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
+def paired_difference(rows_a: List[Dict], rows_b: List[Dict], budget: int,
+                      repeats: int = 20_000, seed: int = 0):
+  """Runs solved by budget (first goals) by planner a minus planner b, on runs paired by
+  (instance, round), with its 95% interval from resampling the instances (a cluster bootstrap
+  of the per-instance differences, as `instance_bootstrap_interval`): (difference, low, high)."""
+  b_of = {(r['instance'], r['round']): r for r in rows_b}
+  solved = lambda r: bool(r['found']) and r.get('first_goal_evaluated', r['evaluated']) <= budget
+  per_instance = {}
+  for r in rows_a:
+    change = int(solved(r)) - int(solved(b_of[(r['instance'], r['round'])]))
+    per_instance[r['instance']] = per_instance.get(r['instance'], 0) + change
+  diffs = np.array(list(per_instance.values()))
+  rng = np.random.default_rng(seed)
+  sums = diffs[rng.integers(0, len(diffs), (repeats, len(diffs)))].sum(axis=1)
+  return int(diffs.sum()), float(np.percentile(sums, 2.5)), float(np.percentile(sums, 97.5))
+
+
 def success_curve(rows: List[Dict], budgets) -> List[float]:
   """Share of runs that found the goal within each budget of evaluations (a run that found its
   goal after e evaluations finds it with any budget >= e: the search up to a budget is a prefix

@@ -127,6 +127,21 @@ def test_instance_bootstrap_interval_treats_rounds_as_one_instance():
   assert stats.instance_bootstrap_interval(found, instance) == (low, high)
 
 
+def test_paired_difference_resamples_instances_of_paired_runs():
+  run = lambda i, k, found, first=100: {'instance': i, 'round': k, 'found': found,
+                                        'first_goal_evaluated': first, 'evaluated': first}
+  # 20 instances x 2 rounds; a solves every run, b misses both rounds of instances 0-4 and
+  # solves instance 5's rounds only after the budget
+  a = [run(i, k, True) for i in range(20) for k in range(2)]
+  b = [run(i, k, i >= 5, 5000 if i == 5 else 100) for i in range(20) for k in range(2)]
+  difference, low, high = stats.paired_difference(a, b[::-1], budget=1000)
+  assert difference == 12 and low < difference < high
+  assert low >= 0 and high <= 40  # resampled instances are whole: differences come in pairs
+  assert stats.paired_difference(a, b, budget=1000) == (difference, low, high)  # seeded
+  assert stats.paired_difference(a, b, budget=10_000)[0] == 10  # instance 5 solved by then
+  assert stats.paired_difference(a, a, budget=1000) == (0, 0.0, 0.0)
+
+
 def _closed(planners, **settings):
   base = {'task': 'pusht-obs', 'instances': 2, 'rounds': 1, 'query_time': 3.0, 'execute': 10,
           'max_queries': 30, 'fill_with_policy': 1, 'perturb': '', 'seed': 0}
