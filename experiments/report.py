@@ -761,20 +761,26 @@ def default_runs(src: Sources) -> str:
       table(['layout', 'timed', LADDERS['eighth'], LADDERS['halving']], wall_rows)])
 
 
+def variant_cells(p: Dict, v: Dict, both_ways: bool = False) -> List[str]:
+  """Table cells of the default ('pachs-improve' in p) against a variant ('pachs-improve' in v,
+  the same runs) and the rollout of p's call: solved by each, each behind the rollout, (with
+  both_ways the default behind the variant,) the variant behind the default, and the cost
+  ratios to the rollout."""
+  default = [most_behind(p, 'pachs-improve', v, 'pachs-improve')] if both_ways else []
+  return ([solved(summary_of(p, 'pachs-improve')), solved(summary_of(v, 'pachs-improve')),
+           solved(summary_of(p, 'parallel')), most_behind(p, 'pachs-improve', p, 'parallel'),
+           most_behind(v, 'pachs-improve', p, 'parallel')] + default
+          + [most_behind(v, 'pachs-improve', p, 'pachs-improve'),
+             cost_ratio(p, 'pachs-improve', 'parallel'),
+             paired_ratio(v, 'pachs-improve', p, 'parallel')])
+
+
 def start_share(src: Sources) -> str:
   """The default against chains that restart at the start state with probability 1/4 (else at
   novel cells), with the parallel rollout of the default's call: 150 runs per layout, Warp."""
-  rows = []
-  for layout in ('gate', 'two-gaps', 'detour'):
-    p = src.load(f'start_share_gpu/{layout}.json')
-    v = src.load(f'start_share_gpu/{layout}_start25.json')
-    rows.append([layout, solved(summary_of(p, 'pachs-improve')),
-                 solved(summary_of(v, 'pachs-improve')), solved(summary_of(p, 'parallel')),
-                 most_behind(p, 'pachs-improve', p, 'parallel'),
-                 most_behind(v, 'pachs-improve', p, 'parallel'),
-                 most_behind(v, 'pachs-improve', p, 'pachs-improve'),
-                 cost_ratio(p, 'pachs-improve', 'parallel'),
-                 paired_ratio(v, 'pachs-improve', p, 'parallel')])
+  rows = [[layout] + variant_cells(src.load(f'start_share_gpu/{layout}.json'),
+                                   src.load(f'start_share_gpu/{layout}_start25.json'))
+          for layout in ('gate', 'two-gaps', 'detour')]
   share = src.load('start_share_gpu/detour_start25.json')['settings']['start_share']
   return '\n\n'.join([
       'Where the default trails the rollout (by a few runs at middle budgets on some calls, '
@@ -825,7 +831,8 @@ def suite(src: Sources) -> str:
            + [((f'novelty_power_gpu/{name}_power05', 'pachs-improve'),
                (f'novelty_power_gpu/{name}', 'parallel')) for _, name in NOVELTY_CALLS])
   default, rollout = pooled_runs(src, calls)
-  budgets = src.load('suite_gpu/gate.json')['curve_budgets']
+  gate = src.load('suite_gpu/gate.json')
+  budgets, settings = gate['curve_budgets'], gate['settings']
   lag_runs, lag_budget, lag_p = stats.most_behind(default, rollout, budgets)
   pooled_lag = ('at no budget' if not lag_runs else
                 f'by at most {lag_runs} runs ({lag_budget:,} evaluations, {p_value(lag_p)})')
@@ -834,7 +841,6 @@ def suite(src: Sources) -> str:
                               for name in EARLIER_GATE])
   earlier_runs, earlier_budget, earlier_p = stats.most_behind(*earlier, budgets)
   earlier_lag = f'{earlier_runs} runs behind at {earlier_budget:,} evaluations, {p_value(earlier_p)}'
-  settings = src.load('suite_gpu/gate.json')['settings']
   layouts = {name.split('_')[0] for _, name in SUITE_CALLS + NOVELTY_CALLS}
   for layout, name in SUITE_CALLS:
     p = src.load(f'suite_gpu/{name}.json')
@@ -894,39 +900,31 @@ NOVELTY_CALLS = (
 def novelty_weights(src: Sources) -> str:
   """Novel restarts drawing every coarse cell alike against cells weighed 1 / sqrt(nodes), with
   the parallel rollout of the first's call: ten calls of 150 runs, Warp, one GPU."""
-  rows = []
+  rows, wins, losses = [], 0, 0
   for label, name in NOVELTY_CALLS:
     p = src.load(f'novelty_power_gpu/{name}.json')
     v = src.load(f'novelty_power_gpu/{name}_power05.json')
-    rows.append([label, solved(summary_of(p, 'pachs-improve')),
-                 solved(summary_of(v, 'pachs-improve')), solved(summary_of(p, 'parallel')),
-                 most_behind(p, 'pachs-improve', p, 'parallel'),
-                 most_behind(v, 'pachs-improve', p, 'parallel'),
-                 most_behind(p, 'pachs-improve', v, 'pachs-improve'),
-                 most_behind(v, 'pachs-improve', p, 'pachs-improve'),
-                 cost_ratio(p, 'pachs-improve', 'parallel'),
-                 paired_ratio(v, 'pachs-improve', p, 'parallel')])
+    rows.append([label] + variant_cells(p, v, both_ways=True))
+    gain = (summary_of(v, 'pachs-improve')['successes']
+            - summary_of(p, 'pachs-improve')['successes'])
+    wins, losses = wins + (gain > 0), losses + (gain < 0)
   files = [f'novelty_power_gpu/{name}' for _, name in NOVELTY_CALLS]
   alike, parallel = pooled_runs(src, [((f, 'pachs-improve'), (f, 'parallel')) for f in files])
   root, _ = pooled_runs(src, [((f'{f}_power05', 'pachs-improve'), (f, 'parallel'))
                               for f in files])
-  budgets = src.load(f'{files[0]}.json')['curve_budgets']
-  settings = src.load(f'{files[0]}.json')['settings']
+  first = src.load(f'{files[0]}.json')
+  budgets, settings = first['curve_budgets'], first['settings']
   solved_of = lambda runs: sum(bool(r['found']) for r in runs)
   alike_of = {(r['instance'], r['round']): r['found'] for r in alike}
   only_root = sum(bool(r['found']) and not alike_of[(r['instance'], r['round'])] for r in root)
   only_alike = sum(not r['found'] and bool(alike_of[(r['instance'], r['round'])]) for r in root)
   rollout_by = lambda budget: sum(bool(r['found']) and r['first_goal_evaluated'] <= budget
                                   for r in parallel)
-  def behind(a, b):
-    runs, budget, p = stats.most_behind(a, b, budgets)
-    return f'{runs} at {budget:,} evaluations ({p_value(p)})'
-  wins = sum(summary_of(src.load(f'{f}_power05.json'), 'pachs-improve')['successes']
-             > summary_of(src.load(f'{f}.json'), 'pachs-improve')['successes'] for f in files)
-  losses = sum(summary_of(src.load(f'{f}_power05.json'), 'pachs-improve')['successes']
-               < summary_of(src.load(f'{f}.json'), 'pachs-improve')['successes'] for f in files)
+  alike_lag, root_lag = (stats.most_behind(a, b, budgets) for a, b in ((alike, root),
+                                                                        (root, alike)))
+  behind = lambda lag: f'{lag[0]} at {lag[1]:,} evaluations ({p_value(lag[2])})'
   differences = []
-  for budget in (stats.most_behind(alike, root, budgets)[1], budgets[-1]):
+  for budget in (alike_lag[1], budgets[-1]):
     difference, low, high = stats.paired_difference(root, alike, budget)
     differences.append(f'{difference:+d} at {budget:,} evaluations ({low:+.0f} to {high:+.0f})')
   return '\n\n'.join([
@@ -950,9 +948,9 @@ def novelty_weights(src: Sources) -> str:
       f'runs in {wins} calls and fewer in {losses}; {only_root} runs only 1 / sqrt(n) solved '
       f'against {only_alike} only every cell alike did (McNemar '
       f'{p_value(stats.mcnemar_p(only_root, only_alike))}). Every cell alike trails 1 / '
-      f'sqrt(n) by {behind(alike, root)}; 1 / sqrt(n) trails every cell alike by '
-      f'{behind(root, alike)}, where the rollout has solved '
-      f'{rollout_by(stats.most_behind(root, alike, budgets)[1])} runs. These p-values treat '
+      f'sqrt(n) by {behind(alike_lag)}; 1 / sqrt(n) trails every cell alike by '
+      f'{behind(root_lag)}, where the rollout has solved {rollout_by(root_lag[1])} runs. '
+      'These p-values treat '
       'the runs as independent; the rounds of one instance are not, so they understate the '
       'uncertainty. Resampling the instances of the calls instead (`stats.paired_difference`), '
       'runs solved by 1 / sqrt(n) minus every cell alike, with 95% intervals: '
