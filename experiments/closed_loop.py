@@ -19,10 +19,11 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import anytime, flags, planner, programs, trees
+from pachs_jax import anytime, flags, planner, replan, trees
 from pachs_jax.envs import mujoco_c
 from pachs_jax.search import baselines as bl
-from pachs_jax.search import compact, pachs
+from pachs_jax.search import compact
+from pachs_jax.search.result import StopReason
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
@@ -133,13 +134,18 @@ def make_query(name: str, task: str, env, model, args, num: int):
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = planner.default_config(task, algorithm, max_evaluations=args.budget,
                                     **flags.search_overrides(args))
-    search = programs.Programs(pachs.make_search(env, model, config))
+    session = replan.Session(env, model, config, candidates=args.candidates,
+                             chunk_iterations=args.chunk_iterations)
 
     def query(nodes, keys, executed):
-      out = programs.plan(env, model, nodes, config, keys, time_limit_s=args.query_time,
-                          chunk_iterations=args.chunk_iterations, search=search)
-      return (np.asarray(out.path_actions), np.asarray(out.path_length),
-              np.asarray(out.evaluated), np.asarray(out.found))
+      answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
+                                                     time_limit_s=args.query_time))
+      search = answer.search
+      return (answer.actions, answer.length, search.evaluated, answer.reaches_goal,
+              {'kind': answer.kind, 'search_length': search.path_length,
+               'generated': search.generated, 'invalid': search.invalid,
+               'iterations': search.iterations, 'stop': search.stop_reason,
+               'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s']})
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
@@ -172,7 +178,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
                                  lambda state: compiled['result'](compiled['stop'](state)),
                                  args.query_time, start, timing)
       return (np.asarray(out.path_actions), np.asarray(out.path_length),
-              np.asarray(out.evaluated), np.asarray(out.found))
+              np.asarray(out.evaluated), np.asarray(out.found),
+              {'iterations': np.asarray(out.iterations)})
     return query, config
   if name == 'mppi':
     config = bl.MppiConfig(max_evaluations=args.budget)
@@ -194,7 +201,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
       out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return (previous['actions'], previous['length'], np.asarray(out.evaluated),
-              np.asarray(out.found))
+              np.asarray(out.found), {})
     return query, config
   raise ValueError(f'unknown planner {name!r}')
 
@@ -224,6 +231,12 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   executed = np.zeros(num, np.int64)
   empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
   by_query = []  # [running episodes, goal answers] per query
+  kinds = np.zeros(len(replan.AnswerKind.NAMES), np.int64)  # answers of each kind
+  # queries whose search returned no edge: its stop reasons, evaluations, invalid edges and
+  # generated nodes (why it had nothing to say)
+  empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
+                  'only_start_generated': 0}
+  iterations, search_s, follow_s = [], [], []
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -231,8 +244,24 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
     start = time.perf_counter()
-    actions, lengths, evaluated, found = query(nodes, keys, executed)
+    actions, lengths, evaluated, found, info = query(nodes, keys, executed)
     elapsed = time.perf_counter() - start
+    running = episodes.active
+    if 'kind' in info:
+      kinds += np.bincount(info['kind'][running], minlength=len(kinds))
+      nothing = running & (info['search_length'] == 0)
+      empty_search['queries'] += int(nothing.sum())
+      for code in info['stop'][nothing]:
+        reason = StopReason.name(code)
+        empty_search['stop'][reason] = empty_search['stop'].get(reason, 0) + 1
+      empty_search['evaluated'] += int(evaluated[nothing].sum())
+      empty_search['invalid_edges'] += int(info['invalid'][nothing].sum())
+      empty_search['only_start_generated'] += int(np.sum(info['generated'][nothing] <= 1))
+    if q > 0 and 'iterations' in info:  # the first query includes compilation
+      iterations.append(float(np.max(info['iterations'][running])))
+      if 'search_s' in info:
+        search_s.append(info['search_s'])
+        follow_s.append(info['follow_s'])
     if q == 0:
       compile_s = elapsed  # the first query includes compilation
     else:
@@ -267,7 +296,13 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
           'goal_answers': sum(goals for _, goals in by_query), 'goal_answers_by_query': by_query,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
-          'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query)}
+          'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
+          'answers': ({n: int(c) for n, c in zip(replan.AnswerKind.NAMES, kinds)}
+                      if kinds.any() else None),
+          'empty_search': empty_search if kinds.any() else None,
+          'iterations_per_query_mean': stats.mean_or_none(iterations),
+          'search_s_mean': stats.mean_or_none(search_s),
+          'follow_s_mean': stats.mean_or_none(follow_s)}
 
 
 def main():
@@ -288,6 +323,11 @@ def main():
   flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
                                  'compact_fractions'],
                          defaults={'compact_fractions': COMPACT_FRACTIONS})
+  parser.add_argument('--candidates', default=','.join(replan.CANDIDATES),
+                      type=lambda text: tuple(c for c in text.split(',') if c),
+                      help="what competes with PACHS's path in each query (replan.Session): "
+                      "'remainder' (the last answer's unexecuted actions), 'policy' (the "
+                      "policy's rollout); '' the search's path alone")
   parser.add_argument('--chunk-iterations', type=int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
@@ -352,8 +392,8 @@ def write_markdown(payload: Dict, path: str) -> None:
     f.write(common.markdown_table(rows, [
         'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
         'queries_per_episode_mean', 'empty_answers', 'goal_answers', 'actions_per_query_mean',
-        'evaluations_per_query_mean', 'policy_fill_steps',
-        'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
+        'evaluations_per_query_mean', 'iterations_per_query_mean', 'policy_fill_steps',
+        'answers', 'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
     f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '
             'instances; the rounds of an instance are not independent).\n')
 

@@ -10,7 +10,7 @@ from typing import Callable, List, Optional, Sequence
 import jax
 import numpy as np
 
-from pachs_jax import compile_cache, envs, programs, signals
+from pachs_jax import compile_cache, envs, programs, replan, signals
 from pachs_jax.envs import mujoco_c, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
@@ -216,6 +216,14 @@ class Planner:
         if interrupted():
           raise KeyboardInterrupt from None
         raise
+
+
+  def session(self, horizon: Optional[int] = None,
+              candidates: Sequence[str] = replan.CANDIDATES) -> replan.Session:
+    """A `replan.Session` that replans many episodes from their new states with this planner's
+    env, model, config and compiled programs, keeping its last answer between queries
+    (horizon and candidates as there)."""
+    return replan.Session(self.env, self.model, self.config, self.search, horizon, candidates)
 
 
 def check_indices(instances, available: int) -> np.ndarray:

@@ -1,0 +1,256 @@
+"""Replanning: a planner session over E episodes that plan again from their new states.
+
+Each query answers with the best of three candidates, all simulated in the planner's physics
+from the new states: the search's path, the unexecuted remainder of the session's last answer
+and the deterministic policy's rollout. A path to a goal beats one without, a cheaper goal
+path a dearer one; without a goal the search's partial path comes first, then the remainder,
+then the policy. So an answer never reaches the goal less often, or more dearly, than carrying
+on with the last answer would (docs/closed_loop.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from pachs_jax import programs, trees
+from pachs_jax.envs import base
+from pachs_jax.search.result import SearchResult
+
+# `Session.plan`'s `executed` for an episode whose last answer was not followed as given
+# (its remainder is dropped)
+DIVERGED = np.iinfo(np.int32).max
+
+
+class AnswerKind:
+  """What a query answered with ([E] int32 codes in `Answer.kind`)."""
+
+  NONE = 0  # nothing can act: no candidate's first edge is valid in the planner's physics
+  GOAL_PATH = 1  # the search's path to a goal
+  PARTIAL_PATH = 2  # the search's real-time answer: a path that ends short of a goal
+  REMAINDER = 3  # the last answer's actions not yet executed, simulated from the new state
+  POLICY = 4  # the deterministic policy's rollout from the new state
+
+  NAMES = ('none', 'goal_path', 'partial_path', 'remainder', 'policy')
+
+  @classmethod
+  def name(cls, code: int) -> str:
+    return cls.NAMES[int(code)]
+
+
+@struct.dataclass
+class Followed:
+  """Paths followed in the planner's physics, lanes [B].
+
+  actions: [B, T, A] float32 the actions applied; rows >= steps are 0.
+  steps: [B] int32 edges applied: a path stops at its length, at its first goal state and
+    before its first invalid edge.
+  reached_goal: [B] bool the path ends at a goal state (a start at a goal counts, steps 0).
+  cost: [B] float32 the applied edges' summed cost (the env's cost units).
+  """
+
+  actions: jax.Array
+  steps: jax.Array
+  reached_goal: jax.Array
+  cost: jax.Array
+
+
+def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.NodeState,
+           actions: jax.Array, length: jax.Array, use_policy: jax.Array) -> Followed:
+  """Follows paths from start [B]: actions [B, T, A] for the first length [B] edges, or where
+  use_policy [B] the policy's action at each state, policy(obs [B, O]) -> [B, A], for up to T
+  edges. A pure function (jit it); the loop ends once every lane has stopped."""
+  batch, horizon = actions.shape[:2]
+
+  def cond(carry):
+    t, _, running, *_ = carry
+    return (t < horizon) & jnp.any(running)
+
+  def body(carry):
+    t, node, running, taken, steps, reached, cost = carry
+    action = jnp.where(use_policy[:, None], policy(env.observe(node)), actions[:, t])
+    out = env.evaluate(node, action)
+    take = running & out.is_valid & jnp.isfinite(out.cost) & ((t < length) | use_policy)
+    node = trees.where(take, out.next_node, node)
+    taken = taken.at[:, t].set(jnp.where(take[:, None], action, 0.0))
+    reached = reached | (take & out.is_goal)
+    running = take & ~out.is_goal
+    return (t + 1, node, running, taken, steps + take, reached,
+            cost + jnp.where(take, out.cost, 0.0))
+
+  at_goal = env.is_goal(start)
+  carry = (jnp.zeros((), jnp.int32), start, ~at_goal & ((length > 0) | use_policy),
+           jnp.zeros_like(actions, jnp.float32), jnp.zeros((batch,), jnp.int32), at_goal,
+           jnp.zeros((batch,), jnp.float32))
+  _, _, _, taken, steps, reached, cost = jax.lax.while_loop(cond, body, carry)
+  return Followed(actions=taken, steps=steps, reached_goal=reached, cost=cost)
+
+
+def remainder(actions: jax.Array, length: jax.Array, executed: jax.Array):
+  """(actions [E, T, A], length [E]) of the paths actions [E, T, A] of length [E] without their
+  first executed [E] actions (length 0 where executed exceeds the length)."""
+  horizon = actions.shape[1]
+  index = jnp.minimum(jnp.arange(horizon)[None] + executed[:, None], horizon - 1)
+  left = jnp.where(executed <= length, length - executed, 0)
+  shifted = jnp.take_along_axis(actions, index[:, :, None], axis=1)
+  return jnp.where((jnp.arange(horizon)[None] < left[:, None])[:, :, None], shifted, 0.0), left
+
+
+@struct.dataclass
+class Answer:
+  """A query's answer for E episodes.
+
+  actions: [E, T, A] float32 the answer's actions (T: the session's horizon); rows >= length 0.
+  length: [E] int32 actions in the answer.
+  kind: [E] int32 `AnswerKind` code.
+  reaches_goal: [E] bool the answer ends at a goal state in the planner's physics.
+  cost: [E] float32 the answer's cost in the planner's physics.
+  search: the query's `SearchResult` [E].
+  """
+
+  actions: jax.Array
+  length: jax.Array
+  kind: jax.Array
+  reaches_goal: jax.Array
+  cost: jax.Array
+  search: SearchResult
+
+
+def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int) -> Answer:
+  """The `Answer` of a query from its candidates [E]: the search's result, the last answer's
+  remainder and the policy's rollout (both `follow`ed from the same states). Goal paths first,
+  the cheapest (ties: search, remainder, policy); then the search's partial path, the
+  remainder, the policy, each where it holds an edge. A pure function."""
+  search_actions = search.path_actions[:, :horizon]
+  search_length = jnp.minimum(search.path_length, horizon)
+  found = search.found & search.path_is_goal & (search.path_length <= horizon)
+  goal_cost = jnp.stack([jnp.where(found, search.cost, jnp.inf),
+                         jnp.where(last.reached_goal & (last.steps > 0), last.cost, jnp.inf),
+                         jnp.where(policy.reached_goal & (policy.steps > 0), policy.cost,
+                                   jnp.inf)], axis=1)
+  best_goal = jnp.argmin(goal_cost, axis=1)
+  any_goal = jnp.isfinite(jnp.min(goal_cost, axis=1))
+  kind = jnp.select(
+      [any_goal & (best_goal == 0), any_goal & (best_goal == 1), any_goal,
+       search_length > 0, last.steps > 0, policy.steps > 0],
+      [AnswerKind.GOAL_PATH, AnswerKind.REMAINDER, AnswerKind.POLICY,
+       AnswerKind.PARTIAL_PATH, AnswerKind.REMAINDER, AnswerKind.POLICY],
+      AnswerKind.NONE).astype(jnp.int32)
+  from_search = (kind == AnswerKind.GOAL_PATH) | (kind == AnswerKind.PARTIAL_PATH)
+  pick = lambda a, b, c: jnp.where(
+      from_search.reshape((-1,) + (1,) * (a.ndim - 1)), a,
+      jnp.where((kind == AnswerKind.REMAINDER).reshape((-1,) + (1,) * (a.ndim - 1)), b, c))
+  return Answer(
+      actions=pick(search_actions, last.actions, policy.actions),
+      length=jnp.where(kind == AnswerKind.NONE, 0,
+                       pick(search_length, last.steps, policy.steps)).astype(jnp.int32),
+      kind=kind,
+      reaches_goal=pick(found, last.reached_goal, policy.reached_goal) & (kind != AnswerKind.NONE),
+      cost=jnp.where(kind == AnswerKind.NONE, 0.0, pick(search.cost, last.cost, policy.cost)),
+      search=search)
+
+
+CANDIDATES = ('remainder', 'policy')
+
+
+@dataclasses.dataclass
+class Session:
+  """A planner session over E episodes: `plan` plans from their current states and answers
+  with the best candidate (`choose`); the session keeps its last answer between queries.
+
+  env, actor_critic, config: as in `programs.plan` (the actor-critic's
+    `deterministic_action(obs [B, O]) -> [B, A]` is the policy).
+  search: a `programs.Programs` whose compiled programs the session reuses (None: built).
+  horizon: T, the actions an answer keeps and the policy's rollout takes at most (None: the
+    env's episode length).
+  candidates: which of `CANDIDATES` compete with the search's path ('remainder', 'policy').
+  chunk_iterations: as in `programs.plan`.
+  """
+
+  env: base.Env
+  actor_critic: object
+  config: object
+  search: Optional[programs.Programs] = None
+  horizon: Optional[int] = None
+  candidates: Sequence[str] = CANDIDATES
+  chunk_iterations: Optional[int] = None
+  timing: dict = dataclasses.field(default_factory=dict)
+
+  def __post_init__(self):
+    unknown = sorted(set(self.candidates) - set(CANDIDATES))
+    if unknown:
+      raise ValueError(f'unknown replanning candidate {unknown[0]!r}; valid: '
+                       f'{", ".join(CANDIDATES)}')
+    if not hasattr(self.actor_critic, 'deterministic_action'):
+      raise ValueError('replanning needs an actor-critic with deterministic_action(obs) (the '
+                       'policy candidate)')
+    if self.horizon is None:
+      self.horizon = int(self.env.episode_length)
+    if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 1:
+      raise ValueError(f'horizon must be a positive int, got {self.horizon!r}')
+    if self.search is None:
+      from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
+      self.search = programs.Programs(make_search(self.env, self.actor_critic, self.config))
+    env, policy = self.env, self.actor_critic.deterministic_action
+    self._follow = jax.jit(lambda *args: follow(env, policy, *args))
+    self._choose = jax.jit(choose, static_argnums=3)
+    self._remainder = jax.jit(remainder)
+    self.last: Optional[Answer] = None
+
+  def reset(self) -> None:
+    """Forgets the last answer (new episodes)."""
+    self.last = None
+
+  def plan(self, states: base.NodeState, executed=None, key: jax.Array = None,
+           time_limit_s: Optional[float] = None) -> Answer:
+    """The `Answer` [E] from the episodes' current states [E].
+
+    executed: [E] ints, the actions of the last answer executed since it was given
+      (`DIVERGED` where the episode did something else); None: the last answer is dropped.
+    key: one PRNG key or per-episode keys [E, 2] (None: PRNGKey(0)).
+    time_limit_s: the whole query's wall clock (s): following the candidates, the search and
+      the choice; None searches to the end of the budget.
+    """
+    began = time.perf_counter()
+    num = jax.tree.leaves(states)[0].shape[0]
+    key = jax.random.PRNGKey(0) if key is None else key
+    if self.last is not None and self.last.length.shape[0] != num:
+      raise ValueError(f'the session plans {self.last.length.shape[0]} episodes, got {num} '
+                       'states (reset() starts new episodes)')
+    horizon, action_size = self.horizon, self.env.action_size
+    if self.last is None or executed is None or 'remainder' not in self.candidates:
+      actions = jnp.zeros((num, horizon, action_size), jnp.float32)
+      length = jnp.zeros((num,), jnp.int32)
+    else:
+      done = np.minimum(np.asarray(executed, np.int64), DIVERGED).astype(np.int32)
+      if done.shape != (num,) or np.any(done < 0):
+        raise ValueError(f'executed must hold {num} counts >= 0, got {executed!r}')
+      actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
+    # the remainder and the policy's rollout in one batch [2E]
+    use_policy = np.repeat(np.array([False, 'policy' in self.candidates]), num)
+    both = jax.tree.map(lambda x: jnp.concatenate([x, x]), states)
+    followed = self._follow(both, jnp.concatenate([actions, actions]),
+                            jnp.concatenate([length, jnp.zeros_like(length)]),
+                            jnp.asarray(use_policy))
+    followed = jax.block_until_ready(followed)
+    last = jax.tree.map(lambda x: x[:num], followed)
+    policy = jax.tree.map(lambda x: x[num:], followed)
+    self.timing['follow_s'] = time.perf_counter() - began
+    left = None
+    if time_limit_s is not None:
+      left = max(time_limit_s - (time.perf_counter() - began)
+                 - self.timing.get('choose_s', 0.0), 1e-3)
+    result = programs.plan(self.env, self.actor_critic, states, self.config, key,
+                           time_limit_s=left, chunk_iterations=self.chunk_iterations,
+                           search=self.search)
+    choosing = time.perf_counter()
+    answer = jax.block_until_ready(self._choose(result, last, policy, horizon))
+    self.timing['choose_s'] = time.perf_counter() - choosing
+    self.last = answer
+    return answer

@@ -1,0 +1,196 @@
+"""Replanning sessions (`replan`) on the analytic point mass (CPU): candidates followed in the
+planner's physics, the choice between them, and a session that keeps its last answer."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import UniformActorCritic
+
+from pachs_jax import replan
+from pachs_jax.envs.point_mass import PointMassEnv
+from pachs_jax.replan import AnswerKind
+from pachs_jax.search import SearchConfig
+
+DIM = 2
+
+
+class TowardGoal(UniformActorCritic):
+  """The policy steps straight at the goal at full speed (obs[:, 2:] = goal - position); the
+  proposals are uniform noise and the critic knows nothing."""
+
+  def deterministic_action(self, obs):
+    away = obs[:, DIM:]
+    return away / jnp.maximum(jnp.linalg.norm(away, axis=1, keepdims=True), 1e-6)
+
+
+def _nodes(env, starts, goals):
+  return jax.vmap(env.node_from_positions)(jnp.asarray(starts, jnp.float32),
+                                           jnp.asarray(goals, jnp.float32))
+
+
+def _straight(start, goal, steps, horizon):
+  """[horizon, 2] actions moving from start to goal in `steps` equal moves (0 after them)."""
+  actions = np.zeros((horizon, DIM), np.float32)
+  actions[:steps] = (np.asarray(goal) - np.asarray(start)) / (0.1 * steps)
+  return actions
+
+
+@pytest.fixture(scope='module')
+def env():
+  return PointMassEnv()
+
+
+@pytest.fixture(scope='module')
+def follow(env):
+  return jax.jit(lambda *args: replan.follow(env, TowardGoal(DIM).deterministic_action, *args))
+
+
+def test_remainder_drops_the_executed_actions():
+  actions = jnp.arange(2 * 5 * 1, dtype=jnp.float32).reshape(2, 5, 1) + 1
+  shifted, left = replan.remainder(actions, jnp.array([4, 2]), jnp.array([1, 3]))
+  np.testing.assert_array_equal(left, [3, 0])
+  np.testing.assert_array_equal(shifted[0, :, 0], [2, 3, 4, 0, 0])
+  np.testing.assert_array_equal(shifted[1, :, 0], 0)
+  # an episode that diverged from its answer keeps nothing of it
+  _, left = replan.remainder(actions, jnp.array([4, 2]), jnp.array([replan.DIVERGED, 0]))
+  np.testing.assert_array_equal(left, [0, 2])
+
+
+def test_follow_stops_at_the_length_the_goal_and_an_invalid_edge(env, follow):
+  horizon = 12
+  starts, goals = [[0.0, 0.0]] * 4, [[0.5, 0.0]] * 4
+  actions = np.zeros((4, horizon, DIM), np.float32)
+  actions[:, :] = [1.0, 0.0]  # 0.1 per step: the goal after 5 steps
+  actions[2, 2] = np.nan  # lane 2's third edge is invalid
+  out = jax.tree.map(np.asarray, follow(
+      _nodes(env, starts, goals), jnp.asarray(actions), jnp.array([3, 9, 9, 0]),
+      jnp.array([False, False, False, True])))
+  # lane 0 stops at its length, lane 1 at the goal, lane 2 before its invalid edge; lane 3
+  # follows the policy (straight at the goal) instead of its empty path
+  np.testing.assert_array_equal(out.steps, [3, 5, 2, 5])
+  np.testing.assert_array_equal(out.reached_goal, [False, True, False, True])
+  np.testing.assert_array_equal(out.actions[1, 5:], 0.0)
+  np.testing.assert_allclose(out.actions[3, :5], [[1.0, 0.0]] * 5, atol=1e-6)
+  # the cost is the env's: the distance to the goal after each move plus the action cost
+  np.testing.assert_allclose(out.cost[1], 0.4 + 0.3 + 0.2 + 0.1 + 0.0 + 5 * 0.01, atol=1e-5)
+  np.testing.assert_allclose(out.cost[0], 0.4 + 0.3 + 0.2 + 3 * 0.01, atol=1e-5)
+
+
+def _followed(steps, reached, cost, horizon=4):
+  steps = jnp.asarray(steps, jnp.int32)
+  actions = jnp.where(jnp.arange(horizon)[None, :, None] < steps[:, None, None], 1.0, 0.0)
+  return replan.Followed(actions=actions * jnp.ones((1, 1, DIM)), steps=steps,
+                         reached_goal=jnp.asarray(reached), cost=jnp.asarray(cost, jnp.float32))
+
+
+class _Search:
+  """The SearchResult fields `choose` reads."""
+
+  def __init__(self, found, length, cost, horizon=4):
+    self.found = jnp.asarray(found)
+    self.path_is_goal = jnp.asarray(found)
+    self.path_length = jnp.asarray(length, jnp.int32)
+    self.path_actions = jnp.full((len(found), horizon + 2, DIM), -1.0)
+    self.cost = jnp.asarray(cost, jnp.float32)
+
+
+def test_choose_prefers_the_cheapest_goal_then_the_search_then_the_remainder_then_the_policy():
+  # episodes: 0 search goal cheapest; 1 remainder goal cheaper than the search's; 2 only the
+  # policy reaches the goal; 3 no goal, the search's partial path; 4 no goal, the search empty;
+  # 5 nothing but the policy moves; 6 nothing moves; 7 a tie: the search's goal path
+  search = _Search([1, 1, 0, 0, 0, 0, 0, 1], [3, 3, 2, 2, 0, 0, 0, 2],
+                   [1.0, 5.0, 9.0, 9.0, 0.0, 0.0, 0.0, 2.0])
+  last = _followed([2, 2, 1, 1, 3, 0, 0, 2], [0, 1, 0, 0, 0, 0, 0, 1],
+                   [0.5, 4.0, 1.0, 1.0, 1.0, 0.0, 0.0, 2.0])
+  policy = _followed([4, 4, 4, 4, 4, 1, 0, 4], [0, 0, 1, 0, 0, 0, 0, 0],
+                     [9.0, 9.0, 7.0, 1.0, 1.0, 1.0, 0.0, 9.0])
+  answer = jax.tree.map(np.asarray, replan.choose(search, last, policy, 4))
+  names = [AnswerKind.name(k) for k in answer.kind]
+  assert names == ['goal_path', 'remainder', 'policy', 'partial_path', 'remainder', 'policy',
+                   'none', 'goal_path']
+  np.testing.assert_array_equal(answer.length, [3, 2, 4, 2, 3, 1, 0, 2])
+  np.testing.assert_array_equal(answer.reaches_goal, [1, 1, 1, 0, 0, 0, 0, 1])
+  np.testing.assert_allclose(answer.cost, [1.0, 4.0, 7.0, 9.0, 1.0, 1.0, 0.0, 2.0])
+  np.testing.assert_array_equal(answer.actions[0, :3], -1.0)  # the search's path
+  np.testing.assert_array_equal(answer.actions[1, :2], 1.0)  # the remainder's
+  # a search goal path longer than the horizon is no goal answer (its end is not kept)
+  long = _Search([1], [6], [0.1])
+  answer = replan.choose(long, _followed([0], [0], [0.0]), _followed([4], [1], [3.0]), 4)
+  assert AnswerKind.name(answer.kind[0]) == 'policy'
+
+
+@pytest.fixture(scope='module')
+def session(env):
+  # a budget of 16 one-step edges: far too few for a goal 0.6 to 0.8 away in 0.1 steps
+  # among uniform proposals; the policy candidate off (TowardGoal would solve it)
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, max_evaluations=16)
+  return replan.Session(env, TowardGoal(DIM), config, horizon=16, candidates=('remainder',))
+
+
+def test_an_answer_is_never_worse_than_the_last_answers_remainder(env, session):
+  starts = np.array([[-0.3, -0.3], [0.4, 0.0], [0.0, 0.3]], np.float32)
+  goals = np.array([[0.3, 0.2], [-0.3, 0.1], [0.0, -0.3]], np.float32)
+  nodes = _nodes(env, starts, goals)
+  session.reset()
+  first = session.plan(nodes, key=jax.random.PRNGKey(0))
+  assert not np.any(np.asarray(first.reaches_goal))  # the budget finds no goal
+  assert set(np.asarray(first.kind)) == {AnswerKind.PARTIAL_PATH}
+  # the last answer replaced by straight paths to the goals in 10 moves; 3 of them executed
+  straight = np.stack([_straight(s, g, 10, 16) for s, g in zip(starts, goals)])
+  session.last = session.last.replace(actions=jnp.asarray(straight),
+                                      length=jnp.full((3,), 10, jnp.int32))
+  moved = _nodes(env, starts + 3 * 0.1 * straight[:, 0], goals)
+  answer = jax.tree.map(np.asarray, session.plan(moved, executed=[3, 3, 3],
+                                                 key=jax.random.PRNGKey(1)))
+  assert [AnswerKind.name(k) for k in answer.kind] == ['remainder'] * 3
+  np.testing.assert_array_equal(answer.length, 7)
+  assert answer.reaches_goal.all()
+  np.testing.assert_allclose(answer.actions[:, :7], straight[:, :7], atol=1e-6)
+  # the remainder's cost as the env counts it: the distances after each of its 7 moves
+  distance = np.linalg.norm(goals - starts, axis=1)
+  want = sum(distance * (6 - j) / 10 for j in range(7)) + 7 * 0.01 * np.sum(
+      np.square(straight[:, 0]), axis=1)
+  np.testing.assert_allclose(answer.cost, want, rtol=1e-4)
+  # an episode that did something else keeps nothing of its last answer
+  again = session.plan(moved, executed=[replan.DIVERGED] * 3, key=jax.random.PRNGKey(1))
+  assert set(np.asarray(again.kind)) == {AnswerKind.PARTIAL_PATH}
+
+
+def test_a_search_goal_cheaper_than_the_remainder_wins(env):
+  config = SearchConfig(weight=1.0, pop_size=8, num_actions=8, max_evaluations=4000)
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=32, candidates=('remainder',))
+  start, goal = np.array([[0.0, 0.0]], np.float32), np.array([[0.3, 0.0]], np.float32)
+  nodes = _nodes(env, start, goal)
+  session.plan(nodes)
+  # the last answer: a detour to the goal (up, right, down) that costs more than the search's
+  detour = np.zeros((1, 32, DIM), np.float32)
+  detour[0, :3] = [0.0, 1.0]
+  detour[0, 3:6] = [1.0, 0.0]
+  detour[0, 6:9] = [0.0, -1.0]
+  session.last = session.last.replace(actions=jnp.asarray(detour),
+                                      length=jnp.array([9], jnp.int32))
+  answer = jax.tree.map(np.asarray, session.plan(nodes, executed=[0]))
+  assert AnswerKind.name(answer.kind[0]) == 'goal_path' and answer.reaches_goal[0]
+  remainder = session._follow(nodes, jnp.asarray(detour), jnp.array([9]), jnp.array([False]))
+  assert bool(remainder.reached_goal[0])
+  assert answer.cost[0] <= float(remainder.cost[0])
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'candidates': ('remainder', 'previous')}, "unknown replanning candidate 'previous'"),
+    ({'horizon': 0}, 'horizon must be a positive int'),
+])
+def test_bad_session_settings_are_refused(env, kwargs, message):
+  with pytest.raises(ValueError, match=message):
+    replan.Session(env, TowardGoal(DIM), SearchConfig(max_evaluations=16), **kwargs)
+
+
+def test_executed_must_match_the_episodes(env, session):
+  nodes = _nodes(env, [[0.0, 0.0]] * 3, [[0.3, 0.0]] * 3)
+  session.reset()
+  session.plan(nodes)
+  with pytest.raises(ValueError, match='executed must hold 3 counts'):
+    session.plan(nodes, executed=[1, 2])
+  with pytest.raises(ValueError, match='the session plans 3 episodes, got 2'):
+    session.plan(jax.tree.map(lambda x: x[:2], nodes), executed=[1, 1])
