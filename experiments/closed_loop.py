@@ -20,7 +20,7 @@ import numpy as np
 import common
 import stats
 from pachs_jax import anytime, flags, planner, replan, trees
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import mujoco_c, pusht
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import compact
 from pachs_jax.search.result import StopReason
@@ -235,7 +235,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   # queries whose search returned no edge: its stop reasons, evaluations, invalid edges and
   # generated nodes (why it had nothing to say)
   empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
-                  'only_start_generated': 0}
+                  'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
   iterations, search_s, follow_s = [], [], []
   for q in range(args.max_queries):
     if not episodes.active.any():
@@ -257,6 +257,9 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
       empty_search['evaluated'] += int(evaluated[nothing].sum())
       empty_search['invalid_edges'] += int(info['invalid'][nothing].sum())
       empty_search['only_start_generated'] += int(np.sum(info['generated'][nothing] <= 1))
+      outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0  # the T off the table square
+      empty_search['t_off_table'] += int(np.sum(outside & nothing))
+      empty_search['t_off_table_queries'] += int(np.sum(outside & running))
     if q > 0 and 'iterations' in info:  # the first query includes compilation
       iterations.append(float(np.max(info['iterations'][running])))
       if 'search_s' in info:

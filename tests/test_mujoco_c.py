@@ -245,3 +245,27 @@ def test_search_on_the_cpu_backend_stops_at_its_iteration_limit(env, cenv):
   np.testing.assert_array_equal(np.asarray(valid), True)
   np.testing.assert_array_equal(np.asarray(is_goal), False)
   np.testing.assert_allclose(np.asarray(cost), np.asarray(result.cost), rtol=1e-5, atol=1e-6)
+
+
+def test_edges_from_a_t_outside_the_table_square_stay_open(env, c_evaluate):
+  # a world can leave the T outside the square around the goal that edges must keep it in;
+  # edges that leave it no farther outside stay valid, so that a plan can bring it back
+  node = env.sample_instance(jax.random.PRNGKey(0))
+  qpos = np.asarray(node.qpos).copy()
+  qpos[7:9] = np.asarray(pusht.FIXED_GOAL[:2]) + [0.0, -pusht.TABLE_HALF_EXTENT - 0.02]
+  outside = node.replace(qpos=jnp.asarray(qpos))
+  nodes = jax.tree.map(lambda x: jnp.stack([x, x]), outside)
+  actions = jnp.zeros((2, env.action_size), jnp.float32)  # the arm stays, the T rests
+  out = c_evaluate(nodes, actions)
+  np.testing.assert_array_equal(np.asarray(out.is_valid), [True, True])
+  excess = pusht.box_excess(jnp.asarray([qpos, qpos]))
+  np.testing.assert_allclose(excess, 0.02, atol=1e-6)
+  # the rule itself: inside is fine, farther outside is not, back towards the square is
+  inside = qpos.copy()
+  inside[7:9] = pusht.FIXED_GOAL[:2]
+  farther = qpos.copy()
+  farther[8] -= 0.01
+  np.testing.assert_array_equal(
+      pusht.stays_on_table(jnp.asarray([inside, inside, qpos, qpos, farther]),
+                           jnp.asarray([inside, qpos, farther, inside, qpos])),
+      [True, False, False, True, True])

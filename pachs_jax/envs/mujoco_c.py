@@ -341,8 +341,7 @@ class MujocoCEnv(base.Env):
     """The MJX transition's validity, cost and success rule for one simulated edge."""
     env = self.env
     finite = ok & base.finite_node(next_node)
-    t_xy = next_node.qpos[7:9]
-    on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(pusht.FIXED_GOAL[:2])) < pusht.TABLE_HALF_EXTENT)
+    on_table = pusht.stays_on_table(node.qpos, next_node.qpos)
     upright = pusht.t_tilt(next_node.qpos) < pusht.MAX_T_TILT
     is_valid = finite & action_ok & on_table & upright
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),

@@ -210,6 +210,21 @@ def t_tilt(qpos: jax.Array) -> jax.Array:
   return 2 * jnp.arcsin(s)
 
 
+def box_excess(qpos: jax.Array) -> jax.Array:
+  """[...] m how far the T of node qpos [..., nq] lies outside the square of half side
+  TABLE_HALF_EXTENT around the fixed goal's position (0 inside)."""
+  offset = jnp.abs(jnp.asarray(qpos)[..., 7:9] - jnp.asarray(FIXED_GOAL[:2]))
+  return jnp.maximum(jnp.max(offset, axis=-1) - TABLE_HALF_EXTENT, 0.0)
+
+
+def stays_on_table(qpos: jax.Array, next_qpos: jax.Array) -> jax.Array:
+  """[...] bool an edge from qpos to next_qpos keeps the T on the table: inside the square of
+  `box_excess`, or no farther outside than it was (a world can leave the T outside, and the
+  way back must stay open)."""
+  after = box_excess(next_qpos)
+  return (after == 0.0) | (after <= box_excess(qpos))
+
+
 def model_xml(config: PushTConfig) -> str:
   """MJCF of the PushT scene for a config (obstacles only for the 'obs' variant)."""
   check_physics(config)
@@ -586,8 +601,7 @@ class PushTEnv(base.Env):
                                qacc_warmstart=data.qacc_warmstart, goal=node.goal,
                                t=node.t + 1)
     finite = base.finite_node(next_node)
-    t_xy = next_node.qpos[7:9]
-    on_table = jnp.all(jnp.abs(t_xy - jnp.asarray(FIXED_GOAL[:2])) < TABLE_HALF_EXTENT)
+    on_table = stays_on_table(node.qpos, next_node.qpos)
     upright = t_tilt(next_node.qpos) < MAX_T_TILT
     is_valid = finite & action_ok & on_table & upright
     # Keep invalid successors finite: they are dropped by the search and end an episode.
