@@ -297,6 +297,65 @@ def closed_loop(src: Sources) -> str:
       table(header, answers)])
 
 
+def answer_counts(row: Dict) -> str:
+  """A replanning session's answers by kind ('goal path 510, partial 548, ...')."""
+  answers = row.get('answers')
+  if not answers:
+    return '-'
+  names = (('goal_path', 'goal'), ('partial_path', 'partial'), ('remainder', 'remainder'),
+           ('policy', 'policy'), ('none', 'none'))
+  return ', '.join(f'{label} {answers[name]:,}' for name, label in names)
+
+
+def closed_loop_sessions(src: Sources) -> str:
+  """The closed loop on one GPU with Warp planners: PACHS replanning through `replan.Session`
+  against the parallel rollout, and the two layouts measured before the table-square fix."""
+  folder = 'closed_loop_gpu'
+  rows = []
+  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
+    p = src.load(f'{folder}/{layout}_pachs.json')
+    r = (src.load(f'{folder}/{layout}_parallel.json')
+         if src.exists(f'{folder}/{layout}_parallel.json') else None)
+    a, b = summary_of(p, 'pachs'), r and summary_of(r, 'parallel')
+    ratio = (num(a['evaluations_per_query_mean'] / b['evaluations_per_query_mean'], 2)
+             if b else '-')
+    rows.append([layout, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+                 f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}' if b else '-',
+                 num(a['evaluations_per_query_mean']), ratio, answer_counts(a),
+                 str(a['empty_search']['t_off_table_queries'])])
+  before = []
+  for layout in ('detour', 'wall-right'):
+    for name, label in (('pachs', 'PACHS, session'), ('pachs-alone', 'PACHS, its path alone'),
+                        ('parallel', 'parallel rollout')):
+      p = src.load(f'{folder}/before_table_fix/{layout}_{name}.json')
+      row = summary_of(p, 'parallel' if name == 'parallel' else 'pachs')
+      empty = row.get('empty_search') or {}
+      before.append([f'{layout}, {label}',
+                     f'{pct(row["success_rate"])}{ci(row["ci95_low"], row["ci95_high"])}',
+                     num(row['evaluations_per_query_mean']), answer_counts(row),
+                     str(empty.get('queries', '-'))])
+  p = src.load(f'{folder}/gate_pachs.json')
+  s, prov = p['settings'], p['provenance']
+  return '\n\n'.join([
+      f'One GPU ({prov["device"]}), Warp planners, MuJoCo C worlds; each planner alone on the '
+      f'GPU (`{folder}/run.sh`). {s["instances"]} instances x {s["rounds"]} rounds per layout '
+      f'and planner, {s["query_time"]:g} s per query for all episodes together, '
+      f'{s["execute"]} actions executed per query, at most {s["max_queries"]} queries; 95% '
+      'intervals over the instances. PACHS replans through `replan.Session`: each answer is the '
+      "best of the search's path, the last answer's unexecuted remainder and the policy's "
+      "rollout, simulated in the planner's physics (docs/closed_loop.md). gate-mirror and "
+      'wall-right are the held-out layouts. The slot rollout run was cut by the command\'s time '
+      'limit.',
+      table(['layout', 'PACHS', 'parallel rollout', 'PACHS edges per query and episode',
+             'PACHS / rollout edges', 'PACHS answers', 'queries with the T off the table'],
+            rows),
+      'Before an edge could start with the T outside the table square (`pusht.stays_on_table`), '
+      'every edge from such a world state was invalid: the search answered with nothing '
+      '(empty searches: queries whose search generated no node but the start):',
+      table(['', 'success', 'edges per query and episode', 'answers', 'empty searches'],
+            before)])
+
+
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
   """(cold wall, warm walls, search summary) of the real `pachs plan` command of `count`
   instances in a bench_startup result."""
@@ -1044,6 +1103,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Open loop: other instances and held-out layouts', open_loop_beyond),
     ('The layouts: the policy alone', policy_per_layout),
     ('Open loop: PushT-Fixed, PushT-Rand, Panda-Shelf', open_loop_tasks),
+    ('Closed loop: replanning sessions on Warp', closed_loop_sessions),
     ('Closed loop', closed_loop),
     ('Speed and start-up', speed),
     ('MuJoCo Playground', playground),
