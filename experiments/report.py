@@ -321,8 +321,9 @@ def closed_loop_sessions(src: Sources) -> str:
              if b else '-')
     rows.append([layout, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                  f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}' if b else '-',
-                 num(a['evaluations_per_query_mean']), ratio, answer_counts(a),
-                 str(a['empty_search']['t_off_table_queries'])])
+                 num(a['evaluations_per_query_mean']), ratio,
+                 num(a['iterations_per_query_mean']), num(a['follow_s_mean'], 2),
+                 answer_counts(a), str(a['empty_search']['t_off_table_queries'])])
   before = []
   for layout in ('detour', 'wall-right'):
     for name, label in (('pachs', 'PACHS, session'), ('pachs-alone', 'PACHS, its path alone'),
@@ -347,8 +348,9 @@ def closed_loop_sessions(src: Sources) -> str:
       'wall-right are the held-out layouts. The slot rollout run was cut by the command\'s time '
       'limit.',
       table(['layout', 'PACHS', 'parallel rollout', 'PACHS edges per query and episode',
-             'PACHS / rollout edges', 'PACHS answers', 'queries with the T off the table'],
-            rows),
+             'PACHS / rollout edges', 'PACHS iterations per query',
+             'candidates followed (s per query)', 'PACHS answers',
+             'queries with the T off the table'], rows),
       'Before an edge could start with the T outside the table square (`pusht.stays_on_table`), '
       'every edge from such a world state was invalid: the search answered with nothing '
       '(empty searches: queries whose search generated no node but the start):',
