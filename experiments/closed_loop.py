@@ -145,7 +145,9 @@ def make_query(name: str, task: str, env, model, args, num: int):
               {'kind': answer.kind, 'search_length': search.path_length,
                'generated': search.generated, 'invalid': search.invalid,
                'iterations': search.iterations, 'stop': search.stop_reason,
-               'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s']})
+               'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s'],
+               'remainder_steps': np.asarray(session.followed['remainder'].steps),
+               'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)})
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
@@ -237,6 +239,7 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
   empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
                   'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
   iterations, search_s, follow_s = [], [], []
+  previous_goal, survival = None, [0, 0]  # goal answers followed; their remainders at a goal
   for q in range(args.max_queries):
     if not episodes.active.any():
       break
@@ -260,6 +263,13 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
       outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0  # the T off the table square
       empty_search['t_off_table'] += int(np.sum(outside & nothing))
       empty_search['t_off_table_queries'] += int(np.sum(outside & running))
+    if 'remainder_goal' in info and previous_goal is not None:
+      # after a goal answer executed as given: does its remainder still reach the goal from
+      # the world's state, in the planner's physics (how well goal paths survive the world)
+      kept = running & previous_goal & (np.asarray(executed) < np.iinfo(np.int32).max)
+      survival[0] += int(kept.sum())
+      survival[1] += int(np.sum(kept & info['remainder_goal'] & (info['remainder_steps'] > 0)))
+    previous_goal = found.copy() if 'kind' in info else None
     if q > 0 and 'iterations' in info:  # the first query includes compilation
       iterations.append(float(np.max(info['iterations'][running])))
       if 'search_s' in info:
@@ -304,6 +314,8 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
                       if kinds.any() else None),
           'empty_search': empty_search if kinds.any() else None,
           'iterations_per_query_mean': stats.mean_or_none(iterations),
+          'goal_answers_followed': survival[0] if kinds.any() else None,
+          'remainders_still_at_goal': survival[1] if kinds.any() else None,
           'search_s_mean': stats.mean_or_none(search_s),
           'follow_s_mean': stats.mean_or_none(follow_s)}
 

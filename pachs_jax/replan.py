@@ -203,6 +203,7 @@ class Session:
     self._remainder = jax.jit(remainder)
     self._compiled = {}  # episodes -> the compiled follow
     self.last: Optional[Answer] = None
+    self.followed = {}  # the last query's candidates: 'remainder', 'policy' -> Followed [E]
 
   def reset(self) -> None:
     """Forgets the last answer (new episodes)."""
@@ -243,6 +244,7 @@ class Session:
     followed = jax.block_until_ready(self._compiled[num](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
     policy = jax.tree.map(lambda x: x[num:], followed)
+    self.followed = {'remainder': last, 'policy': policy}
     self.timing['follow_s'] = time.perf_counter() - began
     left = None
     if time_limit_s is not None:
