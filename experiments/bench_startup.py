@@ -60,7 +60,7 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
       jax.devices()
       phase('backend_init')
       env, model = planner.load_model(task, None, backend)
-      config = planner.command_config(task, on_cpu, type(env).__name__ == 'MujocoCEnv', budget)
+      config = planner.command_config(task, on_cpu, env.physics == 'mujoco-c', budget)
       phase('model_load')
       starts = env.canonical_instances(instances)
       jax.block_until_ready(starts)

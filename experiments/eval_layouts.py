@@ -67,7 +67,7 @@ def evaluate(name: str, num: int, backend: str, pachs_budget: int, seed: int) ->
     # `pachs plan`'s settings on this machine (on a CPU: its CPU overrides), at this budget
     config = dataclasses.replace(
         planner.command_config(TASK, jax.default_backend() == 'cpu',
-                               type(env).__name__ == 'MujocoCEnv'),
+                               env.physics == 'mujoco-c'),
         max_evaluations=pachs_budget)
     plan = programs.plan(env, model, nodes, config, jax.random.PRNGKey(seed))
     plan_found = np.asarray(plan.found)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -155,7 +156,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
                        f'goal ends the search (after_goal {after_goal!r})')
   env, model = planner.load_model(args.task, args.checkpoint, args.backend, layout=args.layout)
   num_available = envs.spec(args.task).num_instances
-  mujoco_c = env.__class__.__name__ == 'MujocoCEnv'
+  mujoco_c = env.physics == 'mujoco-c'
   cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
   few = args.instances is None and on_cpu and cpu_instances != 'all' and num_available > 1
   if args.instances is None:
@@ -229,12 +230,13 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   writes = []
   if args.json:
     saved = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
-             'config': repr(config), 'rows': rows,
+             'physics': env.physics, 'config': dataclasses.asdict(config), 'rows': rows,
              'devices': 1 if devices is None else len(devices),
              'search_time_s': float(result.wall_time_s), 'interrupted': bool(interrupted)}
 
     def write_json():
-      outputs.write_json(args.json, outputs.json_document(saved, result, instances))
+      outputs.write_json(args.json, outputs.json_document(saved, result, instances,
+                                                          env.physics))
       print(f'wrote the rows and each instance\'s plan to {args.json}')
     writes.append(('--json', args.json, write_json))
   if args.render:

@@ -48,10 +48,11 @@ def write_atomically(path: str, write: Callable) -> str:
   return path
 
 
-def json_document(saved: dict, result, instances: Sequence[int]) -> dict:
+def json_document(saved: dict, result, instances: Sequence[int],
+                  physics: Optional[str] = None) -> dict:
   """saved (the rows and settings) with each row given its instance's plan (`plans.to_json`)
-  under 'plan'; the rows keep their other keys."""
-  found = plans.from_result(result)
+  under 'plan', made with `physics` (`base.Env.physics`); the rows keep their other keys."""
+  found = plans.from_result(result, physics)
   rows = [dict(row, plan=plans.to_json(p)) for row, p in zip(saved['rows'], found)]
   return dict(saved, rows=rows)
 

@@ -171,7 +171,7 @@ class Planner:
     self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
     self.task = self.env.name if isinstance(task, envs.Env) else task
     on_cpu = jax.default_backend() == 'cpu'
-    c_physics = type(self.env).__name__ == 'MujocoCEnv'
+    c_physics = self.env.physics == 'mujoco-c'
     if isinstance(task, envs.Env):  # a user's task: registry.USER_SEARCH
       self.config = command_config(None, on_cpu, c_physics, budget, **overrides)
       self._num_instances = 30

@@ -4,7 +4,7 @@ replay through the env's own transition."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Optional
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +27,8 @@ class Plan:
   found: the search reached a goal; ends_at_goal: the last state satisfies the goal rule.
   truncated: the path was longer than the search kept (`Capacities.max_path_length`); the
     plan holds its first L transitions.
+  physics: the engine that made it (`base.Env.physics`: 'mjx', 'warp', 'mujoco-c', 'jax');
+    None: not recorded.
   """
 
   actions: np.ndarray
@@ -35,6 +37,7 @@ class Plan:
   found: bool
   ends_at_goal: bool
   truncated: bool
+  physics: Optional[str] = None
 
   @property
   def length(self) -> int:
@@ -47,8 +50,9 @@ class Plan:
     return jax.tree.map(lambda x: x[0], self.states)
 
 
-def from_result(result) -> List[Plan]:
-  """The plan of each instance of a SearchResult [I], in order."""
+def from_result(result, physics: Optional[str] = None) -> List[Plan]:
+  """The plan of each instance of a SearchResult [I], in order; physics: the engine of the env
+  that made it (`base.Env.physics`)."""
   r = jax.tree.map(np.asarray, result.replace(wall_time_s=None))
   kept = r.path_actions.shape[1]
   plans = []
@@ -57,7 +61,8 @@ def from_result(result) -> List[Plan]:
     plans.append(Plan(
         actions=r.path_actions[i, :length], cost=float(r.cost[i]), found=bool(r.found[i]),
         states=jax.tree.map(lambda x, i=i, n=length: x[i, :n + 1], r.path_nodes),
-        ends_at_goal=bool(r.path_is_goal[i]), truncated=bool(r.path_truncated[i])))
+        ends_at_goal=bool(r.path_is_goal[i]), truncated=bool(r.path_truncated[i]),
+        physics=physics))
   return plans
 
 
@@ -78,7 +83,7 @@ def to_json(plan: Plan) -> Dict[str, Any]:
   {qpos, qvel, ctrl, qacc_warmstart, t}; for another node type, states {key path: leaf} and
   node_type. Floats keep their float32 values exactly (`from_json` restores them bit for bit)."""
   out = {'length': plan.length, 'cost': plan.cost, 'found': plan.found,
-         'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated,
+         'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated, 'physics': plan.physics,
          'action_size': int(plan.actions.shape[1]), 'actions': _floats(plan.actions)}
   if isinstance(plan.states, base.NodeState):
     out['goal'] = _floats(plan.states.goal[0])
@@ -99,6 +104,9 @@ def from_json(data: Dict[str, Any], like=None) -> Plan:
       actions = actions.reshape(0, int(data['action_size']))
     flags = {k: bool(data[k]) for k in ('found', 'ends_at_goal', 'truncated')}
     cost = float(data['cost'])
+    physics = data.get('physics')
+    if physics is not None and not isinstance(physics, str):
+      raise TypeError(f"'physics' {physics!r}")
     if 'node_type' in data:
       if like is None:
         raise ValueError(f'a plan of {data["node_type"]} nodes needs like= (a node of its task)')
@@ -108,7 +116,7 @@ def from_json(data: Dict[str, Any], like=None) -> Plan:
       fields = {name: np.asarray(data['states'][name], np.int32 if name == 't' else np.float32)
                 for name in NODE_FIELDS}
       goal = np.asarray(data['goal'], np.float32)
-  except (KeyError, TypeError) as err:
+  except (KeyError, TypeError, AttributeError) as err:
     raise ValueError(f'not a plan: missing or malformed entry {err}') from None
   count = actions.shape[0] + 1 if actions.ndim == 2 else None
   wrong = [f'{k} {v.shape}' for k, v in fields.items() if v.shape[:1] != (count,)]
@@ -119,7 +127,7 @@ def from_json(data: Dict[str, Any], like=None) -> Plan:
     states = jax.tree_util.tree_unflatten(jax.tree.structure(like), list(fields.values()))
   else:
     states = base.NodeState(goal=np.broadcast_to(goal, (count,) + goal.shape).copy(), **fields)
-  return Plan(actions=actions, states=states, cost=cost, **flags)
+  return Plan(actions=actions, states=states, cost=cost, physics=physics, **flags)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,9 +146,29 @@ class Replay:
   is_goal: bool
 
 
+def make_env(task: str, physics: str, layout: Optional[str] = None) -> base.Env:
+  """The env of a task name (`envs.make`, layout for pusht-obs) simulated by `physics`, the
+  engine a plan records (`Plan.physics`), to replay it where it was made."""
+  from pachs_jax import envs  # pylint: disable=import-outside-toplevel  (MuJoCo)
+  from pachs_jax.envs import mujoco_c, pusht  # pylint: disable=import-outside-toplevel
+  env = envs.make(task, layout=layout)
+  if physics == env.physics:
+    return env
+  built = (mujoco_c.make_backend(env, physics)
+           if physics in mujoco_c.BACKENDS and isinstance(env, pusht.PushTEnv) else env)
+  if built.physics != physics:
+    raise ValueError(f'task {task!r} simulates with {env.physics!r}, not {physics!r}')
+  return built
+
+
 def replay(env: base.Env, plan: Plan) -> Replay:
   """Applies the plan's actions from its start state through `env.evaluate` (the physics the
-  search used, one world) and returns the states reached and their costs."""
+  search used, one world) and returns the states reached and their costs. ValueError when the
+  plan records another engine than env's (`make_env` builds the plan's)."""
+  if plan.physics is not None and plan.physics != env.physics:
+    raise ValueError(f'this plan was made with {plan.physics} physics and env {env.name!r} '
+                     f'simulates with {env.physics}, where it reaches other states: replay it '
+                     f"on plans.make_env(task, {plan.physics!r}, layout)")
   if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
     raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
                      f'takes [L, {env.action_size}]')

@@ -121,3 +121,29 @@ def test_a_plan_of_another_node_type_round_trips_through_json_with_like():
   assert back.states.extra['count'].dtype == np.int32
   with pytest.raises(ValueError, match='needs like='):
     plans.from_json(data)
+
+
+def test_a_plan_records_its_physics_and_refuses_another(grid_plans):
+  env, result, _, _ = grid_plans
+  made = plans.from_result(result, physics=env.physics)[0]
+  back = plans.from_json(json.loads(json.dumps(plans.to_json(made))))
+  assert back.physics == env.physics == 'jax'
+  assert plans.replay(env, back).is_goal
+  # a plan made by another engine reaches other states here: refused in one line
+  other = plans.from_json(dict(plans.to_json(made), physics='mujoco-c'))
+  with pytest.raises(ValueError, match='made with mujoco-c physics .* simulates with jax'):
+    plans.replay(env, other)
+  # plans saved without a record replay as before
+  unknown = plans.from_json({k: v for k, v in plans.to_json(made).items() if k != 'physics'})
+  assert unknown.physics is None and plans.replay(env, unknown).is_goal
+
+
+def test_make_env_builds_the_engine_a_plan_names():
+  assert plans.make_env('pusht-fixed', 'mjx').physics == 'mjx'
+  env = plans.make_env('pusht-obs', 'mujoco-c', layout='wall')
+  try:
+    assert env.physics == 'mujoco-c' and env.layout.name == 'wall'
+  finally:
+    env.close()
+  with pytest.raises(ValueError, match="'shelf' simulates with 'jax', not 'mjx'"):
+    plans.make_env('shelf', 'mjx')

@@ -114,6 +114,10 @@ class Env(abc.ABC):
     lattice coordinates (`search.checks.env_lattice_resolution`)."""
     return None
 
+  # The engine that simulates the env's edges ('jax': its own JAX transition; 'mjx', 'warp',
+  # 'mujoco-c': MuJoCo's): plans made in one engine replay to other states in another.
+  physics: str = 'jax'
+
   @property
   def fingerprint(self) -> str | None:
     """A string that, with the package sources, fixes everything the env's functions close

@@ -257,6 +257,8 @@ class MujocoCEnv(base.Env):
     host_call.register(self._tip_target, functools.partial(self._sim.site_position,
                                                            env._tip_site))
 
+  physics = 'mujoco-c'
+
   def __getattr__(self, name):
     # Only reached for attributes this wrapper lacks (config, mj_model, node_from_pose, ...).
     if name in ('env', '_sim'):

@@ -168,6 +168,7 @@ class PlaygroundEnv(base.Env):
     if self.impl not in ('jax', 'warp'):
       raise ValueError(f'{type(env).__name__} uses the {self.impl!r} MJX implementation; '
                        "PACHS takes impl='jax' or impl='warp'")
+    self.physics = 'mjx' if self.impl == 'jax' else 'warp'
     self.playground_env = env
     self.config = config
     self.name = name or f'{PREFIX}{type(env).__name__}'

@@ -452,6 +452,7 @@ class PushTEnv(base.Env):
   """
 
   goal_size = 3
+  physics = 'mjx'
 
   def __init__(self, config: PushTConfig = PushTConfig()):
     if config.variant not in ('fixed', 'rand', 'obs'):

@@ -49,6 +49,8 @@ class WarpPushTEnv(pusht.PushTEnv):
   `transition` shares one world's contact buffer.
   """
 
+  physics = 'warp'
+
   def __init__(self, config: pusht.PushTConfig = pusht.PushTConfig(),
                contacts_per_world: int = 32, constraints_per_world: int = 160):
     warp_import.require()
