@@ -19,7 +19,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import anytime, flags, planner, replan, trees
+from pachs_jax import anytime, argtypes, flags, planner, replan, trees
 from pachs_jax.envs import mujoco_c, pusht
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import compact
@@ -40,7 +40,10 @@ def parse_perturbation(text: str) -> mujoco_c.Perturbation:
     if name not in {f.name for f in dataclasses.fields(mujoco_c.Perturbation)}:
       raise ValueError(f'unknown perturbation {name!r}; valid: '
                        f'{[f.name for f in dataclasses.fields(mujoco_c.Perturbation)]}')
-    values[name] = float(value)
+    try:
+      values[name] = float(value)
+    except ValueError:
+      raise ValueError(f'--perturb {name}: a number, got {value!r}') from None
   return mujoco_c.Perturbation(**values)
 
 
@@ -321,20 +324,23 @@ def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
   parser.add_argument('--task', default='pusht-fixed',
                       choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
   parser.add_argument('--planners', default=','.join(PLANNERS))
-  parser.add_argument('--rounds', type=int, default=5)
-  parser.add_argument('--query-time', type=float, default=3.0, help='s per planning query')
-  parser.add_argument('--execute', type=int, default=10, help='actions executed per query')
-  parser.add_argument('--max-queries', type=int, default=30)
+  parser.add_argument('--rounds', type=argtypes.positive_int, default=5)
+  parser.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
+                      help='s per planning query')
+  parser.add_argument('--execute', type=argtypes.positive_int, default=10,
+                      help='actions executed per query')
+  parser.add_argument('--max-queries', type=argtypes.positive_int, default=30)
   parser.add_argument('--fill-with-policy', type=int, default=1, choices=[0, 1],
                       help='1: a path shorter than --execute is followed by policy actions up '
                       'to --execute world steps per query')
-  parser.add_argument('--budget', type=int, default=100_000,
+  parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
                       help='evaluation budget per query and episode')
-  parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
+                      help='parallel-rollout copies')
   flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
                                  'compact_fractions'],
                          defaults={'compact_fractions': COMPACT_FRACTIONS})
@@ -343,7 +349,7 @@ def main():
                       help="what competes with PACHS's path in each query (replan.Session): "
                       "'remainder' (the last answer's unexecuted actions), 'policy' (the "
                       "policy's rollout); '' the search's path alone")
-  parser.add_argument('--chunk-iterations', type=int, default=1,
+  parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
@@ -355,9 +361,25 @@ def main():
   if args.world == 'planner' and args.perturb:
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   common.check_layout(parser, args.task, args.layout)
+  common.task_instances(args.task, args.instances, parser)
+  names = [n for n in args.planners.split(',') if n]
+  unknown = [n for n in names if n not in PLANNERS]
+  if not names or unknown:
+    parser.error(f'--planners: {"unknown " + ", ".join(unknown) if unknown else "none named"}; '
+                 f'valid: {", ".join(PLANNERS)}')
+  unknown = sorted(set(args.candidates) - set(replan.CANDIDATES))
+  if unknown:
+    parser.error(f'--candidates: unknown {", ".join(unknown)}; valid: '
+                 f'{", ".join(replan.CANDIDATES)}')
+  for name in ('pachs', 'pachs-original'):  # a bad search setting before any work
+    if name in names:
+      common.checked(parser, lambda name=name: planner.default_config(
+          args.task, 'original' if name == 'pachs-original' else 'pachs',
+          max_evaluations=args.budget, **flags.search_overrides(args)))
+  perturbation = common.checked(parser, lambda: parse_perturbation(args.perturb))
+  common.check_out(parser, args.out)
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
-  perturbation = parse_perturbation(args.perturb)
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
   starts = env.canonical_instances(args.instances)
@@ -366,7 +388,7 @@ def main():
   payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
-  for name in args.planners.split(','):
+  for name in names:
     episodes = (Episodes(env, starts, perturbation) if args.world == 'mujoco-c'
                 else PlannerWorldEpisodes(env, starts))
     start = time.perf_counter()

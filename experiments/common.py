@@ -14,7 +14,7 @@ from typing import Any, Callable, Dict, List, Optional, Union
 import jax
 import numpy as np
 
-from pachs_jax import argtypes, envs
+from pachs_jax import argtypes, cli, envs
 from pachs_jax.envs import layouts, mujoco_c
 
 
@@ -34,7 +34,8 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
     `layouts.DEFAULT`); check it against the task with `check_layout`.
   """
   if instances is not False:
-    parser.add_argument('--instances', type=int, default=instances, metavar='N',
+    parser.add_argument('--instances', type=argtypes.positive_int, default=instances,
+                        metavar='N',
                         help='the first N canonical instances, 0..N-1 (default: '
                         f'{instances or "the task set: 30 PushT, 100 shelf"})')
   if backend:
@@ -47,7 +48,8 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
     parser.add_argument('--layout', default=None, choices=layouts.NAMES,
                         help=f"pusht-obs only: the obstacle layout (default: {layouts.DEFAULT}; "
                         "'legacy': PushT-Obs of the results recorded before the layouts)")
-  parser.add_argument('--out', default=out, help='results JSON, other outputs next to it '
+  parser.add_argument('--out', default=out, type=argtypes.path('a file'),
+                      help='results JSON, other outputs next to it '
                       f'(default: {out or "in experiments/results/, named after the flags"})')
 
 
@@ -63,9 +65,36 @@ def task_label(task: str, layout: Optional[str] = None) -> str:
   return task if layout in (None, layouts.DEFAULT) else f'{task}-{layout}'
 
 
-def task_instances(task: str, instances: Optional[int] = None) -> int:
-  """`instances`, or where None the size of the task's canonical set."""
-  return instances or envs.spec(task).num_instances
+def task_instances(task: str, instances: Optional[int] = None,
+                   parser: Optional[argparse.ArgumentParser] = None) -> int:
+  """`instances`, or where None the size of the task's canonical set; parser.error (ValueError
+  without a parser) for more than that set holds."""
+  available = envs.spec(task).num_instances
+  if instances is not None and instances > available:
+    message = (f'--instances {instances} exceeds the {available} canonical instances of '
+               f'{task} (0..{available - 1})')
+    if parser is None:
+      raise ValueError(message)
+    parser.error(message)
+  return instances or available
+
+
+def check_out(parser: argparse.ArgumentParser, path: Optional[str]) -> None:
+  """parser.error unless a results file can be written at path (`cli.check_output_path`;
+  None: the script's default, under experiments/results/), before any work."""
+  if path is not None:
+    try:
+      cli.check_output_path('--out', path)
+    except ValueError as err:
+      parser.error(str(err))
+
+
+def checked(parser: argparse.ArgumentParser, build: Callable[[], Any]) -> Any:
+  """build(), with a ValueError it raises (a bad setting) turned into parser.error."""
+  try:
+    return build()
+  except ValueError as err:
+    parser.error(str(err))
 
 
 def git_revision(root: Optional[str] = None) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import envs, flags, planner, programs, sharding
+from pachs_jax import argtypes, envs, flags, planner, programs, sharding
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs
 from pachs_jax.search.result import StopReason
@@ -233,38 +233,39 @@ def write_markdown(task: str, payload: Dict, path: str) -> None:
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
   parser.add_argument('--task', default='pusht-obs',
                       choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
   parser.add_argument('--planners', default=None, help='comma list (default: all of the task)')
-  parser.add_argument('--rounds', type=int, default=None, help='runs per instance (default: '
-                      '5 PushT, 1 shelf)')
-  parser.add_argument('--budget', type=int, default=None,
+  parser.add_argument('--rounds', type=argtypes.positive_int, default=None,
+                      help='runs per instance (default: 5 PushT, 1 shelf)')
+  parser.add_argument('--budget', type=argtypes.positive_int, default=None,
                       help='evaluations per run (default: 100,000 PushT, 20,000 shelf)')
-  parser.add_argument('--time-limit', type=float, default=None,
+  parser.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                       help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
   flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
                                  'rollout_share', 'chain_restart', 'compact_fractions',
                                  'widen_factors', 'after_goal', 'improve_allowance'])
-  parser.add_argument('--lattice-scale', type=float, default=None,
+  parser.add_argument('--lattice-scale', type=argtypes.positive_float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
-  parser.add_argument('--copies', type=int, default=256, help='parallel-rollout copies')
+  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
+                      help='parallel-rollout copies')
   parser.add_argument('--instance-seed', type=int, default=0,
                       help='the seed of the instance set (default 0: the canonical set; another '
                       'seed draws a new set from the same start region, by the same rules)')
-  parser.add_argument('--beam-width', type=int, default=64)
-  parser.add_argument('--epase-weight', type=float, default=20.0,
+  parser.add_argument('--beam-width', type=argtypes.positive_int, default=64)
+  parser.add_argument('--epase-weight', type=argtypes.positive_float, default=20.0,
                       help='w of ePA*SE (results/tune_epase.md)')
-  parser.add_argument('--epase-budget', type=int, default=200_000)
-  parser.add_argument('--epase-spread', type=int, default=3,
+  parser.add_argument('--epase-budget', type=argtypes.positive_int, default=200_000)
+  parser.add_argument('--epase-spread', type=argtypes.integer(0), default=3,
                       help='cells the BFS-3D distances extend into blocked cells')
-  parser.add_argument('--devices', type=int, default=1,
+  parser.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help='shard the runs over this many local devices (no PACHS time limit)')
   common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
   args = parser.parse_args()
   common.check_layout(parser, args.task, args.layout)
   shelf = args.task == 'shelf'
-  args.instances = common.task_instances(args.task, args.instances)
+  args.instances = common.task_instances(args.task, args.instances, parser)
   args.rounds = args.rounds or (1 if shelf else 5)
   args.budget = args.budget or (20_000 if shelf else 100_000)
   if shelf and args.devices > 1:
@@ -276,7 +277,9 @@ def main():
   if args.devices > 1 and args.time_limit is not None:
     parser.error('--time-limit (anytime chunks) needs --devices 1')
   mesh = sharding.instance_mesh(jax.devices()[:args.devices]) if args.devices > 1 else None
-  names = (args.planners.split(',') if args.planners
+  if args.planners is not None and not [n for n in args.planners.split(',') if n]:
+    parser.error('--planners: none named (leave it out for all of the task)')
+  names = ([n for n in args.planners.split(',') if n] if args.planners
            else list(SHELF_PLANNERS if shelf else PUSHT_PLANNERS))
   unknown = [n for n in names if n not in PUSHT_PLANNERS + SHELF_PLANNERS
              + tuple(AFTER_GOAL_PLANNERS)]
@@ -284,6 +287,13 @@ def main():
     parser.error(f'unknown planner(s) {", ".join(unknown)}; valid: '
                  f'{", ".join(PUSHT_PLANNERS + tuple(AFTER_GOAL_PLANNERS))} (PushT), '
                  f'{", ".join(SHELF_PLANNERS)} (shelf)')
+  for name in names:  # a bad search setting before any work
+    if name in ('pachs', 'pachs-original') or name in AFTER_GOAL_PLANNERS:
+      common.checked(parser, lambda name=name: planner.default_config(
+          args.task, 'original' if name == 'pachs-original' else 'pachs',
+          max_evaluations=args.budget,
+          **{k: v for k, v in flags.search_overrides(args).items() if v is not None}))
+  common.check_out(parser, args.out)
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/open_loop_{label}.json'
 

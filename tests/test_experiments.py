@@ -214,3 +214,31 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
   assert [p['git_revision'] for p in again['provenance']['merged_from']] == ['a', 'b', 'c']
   assert again['settings_per_planner']['beam']['note'] == 'beam run'
   assert again['runs']['pachs'] == third['runs']['pachs']
+
+
+@pytest.mark.parametrize('script, argv, message', [
+    (open_loop, ['--budget', '-1'], "--budget: must be a positive integer, got '-1'"),
+    (open_loop, ['--copies', '0'], "--copies: must be a positive integer, got '0'"),
+    (open_loop, ['--lattice-scale', '0'], "--lattice-scale: must be a positive number"),
+    (open_loop, ['--weight', 'nan'], 'SearchConfig.weight must be a finite number >= 0'),
+    (open_loop, ['--rounds', '0'], "--rounds: must be a positive integer, got '0'"),
+    (open_loop, ['--instances', '31'], '--instances 31 exceeds the 30 canonical instances'),
+    (open_loop, ['--planners', ','], '--planners: none named'),
+    (open_loop, ['--out', '/'], '--out /: is a directory, not a file'),
+    (closed_loop, ['--query-time', '0'], "--query-time: must be a positive number, got '0'"),
+    (closed_loop, ['--execute', '0'], "--execute: must be a positive integer, got '0'"),
+    (closed_loop, ['--perturb', 'friction=abc'], "--perturb friction: a number, got 'abc'"),
+    (closed_loop, ['--instances', '0'], "--instances: must be a positive integer, got '0'"),
+    (closed_loop, ['--planners', ''], '--planners: none named'),
+    (closed_loop, ['--planners', 'pachs,foo'], '--planners: unknown foo'),
+    (closed_loop, ['--candidates', 'policy,x'], '--candidates: unknown x'),
+    (closed_loop, ['--planners', 'pachs', '-K', '0'], 'SearchConfig.pop_size must be a positive'),
+])
+def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message, monkeypatch,
+                                                           capsys):
+  monkeypatch.setattr(sys, 'argv', [script.__name__ + '.py'] + argv)
+  with pytest.raises(SystemExit) as exit_info:
+    script.main()
+  assert exit_info.value.code == 2
+  err = capsys.readouterr().err
+  assert message in err and err.count('\n') == 1, err
