@@ -20,6 +20,7 @@ import numpy as np
 import common
 import stats
 from pachs_jax import anytime, argtypes, flags, planner, replan, trees
+from pachs_jax.episodes import Worlds
 from pachs_jax.envs import mujoco_c, pusht
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import compact
@@ -50,51 +51,7 @@ def parse_perturbation(text: str) -> mujoco_c.Perturbation:
 WORLDS = ('mujoco-c', 'planner')
 
 
-class Episodes:
-  """E worlds in MuJoCo C with their success bookkeeping."""
-
-  def __init__(self, env, starts, perturbation):
-    self.env = env
-    self.num = num = jax.tree.leaves(starts)[0].shape[0]
-    self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
-    self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
-                  for i, w in enumerate(self.worlds)]
-    self._start_bookkeeping()
-
-  def _start_bookkeeping(self) -> None:
-    """Success (episodes that start at a goal count), steps and success steps."""
-    self.is_goal = jax.jit(self.env.is_goal)
-    self.success = np.array(self.is_goal(self.batch()))
-    self.steps = np.zeros(self.num, np.int64)
-    self.success_step = np.full(self.num, -1, np.int64)
-
-  @property
-  def active(self) -> np.ndarray:
-    return ~self.success
-
-  def batch(self):
-    """NodeState [E] of the worlds' current states."""
-    return jax.tree.map(jnp.asarray, mujoco_c.stack_nodes(self.nodes))
-
-  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
-    """Runs actions [E, T, A] (the first lengths[e] of each) in the active worlds, checking the
-    goal after every step."""
-    for j in range(actions.shape[1]):
-      moving = self.active & (lengths > j)
-      if not moving.any():
-        break
-      for e in np.flatnonzero(moving):
-        self.nodes[e] = self.worlds[e].execute(actions[e, j:j + 1])[-1]
-        self.steps[e] += 1
-      self._judge(moving)
-
-  def _judge(self, moving: np.ndarray) -> None:
-    reached = np.asarray(self.is_goal(self.batch())) & moving
-    self.success_step[reached] = self.steps[reached]
-    self.success |= reached
-
-
-class PlannerWorldEpisodes(Episodes):
+class PlannerWorldEpisodes(Worlds):
   """E episodes whose world is the planners' own edge physics (`env.evaluate`, one batched
   call per step), so that a plan replays as it was planned."""
 
@@ -211,7 +168,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
   raise ValueError(f'unknown planner {name!r}')
 
 
-def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
+def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
   """The deterministic policy in the world for up to `steps` steps; returns per-step times."""
   act = policy_actions(env, model)
   times = []
@@ -225,7 +182,7 @@ def run_single(env, model, episodes: Episodes, steps: int) -> List[float]:
   return times
 
 
-def run_planner(name, task, env, model, episodes: Episodes, args, key) -> Dict:
+def run_planner(name, task, env, model, episodes: Worlds, args, key) -> Dict:
   num = episodes.num
   if name == 'single':
     times = run_single(env, model, episodes, args.max_queries * args.execute)
@@ -389,7 +346,7 @@ def main():
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
   for name in names:
-    episodes = (Episodes(env, starts, perturbation) if args.world == 'mujoco-c'
+    episodes = (Worlds(env, starts, perturbation) if args.world == 'mujoco-c'
                 else PlannerWorldEpisodes(env, starts))
     start = time.perf_counter()
     info = run_planner(name, args.task, env, model, episodes, args,

@@ -253,6 +253,67 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   return code or (guard.exit_code if guard is not None else 0)
 
 
+def _loop(args: argparse.Namespace) -> int:
+  """`pachs loop`: episodes of canonical instances in MuJoCo C worlds, planned through a
+  replanning session (`episodes.run`); a table per episode, then --json and --video."""
+  from pachs_jax import outputs  # start-up path: lazy (JAX)
+  for flag, path in (('--json', args.json), ('--video', args.video)):
+    if path:
+      check_output_path(flag, path)
+  outputs.check_distinct({'--json': args.json, '--video': args.video})
+  import numpy as np  # start-up path: lazy
+  from pachs_jax import envs, episodes, planner, replan
+  num_available = envs.spec(args.task).num_instances
+  instances = planner.parse_instances(args.instances, num_available)
+  shown = outputs.check_show_instance(args.show_instance, instances)
+  planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
+                             cache=not args.no_cache, layout=args.layout)
+  env, config = planning.env, planning.config
+  worlds = episodes.Worlds(env, planning.canonical(instances))
+  print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '
+        f'{env.physics} physics: {args.query_time:g} s per query, {args.execute} actions '
+        f'executed, at most {args.max_queries} queries, budget {config.max_evaluations}',
+        flush=True)
+  log = episodes.run(planning.session(), worlds, args.query_time, args.execute,
+                     args.max_queries, args.seed)
+  names = replan.AnswerKind.NAMES
+  rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),
+                'steps': int(worlds.steps[e]), 'queries': int(log.queries[e]),
+                'policy_steps': int(log.policy_steps[e])},
+               **{name: int(log.answers[e, k]) for k, name in enumerate(names)})
+          for e, inst in enumerate(instances)]
+  print(planner.format_table(rows, ['instance', 'success', 'steps', 'queries'] + list(names)
+                             + ['policy_steps']))
+  print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
+  writes = []
+  if args.json:
+    document = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
+                'physics': env.physics, 'world': 'mujoco-c',
+                'config': dataclasses.asdict(config),
+                'settings': {'query_time_s': args.query_time, 'execute': args.execute,
+                             'max_queries': args.max_queries, 'seed': args.seed},
+                'rows': rows}
+
+    def write_json():
+      outputs.write_json(args.json, document)
+      print(f'wrote the episodes to {args.json}')
+    writes.append(('--json', args.json, write_json))
+  if args.video:
+    def video():
+      from pachs_jax.envs import render  # start-up path: matplotlib only where it draws
+      e = list(instances).index(shown)
+      outcome = 'reached the goal' if worlds.success[e] else 'no goal'
+      frames = episodes.video_frames(worlds, log, e, f'{env.name} instance {shown}, closed '
+                                     f'loop: {outcome}')
+      steps = render.frame_steps(int(worlds.steps[e]) + 1)  # the frames' world steps
+      stride = float(np.mean(np.diff(steps))) if len(steps) > 1 else 1.0
+      outputs.write_atomically(args.video, lambda f: render.save_gif(
+          f, frames, fps=outputs.control_hz(env) / stride))
+      print(f'wrote the world of instance {shown} to {args.video}')
+    writes.append(('--video', args.video, video))
+  return _write_outputs('pachs loop', writes)
+
+
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code.
 
@@ -266,7 +327,7 @@ def main(argv=None) -> int:
   # seconds on a large GPU; docs/startup_and_caching.md); read when JAX starts its backend
   os.environ.setdefault('XLA_PYTHON_CLIENT_PREALLOCATE', 'false')
   skip_glfw_probe(os.environ)
-  command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo']) else 'pachs'
+  command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo'], ['loop']) else 'pachs'
   with signals.SignalGuard(command) as guard:
     try:
       return _main_prefetching(words, guard)
@@ -396,12 +457,43 @@ def _main(words, prefetch=None, guard=None) -> int:
                     help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
                          'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')
   plan.set_defaults(func=_plan)
+  loop = sub.add_parser('loop', help='closed loop: plan, execute the first actions in a MuJoCo C '
+                        'world, observe, plan again (PushT)')
+  loop.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
+  loop.add_argument('--layout', default=None, choices=layouts.NAMES,
+                    help=f'pusht-obs only: the obstacle layout (default: {layouts.DEFAULT})')
+  loop.add_argument('--instances', default='0', help="canonical instances, e.g. '0-3' or '0,4' "
+                    "(default: 0); each an episode")
+  loop.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
+                    help='wall-clock seconds per query, for all episodes together (default 3)')
+  loop.add_argument('--execute', type=argtypes.positive_int, default=10,
+                    help='actions of each answer executed before the next query (default 10)')
+  loop.add_argument('--max-queries', type=argtypes.positive_int, default=30,
+                    help='queries per episode (default 30)')
+  loop.add_argument('--budget', type=argtypes.positive_int, default=None,
+                    help="edge evaluations per query and episode (default: the task's)")
+  loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
+  loop.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
+                    help="the planner's physics (the world is MuJoCo C)")
+  loop.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),
+                    help='another actor-critic directory')
+  loop.add_argument('--json', default=None, type=argtypes.path('a file'),
+                    help='write the per-episode rows and settings as JSON')
+  loop.add_argument('--video', default=None, type=argtypes.path('a file'),
+                    help="write a GIF of one episode's world, the plan being executed drawn "
+                    'dashed')
+  loop.add_argument('--show-instance', type=int, default=None,
+                    help='the instance --video shows (default: the first)')
+  loop.add_argument('--no-cache', action='store_true',
+                    help='no persistent compilation cache')
+  loop.set_defaults(func=_loop)
   args = parser.parse_args(words)
   num_instances = envs.spec(args.task).num_instances
   if args.command == 'demo' and not 0 <= args.instance < num_instances:
     demo.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')
-  if args.command == 'plan' and args.layout is not None and args.task != 'pusht-obs':
-    plan.error(f'--layout applies to --task pusht-obs only, not {args.task!r}')
+  if args.command in ('plan', 'loop') and args.layout is not None and args.task != 'pusht-obs':
+    parser.exit(2, f'pachs {args.command}: error: --layout applies to --task pusht-obs only, '
+                f'not {args.task!r} (see --help)\n')
   try:
     return args.func(args, prefetch, guard) if args.command == 'plan' else args.func(args)
   except (ValueError, OSError, ImportError) as err:  # one line, no traceback

@@ -53,12 +53,15 @@ class Followed:
     before its first invalid edge.
   reached_goal: [B] bool the path ends at a goal state (a start at a goal counts, steps 0).
   cost: [B] float32 the applied edges' summed cost (the env's cost units).
+  states: NodeState [B, T + 1, ...] the states along the path, the start first (rows past
+    steps repeat the last).
   """
 
   actions: jax.Array
   steps: jax.Array
   reached_goal: jax.Array
   cost: jax.Array
+  states: base.NodeState
 
 
 def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.NodeState,
@@ -73,7 +76,7 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
     return (t < horizon) & jnp.any(running)
 
   def body(carry):
-    t, node, running, taken, steps, reached, cost = carry
+    t, node, running, taken, steps, reached, cost, states = carry
     action = jnp.where(use_policy[:, None], policy(env.observe(node)), actions[:, t])
     out = env.evaluate(node, action)
     take = running & out.is_valid & jnp.isfinite(out.cost) & ((t < length) | use_policy)
@@ -81,15 +84,21 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
     taken = taken.at[:, t].set(jnp.where(take[:, None], action, 0.0))
     reached = reached | (take & out.is_goal)
     running = take & ~out.is_goal
+    states = jax.tree.map(lambda s, n: s.at[:, t + 1].set(n), states, node)
     return (t + 1, node, running, taken, steps + take, reached,
-            cost + jnp.where(take, out.cost, 0.0))
+            cost + jnp.where(take, out.cost, 0.0), states)
 
   at_goal = env.is_goal(start)
+  states = jax.tree.map(lambda x: jnp.repeat(x[:, None], horizon + 1, axis=1), start)
   carry = (jnp.zeros((), jnp.int32), start, ~at_goal & ((length > 0) | use_policy),
            jnp.zeros_like(actions, jnp.float32), jnp.zeros((batch,), jnp.int32), at_goal,
-           jnp.zeros((batch,), jnp.float32))
-  _, _, _, taken, steps, reached, cost = jax.lax.while_loop(cond, body, carry)
-  return Followed(actions=taken, steps=steps, reached_goal=reached, cost=cost)
+           jnp.zeros((batch,), jnp.float32), states)
+  t, last, _, taken, steps, reached, cost, states = jax.lax.while_loop(cond, body, carry)
+  # rows the loop did not reach repeat the last state
+  later = jnp.arange(horizon + 1) > t
+  states = jax.tree.map(lambda s, n: jnp.where(
+      later.reshape((1, -1) + (1,) * (s.ndim - 2)), n[:, None], s), states, last)
+  return Followed(actions=taken, steps=steps, reached_goal=reached, cost=cost, states=states)
 
 
 def remainder(actions: jax.Array, length: jax.Array, executed: jax.Array):
@@ -111,6 +120,8 @@ class Answer:
   kind: [E] int32 `AnswerKind` code.
   reaches_goal: [E] bool the answer ends at a goal state in the planner's physics.
   cost: [E] float32 the answer's cost in the planner's physics.
+  states: NodeState [E, T + 1, ...] where the answer goes in the planner's physics, the start
+    first (rows past length repeat the last; all the start for `none`).
   search: the query's `SearchResult` [E].
   """
 
@@ -119,6 +130,7 @@ class Answer:
   kind: jax.Array
   reaches_goal: jax.Array
   cost: jax.Array
+  states: base.NodeState
   search: SearchResult
 
 
@@ -129,6 +141,11 @@ def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int)
   remainder, the policy, each where it holds an edge. A pure function."""
   search_actions = search.path_actions[:, :horizon]
   search_length = jnp.minimum(search.path_length, horizon)
+  # the search's states, rows past its length repeating its last (the kept path's end)
+  rows = jnp.minimum(jnp.arange(horizon + 1)[None], search_length[:, None])
+  search_states = jax.tree.map(
+      lambda x: jnp.take_along_axis(x, rows.reshape(rows.shape + (1,) * (x.ndim - 2)), axis=1),
+      search.path_nodes)
   found = search.found & search.path_is_goal & (search.path_length <= horizon)
   goal_cost = jnp.stack([jnp.where(found, search.cost, jnp.inf),
                          jnp.where(last.reached_goal & (last.steps > 0), last.cost, jnp.inf),
@@ -153,6 +170,7 @@ def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int)
       kind=kind,
       reaches_goal=pick(found, last.reached_goal, policy.reached_goal) & (kind != AnswerKind.NONE),
       cost=jnp.where(kind == AnswerKind.NONE, 0.0, pick(search.cost, last.cost, policy.cost)),
+      states=jax.tree.map(pick, search_states, last.states, policy.states),
       search=search)
 
 

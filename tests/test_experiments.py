@@ -79,21 +79,6 @@ def test_perturbation_parsing():
     closed_loop.parse_perturbation('gravity=2')
 
 
-def test_episodes_judge_success_in_the_world_and_stop_finished_ones():
-  env = envs.make('pusht-fixed')
-  at_goal = env.node_from_pose(np.asarray(pusht.FIXED_GOAL), np.asarray(pusht.FIXED_GOAL))
-  away = env.node_from_pose(np.array([0.1, 0.1, 0.0]), np.asarray(pusht.FIXED_GOAL))
-  starts = jax.tree.map(lambda a, b: np.stack([np.asarray(a), np.asarray(b)]), at_goal, away)
-  episodes = closed_loop.Episodes(env, starts, None)
-  assert episodes.success.tolist() == [True, False]  # the first starts at the goal
-  actions = np.zeros((2, 3, env.action_size), np.float32)
-  episodes.execute(actions, np.array([3, 2]))
-  # the finished episode does not move; the other runs its 2 actions in the world
-  assert episodes.steps.tolist() == [0, 2]
-  assert episodes.success.tolist() == [True, False]
-  assert int(np.asarray(episodes.nodes[1].t)) == 2
-
-
 def test_planner_world_replays_a_plan_in_the_planners_physics_and_stops_finished_ones():
   env = point_mass.PointMassEnv()
   starts = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), 2))

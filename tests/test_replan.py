@@ -72,16 +72,23 @@ def test_follow_stops_at_the_length_the_goal_and_an_invalid_edge(env, follow):
   np.testing.assert_array_equal(out.reached_goal, [False, True, False, True])
   np.testing.assert_array_equal(out.actions[1, 5:], 0.0)
   np.testing.assert_allclose(out.actions[3, :5], [[1.0, 0.0]] * 5, atol=1e-6)
+  # the states along each path: lane 1 moves 0.1 a step to the goal, then stays there
+  np.testing.assert_allclose(out.states.qpos[1, :, 0], [0.0, 0.1, 0.2, 0.3, 0.4]
+                             + [0.5] * (horizon - 4), atol=1e-6)
+  np.testing.assert_allclose(out.states.qpos[2, :, 0], [0.0, 0.1] + [0.2] * (horizon - 1),
+                             atol=1e-6)
   # the cost is the env's: the distance to the goal after each move plus the action cost
   np.testing.assert_allclose(out.cost[1], 0.4 + 0.3 + 0.2 + 0.1 + 0.0 + 5 * 0.01, atol=1e-5)
   np.testing.assert_allclose(out.cost[0], 0.4 + 0.3 + 0.2 + 3 * 0.01, atol=1e-5)
 
 
-def _followed(steps, reached, cost, horizon=4):
+def _followed(steps, reached, cost, horizon=4, mark=1.0):
+  """Followed candidates whose actions are 1 and states `mark` (a leaf [E, T + 1, 1])."""
   steps = jnp.asarray(steps, jnp.int32)
   actions = jnp.where(jnp.arange(horizon)[None, :, None] < steps[:, None, None], 1.0, 0.0)
   return replan.Followed(actions=actions * jnp.ones((1, 1, DIM)), steps=steps,
-                         reached_goal=jnp.asarray(reached), cost=jnp.asarray(cost, jnp.float32))
+                         reached_goal=jnp.asarray(reached), cost=jnp.asarray(cost, jnp.float32),
+                         states=jnp.full((len(steps), horizon + 1, 1), mark))
 
 
 class _Search:
@@ -92,6 +99,7 @@ class _Search:
     self.path_is_goal = jnp.asarray(found)
     self.path_length = jnp.asarray(length, jnp.int32)
     self.path_actions = jnp.full((len(found), horizon + 2, DIM), -1.0)
+    self.path_nodes = jnp.full((len(found), horizon + 3, 1), -1.0)
     self.cost = jnp.asarray(cost, jnp.float32)
 
 
@@ -102,9 +110,9 @@ def test_choose_prefers_the_cheapest_goal_then_the_search_then_the_remainder_the
   search = _Search([1, 1, 0, 0, 0, 0, 0, 1], [3, 3, 2, 2, 0, 0, 0, 2],
                    [1.0, 5.0, 9.0, 9.0, 0.0, 0.0, 0.0, 2.0])
   last = _followed([2, 2, 1, 1, 3, 0, 0, 2], [0, 1, 0, 0, 0, 0, 0, 1],
-                   [0.5, 4.0, 1.0, 1.0, 1.0, 0.0, 0.0, 2.0])
+                   [0.5, 4.0, 1.0, 1.0, 1.0, 0.0, 0.0, 2.0], mark=1.0)
   policy = _followed([4, 4, 4, 4, 4, 1, 0, 4], [0, 0, 1, 0, 0, 0, 0, 0],
-                     [9.0, 9.0, 7.0, 1.0, 1.0, 1.0, 0.0, 9.0])
+                     [9.0, 9.0, 7.0, 1.0, 1.0, 1.0, 0.0, 9.0], mark=2.0)
   answer = jax.tree.map(np.asarray, replan.choose(search, last, policy, 4))
   names = [AnswerKind.name(k) for k in answer.kind]
   assert names == ['goal_path', 'remainder', 'policy', 'partial_path', 'remainder', 'policy',
@@ -114,6 +122,7 @@ def test_choose_prefers_the_cheapest_goal_then_the_search_then_the_remainder_the
   np.testing.assert_allclose(answer.cost, [1.0, 4.0, 7.0, 9.0, 1.0, 1.0, 0.0, 2.0])
   np.testing.assert_array_equal(answer.actions[0, :3], -1.0)  # the search's path
   np.testing.assert_array_equal(answer.actions[1, :2], 1.0)  # the remainder's
+  np.testing.assert_array_equal(answer.states[:, 0, 0], [-1, 1, 2, -1, 1, 2, 2, -1])
   # a search goal path longer than the horizon is no goal answer (its end is not kept)
   long = _Search([1], [6], [0.1])
   answer = replan.choose(long, _followed([0], [0], [0.0]), _followed([4], [1], [3.0]), 4)
@@ -147,6 +156,7 @@ def test_an_answer_is_never_worse_than_the_last_answers_remainder(env, session):
   np.testing.assert_array_equal(answer.length, 7)
   assert answer.reaches_goal.all()
   np.testing.assert_allclose(answer.actions[:, :7], straight[:, :7], atol=1e-6)
+  np.testing.assert_allclose(answer.states.qpos[:, 7], goals, atol=1e-5)  # where it ends
   # the remainder's cost as the env counts it: the distances after each of its 7 moves
   distance = np.linalg.norm(goals - starts, axis=1)
   want = sum(distance * (6 - j) / 10 for j in range(7)) + 7 * 0.01 * np.sum(

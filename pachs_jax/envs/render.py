@@ -218,6 +218,7 @@ def render_mujoco_frames(mj_model, qpos_seq, width: int, height: int, camera=Non
 # ---------------------------------------------------------------- plans: stills and animations
 
 ARM_COLOR = '0.35'
+PLAN_COLOR = 'tab:purple'  # a plan being executed in closed loop
 TARGET_COLOR = 'tab:green'
 SHELF_COLOR = (0.6, 0.45, 0.3)
 MAX_FRAMES = 240  # longer plans are subsampled to this many frames
@@ -284,6 +285,13 @@ class _PushTScene:
     (self.trail,) = ax.plot([], [], color=PUSHER_COLOR, linewidth=1.0, zorder=5)
     (self.tip,) = ax.plot([], [], 'o', color=PUSHER_COLOR, markersize=5, zorder=6,
                           label='stick tip')
+    # a plan being executed (`show`'s plan): the tip's planned path and the T where it ends
+    (self.plan_line,) = ax.plot([], [], linestyle='--', color=PLAN_COLOR, linewidth=1.2,
+                                zorder=5, label='plan')
+    self.plan_t = patches.Polygon(t_polygon(t_poses[0]), closed=True, fill=False,
+                                  linestyle='--', edgecolor=PLAN_COLOR, linewidth=1.2,
+                                  visible=False, zorder=3)
+    ax.add_patch(self.plan_t)
     allpts = np.concatenate(points)
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.05 * float(np.max(hi - lo)) + 0.02
@@ -294,7 +302,13 @@ class _PushTScene:
     ax.legend(loc='upper right', fontsize='x-small', framealpha=0.7)
     self.ax = ax
 
-  def show(self, i: int) -> np.ndarray:
+  def show(self, i: int, plan=None) -> np.ndarray:
+    """The frame of state i; plan: (planned tip positions [L, 2], planned last T pose [3]) of
+    the plan being executed, drawn dashed (None: none)."""
+    self.plan_line.set_data(*((plan[0][:, 0], plan[0][:, 1]) if plan is not None else ([], [])))
+    self.plan_t.set_visible(plan is not None)
+    if plan is not None:
+      self.plan_t.set_xy(t_polygon(plan[1]))
     self.t_patch.set_xy(t_polygon(self.t_poses[i]))
     if self.arms is not None:
       self.arm_line.set_data(self.arms[i, :, 0], self.arms[i, :, 1])
@@ -367,6 +381,32 @@ def _scene(env, states, title: str, size_px: int):
     return _ShelfScene(env.boxes, goal, arm_points(env.mj_model, qpos), title, size_px)
   raise ValueError(f'drawing a plan is implemented for the PushT tasks and the shelf, not '
                    f'{env.name!r}')
+
+
+def loop_frames(env, states, plans, title: str, size_px: int = 360,
+                max_frames: int = MAX_FRAMES) -> np.ndarray:
+  """frames [F, H, W, 3] uint8 of a PushT world's states NodeState [S + 1, ...] in closed loop;
+  plans: per state s, the planned states NodeState [L + 1, ...] being executed there (None:
+  none), drawn dashed: the tip's planned path and where the plan leaves the T."""
+  if not env.name.startswith('pusht'):
+    raise ValueError(f'a closed loop is drawn for the PushT tasks, not {env.name!r}')
+  qpos = np.asarray(states.qpos)
+  arms = arm_points(env.mj_model, qpos)
+  scene = _PushTScene(np.asarray(pusht.t_pose(qpos)), np.asarray(states.goal)[0],
+                      arms[:, -1, :2], arms[..., :2], np.asarray(env.obstacles).reshape(-1, 5),
+                      title, size_px)
+  distinct = {id(p): p for p in plans if p is not None}
+  drawn = {}
+  if distinct:  # every plan's tip path in one kinematics call
+    planned = list(distinct.values())
+    tips = arm_points(env.mj_model, np.concatenate([np.asarray(p.qpos) for p in planned]))
+    at = np.cumsum([0] + [len(p.qpos) for p in planned])
+    for n, p in enumerate(planned):
+      drawn[id(p)] = (tips[at[n]:at[n + 1], -1, :2],
+                      np.asarray(pusht.t_pose(np.asarray(p.qpos)[-1])))
+  steps = frame_steps(len(qpos), max_frames)
+  return np.stack([scene.show(i, drawn.get(id(plans[i])) if plans[i] is not None else None)
+                   for i in steps])
 
 
 def can_draw(env) -> bool:

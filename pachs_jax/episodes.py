@@ -1,0 +1,156 @@
+"""Plan, execute, observe: PushT episodes in MuJoCo C worlds (float64) driven by a replanning
+session (`replan.Session`): each query's first actions run in the worlds, which are observed and
+planned from again (docs/closed_loop.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import List, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pachs_jax import replan
+from pachs_jax.envs import base
+from pachs_jax.envs import mujoco_c
+
+
+class Worlds:
+  """E PushT worlds in MuJoCo C, each with its success bookkeeping and the states it went
+  through.
+
+  env: the PushT env (any backend) whose model and control rule the worlds use.
+  starts: NodeState [E] the episodes' start states.
+  perturbation: a `mujoco_c.Perturbation` of the worlds' models (None: the env's model).
+  """
+
+  def __init__(self, env: base.Env, starts: base.NodeState,
+               perturbation: Optional[mujoco_c.Perturbation] = None):
+    self.env = env
+    self.num = num = jax.tree.leaves(starts)[0].shape[0]
+    self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
+    self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
+                  for i, w in enumerate(self.worlds)]
+    self.visited: List[List[base.NodeState]] = [[node] for node in self.nodes]
+    self._start_bookkeeping()
+
+  def _start_bookkeeping(self) -> None:
+    """Success (episodes that start at a goal count), steps and the step of each success."""
+    self.is_goal = jax.jit(self.env.is_goal)
+    self.success = np.array(self.is_goal(self.batch()))
+    self.steps = np.zeros(self.num, np.int64)
+    self.success_step = np.full(self.num, -1, np.int64)
+
+  @property
+  def active(self) -> np.ndarray:
+    """[E] bool the episodes that have not reached the goal."""
+    return ~self.success
+
+  def batch(self) -> base.NodeState:
+    """NodeState [E] of the worlds' current states."""
+    return jax.tree.map(jnp.asarray, mujoco_c.stack_nodes(self.nodes))
+
+  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
+    """Runs actions [E, T, A], the first lengths[e] of each, in the active worlds, checking the
+    goal after every step."""
+    for j in range(actions.shape[1]):
+      moving = self.active & (lengths > j)
+      if not moving.any():
+        break
+      for e in np.flatnonzero(moving):
+        self.nodes[e] = self.worlds[e].execute(actions[e, j:j + 1])[-1]
+        self.visited[e].append(self.nodes[e])
+        self.steps[e] += 1
+      self._judge(moving)
+
+  def _judge(self, moving: np.ndarray) -> None:
+    reached = np.asarray(self.is_goal(self.batch())) & moving
+    self.success_step[reached] = self.steps[reached]
+    self.success |= reached
+
+  def trajectory(self, episode: int) -> base.NodeState:
+    """NodeState [S + 1, ...] the states episode went through, the start first."""
+    return mujoco_c.stack_nodes(self.visited[episode])
+
+
+@dataclasses.dataclass
+class Log:
+  """What a closed loop did, per episode e of E.
+
+  queries: [E] int the queries each episode made.
+  answers: [E, len(AnswerKind.NAMES)] int its answers of each `replan.AnswerKind`.
+  policy_steps: [E] int world steps the policy filled after a short answer.
+  plans: per query, (the world step of each episode when it was asked [E], the answer's
+    states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]).
+  """
+
+  queries: np.ndarray
+  answers: np.ndarray
+  policy_steps: np.ndarray
+  plans: list = dataclasses.field(default_factory=list)
+
+  def executed_plans(self, episode: int, num_states: int) -> list:
+    """Per world state s < num_states of `episode`, the answer being executed there (its
+    planned states NodeState [L + 1], one object per query) or None before the first."""
+    asked = []
+    for at, states, length in self.plans:
+      if at[episode] >= 0:
+        n = int(length[episode])
+        asked.append((int(at[episode]), jax.tree.map(lambda x, n=n: x[episode, :n + 1], states)))
+    current, out = None, []
+    for s in range(num_states):
+      while asked and asked[0][0] <= s:
+        current = asked.pop(0)[1]
+      out.append(current)
+    return out
+
+
+def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarray:
+  """frames [F, H, W, 3] uint8 of what episode's world did, the plan being executed drawn
+  dashed (`render.loop_frames`)."""
+  from pachs_jax.envs import render  # pylint: disable=import-outside-toplevel  (matplotlib)
+  states = worlds.trajectory(episode)
+  plans = log.executed_plans(episode, len(states.t))
+  return render.loop_frames(worlds.env, states, plans, title)
+
+
+def run(session: replan.Session, worlds: Worlds, time_limit_s: float, execute: int = 10,
+        max_queries: int = 30, seed: int = 0, fill_with_policy: bool = True) -> Log:
+  """Runs the worlds' episodes in closed loop: a query of `time_limit_s` seconds for all
+  episodes still running, the first `execute` actions of each answer in its world (a shorter
+  answer, or `none`, followed by the policy's actions up to `execute` when fill_with_policy),
+  until every episode reached the goal or made max_queries queries."""
+  env, model = session.env, session.actor_critic
+  policy = jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes)))
+  num = worlds.num
+  log = Log(queries=np.zeros(num, np.int64),
+            answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
+            policy_steps=np.zeros(num, np.int64))
+  key = jax.random.PRNGKey(seed)
+  executed = None
+  session.reset()
+  for query in range(max_queries):
+    running = worlds.active
+    if not running.any():
+      break
+    keys = jax.vmap(lambda i, q=query: jax.random.fold_in(jax.random.fold_in(key, q), i))(
+        jnp.arange(num))
+    answer = jax.tree.map(np.asarray, session.plan(worlds.batch(), executed, keys,
+                                                   time_limit_s=time_limit_s))
+    log.queries += running
+    log.answers[np.flatnonzero(running), answer.kind[running]] += 1
+    log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
+    lengths = np.minimum(answer.length, execute)
+    worlds.execute(answer.actions[:, :execute], lengths)
+    # the answer's actions executed; an episode the policy moves next diverges from it
+    short = lengths < execute
+    executed = np.where(short & fill_with_policy, replan.DIVERGED, lengths)
+    if fill_with_policy:
+      for j in range(execute):
+        need = worlds.active & (lengths <= j)
+        if not need.any():
+          continue
+        log.policy_steps += need
+        worlds.execute(np.asarray(policy(worlds.batch()))[:, None], need.astype(np.int64))
+  return log

@@ -1,0 +1,72 @@
+"""Closed-loop episodes (`episodes`, `pachs loop`): MuJoCo C worlds, a replanning session that
+drives them, and what the command writes."""
+
+import json
+
+import jax
+import numpy as np
+from PIL import Image
+
+from pachs_jax import cli, envs, episodes
+from pachs_jax.envs import pusht
+
+
+def test_worlds_judge_success_in_the_world_and_stop_finished_ones():
+  env = envs.make('pusht-fixed')
+  at_goal = env.node_from_pose(np.asarray(pusht.FIXED_GOAL), np.asarray(pusht.FIXED_GOAL))
+  away = env.node_from_pose(np.array([0.1, 0.1, 0.0]), np.asarray(pusht.FIXED_GOAL))
+  starts = jax.tree.map(lambda a, b: np.stack([np.asarray(a), np.asarray(b)]), at_goal, away)
+  worlds = episodes.Worlds(env, starts, None)
+  assert worlds.success.tolist() == [True, False]  # the first starts at the goal
+  actions = np.zeros((2, 3, env.action_size), np.float32)
+  worlds.execute(actions, np.array([3, 2]))
+  # the finished episode does not move; the other runs its 2 actions in the world
+  assert worlds.steps.tolist() == [0, 2]
+  assert worlds.success.tolist() == [True, False]
+  assert int(np.asarray(worlds.nodes[1].t)) == 2
+  assert [len(worlds.trajectory(e).t) for e in range(2)] == [1, 3]
+
+
+def test_executed_plans_follow_the_queries_of_an_episode():
+  states = lambda value: jax.tree.map(lambda x: np.full((2, 5), value), {'q': 0})
+  log = episodes.Log(queries=np.zeros(2), answers=np.zeros((2, 5)), policy_steps=np.zeros(2))
+  # episode 0 asked at world steps 0 and 3; episode 1 only at 0 (then it had finished)
+  log.plans = [(np.array([0, 0]), states(1.0), np.array([4, 2])),
+               (np.array([3, -1]), states(2.0), np.array([1, 0]))]
+  plans = log.executed_plans(0, 6)
+  assert [p['q'][0] for p in plans] == [1, 1, 1, 2, 2, 2]
+  assert [len(p['q']) for p in plans] == [5, 5, 5, 2, 2, 2]  # length + 1 states
+  assert plans[0] is plans[2]  # one object per query (the video draws each plan once)
+  assert [p['q'][0] for p in log.executed_plans(1, 3)] == [1, 1, 1]
+
+
+def test_pachs_loop_runs_episodes_and_writes_rows_and_a_video(tmp_path):
+  rows, video = tmp_path / 'loop.json', tmp_path / 'loop.gif'
+  code = cli.main(['loop', '--task', 'pusht-obs', '--layout', 'wall', '--instances', '0,3',
+                   '--query-time', '0.5', '--max-queries', '2', '--execute', '4',
+                   '--budget', '512', '--json', str(rows), '--video', str(video),
+                   '--show-instance', '3'])
+  assert code == 0
+  saved = json.loads(rows.read_text())
+  assert (saved['physics'], saved['world'], saved['layout']) == ('mujoco-c', 'mujoco-c', 'wall')
+  assert [r['instance'] for r in saved['rows']] == [0, 3]
+  for row in saved['rows']:
+    answers = sum(row[k] for k in ('none', 'goal_path', 'partial_path', 'remainder', 'policy'))
+    assert answers == row['queries'] <= 2
+    # each query executes 4 actions of its answer, or the policy's where it is shorter
+    assert row['steps'] == 4 * row['queries'] or row['success']
+  with Image.open(video) as gif:  # a frame per world state of instance 3
+    assert gif.n_frames == saved['rows'][1]['steps'] + 1
+
+
+def test_pachs_loop_refuses_bad_arguments_in_one_line(capsys):
+  for argv, message in ((['--query-time', '0'], '--query-time: must be a positive number'),
+                        (['--task', 'pusht-fixed', '--layout', 'wall'], '--layout applies to'),
+                        (['--instances', '40'], 'instances must lie in 0..29'),
+                        (['--show-instance', '5'], '5')):
+    try:
+      code = cli.main(['loop'] + argv)
+    except SystemExit as exit_info:
+      code = exit_info.code
+    assert code == 2
+    assert message in capsys.readouterr().err
