@@ -172,12 +172,14 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if mujoco_c
                else 'MJX on the CPU (slow: milliseconds per world and step)')
+    gpu = planner.command_config(args.task, False, False)
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
-        f'30 instances x 100,000 evaluations in seconds: pip install -e .[cuda]', flush=True)
+        f'{num_available} instances x {gpu.max_evaluations:,} evaluations in seconds: pip '
+        'install -e .[cuda]', file=sys.stderr, flush=True)
   if few:
     say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
         f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
-        'more', flush=True)
+        'more', file=sys.stderr, flush=True)
   starts_all = planner.canonical_instances(env, num_available)
   starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
   core = pachs.make_search(env, model, config)
@@ -395,7 +397,7 @@ def _main(words, prefetch=None, guard=None) -> int:
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
   from pachs_jax import envs  # start-up path: lazy, after MUJOCO_GL is chosen
-  from pachs_jax.envs import layouts, mujoco_c, registry
+  from pachs_jax.envs import layouts, registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
   parser = argtypes.OneLineParser(prog='pachs', description='PACHS in JAX')
   sub = parser.add_subparsers(dest='command', required=True)
@@ -440,7 +442,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                          "when JAX_COORDINATOR_ADDRESS, SLURM or mpirun describe a job)")
   plan.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),
                     help='another actor-critic directory')
-  plan.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
+  plan.add_argument('--backend', default='auto', choices=registry.BACKENDS,
                     help='physics of PushT edges: auto = MuJoCo C when JAX has no accelerator '
                     '(Playground tasks: MJX only)')
   plan.add_argument('--render', default=None, type=argtypes.path('a file'),
@@ -473,7 +475,7 @@ def _main(words, prefetch=None, guard=None) -> int:
   loop.add_argument('--budget', type=argtypes.positive_int, default=None,
                     help="edge evaluations per query and episode (default: the task's)")
   loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
-  loop.add_argument('--backend', default='auto', choices=mujoco_c.BACKENDS,
+  loop.add_argument('--backend', default='auto', choices=registry.BACKENDS,
                     help="the planner's physics (the world is MuJoCo C)")
   loop.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),
                     help='another actor-critic directory')

@@ -118,6 +118,8 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
     model_task = envs.spec(task).model_task
   if envs.is_playground(model_task) and importlib.util.find_spec('mujoco_playground') is None:
     playground.require_playground()  # the install command first: nothing runs without it
+  if envs.is_playground(model_task) and path is None:  # the env's name before its checkpoint
+    playground.check_name(model_task[len(registry.PLAYGROUND_PREFIX):])
   # the checkpoint before the env (a Playground env takes long to build)
   path = path or checkpoint_path(model_task if isinstance(task, envs.Env) else task)
   if not os.path.exists(path):
@@ -203,6 +205,9 @@ class Planner:
     """
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
+    for name, fn in (('stop', stop), ('progress', progress)):  # before the signal handlers
+      if fn is not None and not callable(fn):
+        raise ValueError(f'{name} must be a function or None, got {fn!r}')
     key = jax.random.PRNGKey(check_seed(seed))
     if start_nodes is None:
       start_nodes = self.canonical(instances)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import functools
+import numbers
 import time
 from typing import Callable, NamedTuple, Optional
 
@@ -195,8 +196,14 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     whole search in the loop of the live instances' layout
     (the one-shot `pachs plan`: a shorter start-up for a longer search).
   """
-  if time_limit_s is not None and not time_limit_s > 0:
-    raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
+  if time_limit_s is not None and (isinstance(time_limit_s, bool)
+                                   or not isinstance(time_limit_s, numbers.Real)
+                                   or not time_limit_s > 0):
+    raise ValueError(f'time_limit_s must be a number of seconds > 0 or None, got '
+                     f'{time_limit_s!r}')
+  for name, fn in (('stop', stop), ('progress', progress), ('started', started)):
+    if fn is not None and not callable(fn):
+      raise ValueError(f'{name} must be a function or None, got {fn!r}')
   if chunk_iterations is not None and not (isinstance(chunk_iterations, int)
                                            and chunk_iterations >= 1):
     raise ValueError(f'chunk_iterations must be an int >= 1 or None, got {chunk_iterations!r}')

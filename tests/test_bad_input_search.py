@@ -335,3 +335,22 @@ def test_the_json_is_written_when_drawing_fails(tmp_path, capsys, monkeypatch):
   assert [r['instance'] for r in saved['rows']] == [0]
   assert saved['rows'][0]['evaluated'] == 48  # 6 edges of 8 transitions fit the budget of 50
   assert not png.exists()
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'time_limit_s': '5'}, "time_limit_s must be a number of seconds > 0 or None, got '5'"),
+    ({'time_limit_s': 0}, 'time_limit_s must be a number of seconds > 0 or None, got 0'),
+    ({'stop': 'yes'}, "stop must be a function or None, got 'yes'"),
+    ({'progress': 5}, 'progress must be a function or None, got 5'),
+])
+def test_plan_arguments_of_the_wrong_kind_are_named(grid, kwargs, message):
+  env, ac, nodes = grid
+  with pytest.raises(ValueError, match=re.escape(message)):
+    plan(env, ac, nodes, CONFIG, jax.random.PRNGKey(0), **kwargs)
+
+
+@pytest.mark.parametrize('field, value', [('table_friction', -1.0), ('t_damping', float('nan')),
+                                          ('w_reach', -0.5), ('success_coverage', 0.0)])
+def test_pusht_physics_out_of_range_is_refused_naming_the_field(field, value):
+  with pytest.raises(ValueError, match=f'PushTConfig.{field} must be'):
+    pusht.check_physics(pusht.PushTConfig(**{field: value}))

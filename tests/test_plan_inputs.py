@@ -52,6 +52,14 @@ def test_a_missing_playground_checkpoint_fails_at_once_naming_the_env_flag(tmp_p
     planner.load_model('pusht-fixed', '')
 
 
+def test_a_wrong_playground_name_is_named_before_its_checkpoint():
+  pytest.importorskip('mujoco_playground')
+  with pytest.raises(ValueError, match="unknown Playground env 'NoSuchEnv'; valid names"):
+    planner.load_model('playground:NoSuchEnv')
+  with pytest.raises(ValueError, match="did you mean 'ReacherEasy'"):
+    planner.load_model('playground:reachereasy')
+
+
 # -- chunks and stop requests on a simulated clock (as tests/test_anytime.py) --------------------
 
 @pytest.fixture
@@ -212,6 +220,8 @@ def test_shelf_on_a_cpu_says_that_it_plans_instance_0_only(monkeypatch, capsys):
     cli.main(['plan', '--task', 'shelf', '--no-cache'])
   out = capsys.readouterr()
   assert ('note: on this CPU (MJX physics) only instance 0 of 0-99 is planned; --instances 0-99 '
-          '(or all) plans more') in out.out.splitlines()
+          '(or all) plans more') in out.err.splitlines()  # notes on stderr, beside the table
+  assert 'note: JAX has no accelerator here' in out.err and 'note:' not in out.out
+  assert 'A GPU plans 100 instances x 20,000 evaluations' in out.err
   assert 'planning shelf instances 0 ' in out.out
   assert 'stopped before planning' in out.err

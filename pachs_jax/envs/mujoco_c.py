@@ -18,9 +18,9 @@ import numpy as np
 from mujoco import rollout
 
 from pachs_jax.envs import base, host_call, pusht, warp_import, warp_physics
+from pachs_jax.envs.registry import BACKENDS
 
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-BACKENDS = ('auto', 'mjx', 'mujoco-c', 'warp')
 
 
 # ---- one node <-> one MjData ----

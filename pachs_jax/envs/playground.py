@@ -136,15 +136,27 @@ def _use_menagerie_dir(registry_module) -> None:
                      'mujoco_menagerie checkout')
 
 
+def check_name(name: str) -> None:
+  """ValueError unless `name` is a Playground registry env: the name in its case where only
+  the case differs, else some valid names."""
+  require_playground()
+  from mujoco_playground import registry  # pylint: disable=import-outside-toplevel
+  if name in registry.ALL_ENVS:
+    return
+  same = [n for n in registry.ALL_ENVS if n.lower() == name.lower()]
+  if same:
+    raise ValueError(f'unknown Playground env {name!r}; did you mean {same[0]!r} (names are '
+                     'case-sensitive)?')
+  listed = ', '.join(registry.ALL_ENVS[:12])
+  raise ValueError(f'unknown Playground env {name!r}; valid names include {listed}, ... '
+                   f'({len(registry.ALL_ENVS)} in mujoco_playground.registry.ALL_ENVS)')
+
+
 def load_env(name: str, **config_overrides):
   """Playground's registry env `name` with the JAX implementation (impl='jax'), as a raw
   `MjxEnv`; ValueError listing some valid names for an unknown one."""
-  require_playground()
+  check_name(name)
   from mujoco_playground import registry  # pylint: disable=import-outside-toplevel
-  if name not in registry.ALL_ENVS:
-    listed = ', '.join(registry.ALL_ENVS[:12])
-    raise ValueError(f'unknown Playground env {name!r}; valid names include {listed}, ... '
-                     f'({len(registry.ALL_ENVS)} in mujoco_playground.registry.ALL_ENVS)')
   from mujoco_playground._src import locomotion, manipulation  # pylint: disable=g-import-not-at-top
   if name in manipulation.ALL_ENVS or name in locomotion.ALL_ENVS:
     _use_menagerie_dir(registry)

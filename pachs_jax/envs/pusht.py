@@ -132,6 +132,15 @@ def check_physics(config: PushTConfig) -> None:
                        f'finite numbers, got {v!r}')
   if not (np.isfinite(c.block_margin) and c.block_margin >= 0):
     raise ValueError(f'PushTConfig.block_margin must be >= 0 (m), got {c.block_margin!r}')
+  for name in ('table_friction', 'pusher_friction', 't_friction_radius', 't_damping',
+               't_yaw_damping', 'w_angle', 'w_position', 'w_reach'):
+    v = getattr(c, name)  # friction, damping and cost weights: physical only when >= 0
+    if (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+        or not np.isfinite(v) or v < 0):
+      raise ValueError(f'PushTConfig.{name} must be a finite number >= 0, got {v!r}')
+  if not 0 < c.success_coverage <= 1:
+    raise ValueError(f'PushTConfig.success_coverage must be in (0, 1], got '
+                     f'{c.success_coverage!r}')
 
 
 def physics_preset(name: str, **fields) -> PushTConfig:

@@ -92,6 +92,10 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
 
 TASKS = tuple(SPECS)
 
+# The physics backends of PushT edges (`mujoco_c.make_backend`): named here, where a command
+# line reads them without importing MuJoCo.
+BACKENDS = ('auto', 'mjx', 'mujoco-c', 'warp')
+
 PLAYGROUND_PREFIX = 'playground:'  # 'playground:NAME': Playground's env NAME (envs/playground.py)
 
 # The search defaults of a Playground task or a user's task (not tuned): the same w and N, a

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Optional
 
 import jax
+import numpy as np
 from flax import struct
 
 from pachs_jax.envs import base
@@ -28,6 +29,11 @@ class StopReason:
   @classmethod
   def name(cls, code: int) -> str:
     return cls.NAMES[int(code)]
+
+  @classmethod
+  def names(cls, codes) -> list:
+    """The names of codes (an array of any shape, e.g. `SearchResult.stop_reason`), flat."""
+    return [cls.NAMES[int(c)] for c in np.asarray(codes).reshape(-1)]
 
 
 @struct.dataclass
