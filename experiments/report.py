@@ -26,6 +26,10 @@ CURVE_POINTS = (1000, 3000, 10000, 30000, 100000)  # evaluations; the nearest bu
 PLACEHOLDER_NOTE = 'not measured yet; the maintainer runs `{command}`'
 
 
+class ReportError(Exception):
+  """A result file the report reads is missing, not JSON, or lacks what a section needs."""
+
+
 class Sources:
   """Reads result files under ROOT and remembers which ones a report cites (in order)."""
 
@@ -42,8 +46,33 @@ class Sources:
     path = f'{RESULTS}/{name}'
     if path not in self.cited:
       self.cited.append(path)
-    with open(os.path.join(self.root, path)) as f:
-      return json.load(f)
+    return read_result(self.root, path)
+
+
+def read_result(root: str, path: str) -> Dict:
+  """The JSON payload at root/path; ReportError naming the file when it is missing or not a
+  JSON object."""
+  try:
+    with open(os.path.join(root, path)) as f:
+      payload = json.load(f)
+  except FileNotFoundError:
+    raise ReportError(f'{path}: missing (the report reads it)') from None
+  except (json.JSONDecodeError, UnicodeDecodeError) as err:
+    raise ReportError(f'{path}: not valid JSON ({err})') from None
+  if not isinstance(payload, dict):
+    raise ReportError(f'{path}: not a result (a JSON object), got {type(payload).__name__}')
+  return payload
+
+
+def read_section(title: str, section: Callable, src: 'Sources'):
+  """section(src), with a missing key or a value of the wrong kind in its files reported as a
+  ReportError naming the section and the last file it read."""
+  try:
+    return section(src)
+  except (KeyError, TypeError, IndexError, ValueError, AttributeError) as err:
+    last = src.cited[-1] if src.cited else 'no file'
+    raise ReportError(f'section {title!r} (last read {last}): {type(err).__name__} {err}') \
+        from None
 
 
 # formatting -------------------------------------------------------------------------------------
@@ -1135,11 +1164,11 @@ def results_markdown(root: str = ROOT) -> Tuple[str, List[str]]:
   cited = []
   for title, section in SECTIONS:
     src = Sources(root)
-    body = section(src)
+    body = read_section(title, section, src)
     parts += [f'## {title}', '', body, '', '**Sources**', '']
     for path in src.cited:
-      with open(os.path.join(root, path)) as f:
-        parts += provenance_lines(path, json.load(f), 'docs')
+      parts += read_section(title, lambda _, path=path: provenance_lines(
+          path, read_result(root, path), 'docs'), src)
       cited.append(path)
     parts.append('')
   return '\n'.join(parts).rstrip() + '\n', cited
@@ -1210,7 +1239,7 @@ def readme_with_table(readme: str, block: str) -> str:
 def generate(root: str = ROOT) -> Dict[str, str]:
   """{repository path: the text the report writes there}."""
   results, _ = results_markdown(root)
-  block, _ = headline_table(root)
+  block, _ = read_section('README headline', lambda _: headline_table(root), Sources(root))
   with open(os.path.join(root, README)) as f:
     readme = readme_with_table(f.read(), block)
   return {RESULTS_MD: results, README: readme}
@@ -1226,8 +1255,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
   parser.add_argument('--check', action='store_true',
                       help='write nothing; exit 1 where a written file differs')
   args = parser.parse_args(argv)
+  try:
+    written = generate()
+  except ReportError as err:
+    print(f'report.py: error: {err}', file=sys.stderr)
+    return 2
   stale = []
-  for path, text in generate().items():
+  for path, text in written.items():
     full = os.path.join(ROOT, path)
     old = open(full).read() if os.path.exists(full) else None
     if old == text:

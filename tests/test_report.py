@@ -107,3 +107,36 @@ def test_formats():
   assert report.num(3000000.0) == '3,000,000'
   assert report.num(0.2482) == '0.248'
   assert report.short_revision('e8963aa100994b440cc98c4af706a1c91c4d2450+dirty') == 'e8963aa+dirty'
+
+
+@pytest.mark.parametrize('damage, message', [
+    ('truncate', r'open_loop_pusht-fixed.json: not valid JSON'),
+    ('delete', r'open_loop_pusht-fixed.json: missing \(the report reads it\)'),
+    ('list', r'open_loop_pusht-fixed.json: not a result \(a JSON object\), got list'),
+    ('no summary', r"section '.*' \(last read .*open_loop_pusht-fixed.json\): KeyError 'summary'"),
+])
+def test_a_damaged_result_file_is_named_in_one_line(tmp_path, damage, message):
+  shutil.copytree(os.path.join(ROOT, 'experiments', 'results'),
+                  tmp_path / 'experiments' / 'results')
+  shutil.copy(os.path.join(ROOT, 'README.md'), tmp_path / 'README.md')
+  target = tmp_path / 'experiments' / 'results' / 'open_loop_pusht-fixed.json'
+  payload = json.loads(target.read_text())
+  if damage == 'truncate':
+    target.write_text(target.read_text()[:100])
+  elif damage == 'delete':
+    target.unlink()
+  elif damage == 'list':
+    target.write_text('[]')
+  else:
+    target.write_text(json.dumps({k: v for k, v in payload.items() if k != 'summary'}))
+  with pytest.raises(report.ReportError, match=message):
+    report.generate(str(tmp_path))
+
+
+def test_report_check_exits_with_one_line_on_a_damaged_file(monkeypatch, capsys):
+  def damaged(*_):
+    raise report.ReportError('experiments/results/x.json: missing (the report reads it)')
+  monkeypatch.setattr(report, 'generate', damaged)
+  assert report.main(['--check']) == 2
+  err = capsys.readouterr().err
+  assert err == 'report.py: error: experiments/results/x.json: missing (the report reads it)\n'
