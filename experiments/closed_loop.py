@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 import time
 from typing import Dict, List
 
@@ -19,7 +20,7 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import anytime, argtypes, flags, planner, replan, trees
+from pachs_jax import anytime, argtypes, flags, planner, replan, signals, trees
 from pachs_jax.episodes import Worlds
 from pachs_jax.envs import mujoco_c, pusht
 from pachs_jax.search import baselines as bl
@@ -182,7 +183,10 @@ def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
   return times
 
 
-def run_planner(name, task, env, model, episodes: Worlds, args, key) -> Dict:
+def run_planner(name, task, env, model, episodes: Worlds, args, key,
+                stop=lambda: False) -> Dict:
+  """Runs one planner's episodes; stop() is checked before each query (a signal: the episodes
+  end where they are, and the row says 'interrupted')."""
   num = episodes.num
   if name == 'single':
     times = run_single(env, model, episodes, args.max_queries * args.execute)
@@ -200,8 +204,12 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key) -> Dict:
                   'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
   iterations, search_s, follow_s = [], [], []
   previous_goal, survival = None, [0, 0]  # goal answers followed; their remainders at a goal
+  interrupted = False
   for q in range(args.max_queries):
     if not episodes.active.any():
+      break
+    if stop():
+      interrupted = True
       break
     nodes = episodes.batch()
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
@@ -262,7 +270,8 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key) -> Dict:
           continue
         policy_steps += int(need.sum())
         episodes.execute(np.asarray(fallback(episodes.batch())), need.astype(np.int64))
-  return {'config': repr(config), 'queries_per_episode_mean': float(np.mean(queries)),
+  return {'config': repr(config), 'interrupted_at_query': q if interrupted else None,
+          'queries_per_episode_mean': float(np.mean(queries)),
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
           'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
@@ -345,30 +354,45 @@ def main():
   payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
-  for name in names:
-    episodes = (Worlds(env, starts, perturbation) if args.world == 'mujoco-c'
-                else PlannerWorldEpisodes(env, starts))
-    start = time.perf_counter()
-    info = run_planner(name, args.task, env, model, episodes, args,
-                       jax.random.PRNGKey(args.seed))
-    total = time.perf_counter() - start
-    k, n = int(episodes.success.sum()), episodes.num
-    low, high = stats.instance_bootstrap_interval(episodes.success, np.arange(n) % args.instances)
-    wilson = stats.wilson_interval(k, n)
-    won = episodes.success_step[episodes.success]
-    row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
-           'ci95_low': low, 'ci95_high': high, 'wilson_ci95': list(wilson),
-           'world_steps_failed_mean': stats.mean_where(episodes.steps, ~episodes.success),
-           'steps_to_success_mean': stats.mean_or_none(won),
-           'total_s': total, **info}
-    print(row, flush=True)
-    payload['summary'].append(row)
-    payload['episodes'][name] = {'success': episodes.success.tolist(),
-                                 'success_step': episodes.success_step.tolist(),
-                                 'steps': episodes.steps.tolist()}
-    common.write_json(out, payload)
-    write_markdown(payload, os.path.splitext(out)[0] + '.md')
-  plot(payload, os.path.splitext(out)[0] + '.png')
+  # SIGINT or SIGTERM (a time limit's `timeout`): the running planner stops before its next
+  # query and its episodes so far are written, marked interrupted; no later planner starts
+  guard = signals.SignalGuard('closed_loop.py', 'stopping before the next query and writing '
+                              'what ran; a second signal exits at once')
+  with guard:
+    stop = guard.keep()
+    for name in names:
+      if stop():
+        break
+      run_one(name, args, env, model, starts, perturbation, payload, out, stop)
+  if payload['summary']:
+    plot(payload, os.path.splitext(out)[0] + '.png')
+  return guard.exit_code
+
+
+def run_one(name, args, env, model, starts, perturbation, payload, out, stop) -> None:
+  """One planner's episodes, their row added to payload and the files written."""
+  episodes = (Worlds(env, starts, perturbation) if args.world == 'mujoco-c'
+              else PlannerWorldEpisodes(env, starts))
+  start = time.perf_counter()
+  info = run_planner(name, args.task, env, model, episodes, args,
+                     jax.random.PRNGKey(args.seed), stop)
+  total = time.perf_counter() - start
+  k, n = int(episodes.success.sum()), episodes.num
+  low, high = stats.instance_bootstrap_interval(episodes.success, np.arange(n) % args.instances)
+  wilson = stats.wilson_interval(k, n)
+  won = episodes.success_step[episodes.success]
+  row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
+         'ci95_low': low, 'ci95_high': high, 'wilson_ci95': list(wilson),
+         'world_steps_failed_mean': stats.mean_where(episodes.steps, ~episodes.success),
+         'steps_to_success_mean': stats.mean_or_none(won),
+         'total_s': total, **info}
+  print(row, flush=True)
+  payload['summary'].append(row)
+  payload['episodes'][name] = {'success': episodes.success.tolist(),
+                               'success_step': episodes.success_step.tolist(),
+                               'steps': episodes.steps.tolist()}
+  common.write_json(out, payload)
+  write_markdown(payload, os.path.splitext(out)[0] + '.md')
 
 
 def write_markdown(payload: Dict, path: str) -> None:
@@ -412,4 +436,4 @@ def plot(payload: Dict, path: str) -> None:
 
 
 if __name__ == '__main__':
-  main()
+  sys.exit(main())

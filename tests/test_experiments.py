@@ -227,3 +227,18 @@ def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message
   assert exit_info.value.code == 2
   err = capsys.readouterr().err
   assert message in err and err.count('\n') == 1, err
+
+
+def test_a_stop_request_ends_a_planners_episodes_before_the_next_query():
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
+  env, model = planner.load_model('pusht-fixed')
+  starts = env.canonical_instances(2)
+  args = closed_loop.argparse.Namespace(
+      budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
+      candidates=('remainder', 'policy'), chunk_iterations=1, max_queries=30, execute=10,
+      query_time=1.0, fill_with_policy=1)
+  worlds = closed_loop.Worlds(env, starts)
+  info = closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
+                                 jax.random.PRNGKey(0), stop=lambda: True)
+  assert info['interrupted_at_query'] == 0 and info['queries_per_episode_mean'] == 0.0
+  assert worlds.steps.tolist() == [0, 0]  # nothing ran in the worlds
