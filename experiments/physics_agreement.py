@@ -24,7 +24,8 @@ import numpy as np
 
 import common
 from pachs_jax import planner
-from pachs_jax.envs import agreement, pusht
+import agreement
+from pachs_jax.envs import pusht
 
 P = pusht.PushTConfig
 TODAY = dict()  # the shipped physics (PushTConfig defaults)

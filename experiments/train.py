@@ -16,7 +16,8 @@ import signal
 import sys
 import threading
 
-from pachs_jax import argtypes, files, xla_cpu
+import xla_cpu
+from pachs_jax import argtypes, files
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 TRAIN_SEED = argtypes.integer(0, SEED_LIMIT, f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}]')

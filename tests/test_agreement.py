@@ -1,12 +1,18 @@
 """PushT physics options (free T reference, block contacts) and the planner-world agreement
-check (`pachs_jax.envs.agreement`)."""
+check (`experiments/agreement.py`)."""
+
+import os
+import sys
 
 import jax
 import mujoco
 import numpy as np
 import pytest
 
-from pachs_jax.envs import agreement, pusht
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
+
+import agreement  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position
 
 
 @pytest.mark.parametrize('field, value, words', [

@@ -7,7 +7,10 @@ import textwrap
 
 import pytest
 
-from pachs_jax import xla_cpu
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
+
+import xla_cpu  # noqa: E402  pylint: disable=wrong-import-position
+
 
 # Two independent chains of batched Cholesky factorizations (2048 10x10 matrices: big enough for
 # jaxlib to split each call over the thread pool) in one loop, on 2 CPUs: without the setting
@@ -16,7 +19,8 @@ PROGRAM = textwrap.dedent('''
     import os, sys
     os.sched_setaffinity(0, {cpus!r})  # before JAX sizes its thread pool: 2 threads
     sys.path.insert(0, {root!r})
-    from pachs_jax import xla_cpu
+    sys.path.insert(0, {root!r} + '/experiments')
+    import xla_cpu
     if {fix}:
       xla_cpu.configure(os.environ)
     import jax, jax.numpy as jnp

@@ -2,7 +2,7 @@
 from the world's states in a planner's physics (MJX float32, MuJoCo Warp, MuJoCo C with float32
 states); the T's pose error after `HORIZON` control steps is checked against tolerances.
 
-  python -m pachs_jax.envs.agreement --layout wall --physics-dt 0.025 --substeps 2 \
+  python experiments/agreement.py --layout wall --physics-dt 0.025 --substeps 2 \
       --world-physics-dt 0.0125 --world-substeps 4   # exit status 1: does not agree"""
 
 from __future__ import annotations
