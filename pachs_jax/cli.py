@@ -201,13 +201,20 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     # one-shot: the whole search in the loop of the live instances' physics size (no further
     # loop to compile or load; docs/startup_and_caching.md)
     search = programs.Programs(core, prefetch=prefetch)
+    say('note: compiling (or loading from the cache) the search programs', file=sys.stderr,
+        flush=True)
+
+    def started():
+      say(f'note: programs ready after {time.perf_counter() - start:.1f} s; searching',
+          file=sys.stderr, flush=True)
+      if guard is not None:  # once the search runs, a first signal stops it at its next
+        guard.keep()         # chunk and the command keeps what it found
+
     try:
       result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
                              search=search, shrink=False,
                              progress=line if jax.process_index() == 0 else None,
-                             # once the search runs, a first signal stops it at its next
-                             # chunk and the command keeps what it found
-                             stop=guard and guard.stop, started=guard and guard.keep)
+                             stop=guard and guard.stop, started=started)
     finally:
       line.close()
   else:
