@@ -183,6 +183,60 @@ def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
   return times
 
 
+class SessionAnswers:
+  """What a planner's queries answered, for its row: answers by kind (`replan.AnswerKind`);
+  queries whose search returned no edge (stop reasons, evaluations, invalid edges, nodes
+  generated, the T off the table square: why it had nothing to say); iterations, search and
+  follow seconds per query (after the first, which compiles); and after a goal answer executed
+  as given, whether its remainder still reaches the goal from the world's state (how well goal
+  paths survive the world)."""
+
+  def __init__(self):
+    self.kinds = np.zeros(len(replan.AnswerKind.NAMES), np.int64)
+    self.empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
+                         'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
+    self.iterations, self.search_s, self.follow_s = [], [], []
+    self.previous_goal, self.survival = None, [0, 0]
+
+  def add(self, query: int, info: Dict, nodes, running, evaluated, executed, found) -> None:
+    """One query's answers [E] (info: the query's extras) for the running episodes [E]."""
+    if 'kind' in info:
+      self.kinds += np.bincount(info['kind'][running], minlength=len(self.kinds))
+      nothing = running & (info['search_length'] == 0)
+      empty = self.empty_search
+      empty['queries'] += int(nothing.sum())
+      for code in info['stop'][nothing]:
+        empty['stop'][StopReason.name(code)] = empty['stop'].get(StopReason.name(code), 0) + 1
+      empty['evaluated'] += int(evaluated[nothing].sum())
+      empty['invalid_edges'] += int(info['invalid'][nothing].sum())
+      empty['only_start_generated'] += int(np.sum(info['generated'][nothing] <= 1))
+      outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0
+      empty['t_off_table'] += int(np.sum(outside & nothing))
+      empty['t_off_table_queries'] += int(np.sum(outside & running))
+    if 'remainder_goal' in info and self.previous_goal is not None:
+      kept = running & self.previous_goal & (np.asarray(executed) < replan.DIVERGED)
+      self.survival[0] += int(kept.sum())
+      self.survival[1] += int(np.sum(kept & info['remainder_goal']
+                                     & (info['remainder_steps'] > 0)))
+    self.previous_goal = found.copy() if 'kind' in info else None
+    if query > 0 and 'iterations' in info:
+      self.iterations.append(float(np.max(info['iterations'][running])))
+      if 'search_s' in info:
+        self.search_s.append(info['search_s'])
+        self.follow_s.append(info['follow_s'])
+
+  def summary(self) -> Dict:
+    session = bool(self.kinds.any())
+    return {'answers': ({n: int(c) for n, c in zip(replan.AnswerKind.NAMES, self.kinds)}
+                        if session else None),
+            'empty_search': self.empty_search if session else None,
+            'iterations_per_query_mean': stats.mean_or_none(self.iterations),
+            'goal_answers_followed': self.survival[0] if session else None,
+            'remainders_still_at_goal': self.survival[1] if session else None,
+            'search_s_mean': stats.mean_or_none(self.search_s),
+            'follow_s_mean': stats.mean_or_none(self.follow_s)}
+
+
 def run_planner(name, task, env, model, episodes: Worlds, args, key,
                 stop=lambda: False) -> Dict:
   """Runs one planner's episodes; stop() is checked before each query (a signal: the episodes
@@ -197,13 +251,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
   executed = np.zeros(num, np.int64)
   empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
   by_query = []  # [running episodes, goal answers] per query
-  kinds = np.zeros(len(replan.AnswerKind.NAMES), np.int64)  # answers of each kind
-  # queries whose search returned no edge: its stop reasons, evaluations, invalid edges and
-  # generated nodes (why it had nothing to say)
-  empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
-                  'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
-  iterations, search_s, follow_s = [], [], []
-  previous_goal, survival = None, [0, 0]  # goal answers followed; their remainders at a goal
+  answers = SessionAnswers()
   interrupted = False
   for q in range(args.max_queries):
     if not episodes.active.any():
@@ -217,32 +265,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
     start = time.perf_counter()
     actions, lengths, evaluated, found, info = query(nodes, keys, executed)
     elapsed = time.perf_counter() - start
-    running = episodes.active
-    if 'kind' in info:
-      kinds += np.bincount(info['kind'][running], minlength=len(kinds))
-      nothing = running & (info['search_length'] == 0)
-      empty_search['queries'] += int(nothing.sum())
-      for code in info['stop'][nothing]:
-        reason = StopReason.name(code)
-        empty_search['stop'][reason] = empty_search['stop'].get(reason, 0) + 1
-      empty_search['evaluated'] += int(evaluated[nothing].sum())
-      empty_search['invalid_edges'] += int(info['invalid'][nothing].sum())
-      empty_search['only_start_generated'] += int(np.sum(info['generated'][nothing] <= 1))
-      outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0  # the T off the table square
-      empty_search['t_off_table'] += int(np.sum(outside & nothing))
-      empty_search['t_off_table_queries'] += int(np.sum(outside & running))
-    if 'remainder_goal' in info and previous_goal is not None:
-      # after a goal answer executed as given: does its remainder still reach the goal from
-      # the world's state, in the planner's physics (how well goal paths survive the world)
-      kept = running & previous_goal & (np.asarray(executed) < np.iinfo(np.int32).max)
-      survival[0] += int(kept.sum())
-      survival[1] += int(np.sum(kept & info['remainder_goal'] & (info['remainder_steps'] > 0)))
-    previous_goal = found.copy() if 'kind' in info else None
-    if q > 0 and 'iterations' in info:  # the first query includes compilation
-      iterations.append(float(np.max(info['iterations'][running])))
-      if 'search_s' in info:
-        search_s.append(info['search_s'])
-        follow_s.append(info['follow_s'])
+    answers.add(q, info, nodes, episodes.active, evaluated, executed, found)
     if q == 0:
       compile_s = elapsed  # the first query includes compilation
     else:
@@ -279,14 +302,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'policy_fill_steps': policy_steps,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
-          'answers': ({n: int(c) for n, c in zip(replan.AnswerKind.NAMES, kinds)}
-                      if kinds.any() else None),
-          'empty_search': empty_search if kinds.any() else None,
-          'iterations_per_query_mean': stats.mean_or_none(iterations),
-          'goal_answers_followed': survival[0] if kinds.any() else None,
-          'remainders_still_at_goal': survival[1] if kinds.any() else None,
-          'search_s_mean': stats.mean_or_none(search_s),
-          'follow_s_mean': stats.mean_or_none(follow_s)}
+          **answers.summary()}
 
 
 def main():
