@@ -284,7 +284,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
     queries += episodes.active
     # the plan's actions executed (a row the policy filled gets a fresh warm start next time)
     short = lengths < args.execute
-    executed = np.where(short & args.fill_with_policy, np.iinfo(np.int32).max, lengths)
+    executed = np.where(short & args.fill_with_policy, replan.DIVERGED, lengths)
     episodes.execute(actions, lengths)
     if args.fill_with_policy:  # the policy acts on up to `execute` world steps per query
       for j in range(1, args.execute):

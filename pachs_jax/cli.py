@@ -270,7 +270,6 @@ def _loop(args: argparse.Namespace) -> int:
     if path:
       check_output_path(flag, path)
   outputs.check_distinct({'--json': args.json, '--video': args.video})
-  import numpy as np  # start-up path: lazy
   from pachs_jax import envs, episodes, planner, replan
   num_available = envs.spec(args.task).num_instances
   instances = planner.parse_instances(args.instances, num_available)
@@ -309,15 +308,11 @@ def _loop(args: argparse.Namespace) -> int:
     writes.append(('--json', args.json, write_json))
   if args.video:
     def video():
-      from pachs_jax.envs import render  # start-up path: matplotlib only where it draws
       e = list(instances).index(shown)
       outcome = 'reached the goal' if worlds.success[e] else 'no goal'
       frames = episodes.video_frames(worlds, log, e, f'{env.name} instance {shown}, closed '
                                      f'loop: {outcome}')
-      steps = render.frame_steps(int(worlds.steps[e]) + 1)  # the frames' world steps
-      stride = float(np.mean(np.diff(steps))) if len(steps) > 1 else 1.0
-      outputs.write_atomically(args.video, lambda f: render.save_gif(
-          f, frames, fps=outputs.control_hz(env) / stride))
+      outputs.write_gif(args.video, env, frames, int(worlds.steps[e]) + 1)
       print(f'wrote the world of instance {shown} to {args.video}')
     writes.append(('--video', args.video, video))
   return _write_outputs('pachs loop', writes)

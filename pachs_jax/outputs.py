@@ -97,11 +97,17 @@ def write_animation(path: str, env, result, instances: Sequence[int], instance: 
   if not arm:
     note = ('the arm is drawn from its kinematics; set MUJOCO_GL=egl (or osmesa) for '
             "MuJoCo's rendering beside it")
-  shown = render.frame_steps(plan.length + 1)
+  return write_gif(path, env, frames, plan.length + 1), note
+
+
+def write_gif(path: str, env, frames: np.ndarray, num_states: int) -> str:
+  """Writes frames [F, H, W, 3] of num_states states (`render.frame_steps` of them shown) as a
+  GIF that plays at the env's control rate (`control_hz`), atomically; returns path."""
+  from pachs_jax.envs import render  # start-up path: matplotlib only where a plan is drawn
+  shown = render.frame_steps(num_states)
   stride = float(np.mean(np.diff(shown))) if len(shown) > 1 else 1.0
-  fps = control_hz(env) / stride
-  write_atomically(path, lambda f: render.save_gif(f, frames, fps=fps))
-  return path, note
+  return write_atomically(path, lambda f: render.save_gif(f, frames,
+                                                          fps=control_hz(env) / stride))
 
 
 def control_hz(env) -> float:

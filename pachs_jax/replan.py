@@ -1,12 +1,6 @@
-"""Replanning: a planner session over E episodes that plan again from their new states.
-
-Each query answers with the best of three candidates, all simulated in the planner's physics
-from the new states: the search's path, the unexecuted remainder of the session's last answer
-and the deterministic policy's rollout. A path to a goal beats one without, a cheaper goal
-path a dearer one; without a goal the search's partial path comes first, then the remainder,
-then the policy. So an answer never reaches the goal less often, or more dearly, than carrying
-on with the last answer would (docs/closed_loop.md).
-"""
+"""Replanning: a session over E episodes that plans again from their new states and answers
+with the best of the search's path, the last answer's remainder and the policy's rollout
+(docs/closed_loop.md)."""
 
 from __future__ import annotations
 
