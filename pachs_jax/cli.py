@@ -147,7 +147,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   from pachs_jax import programs, sharding
   from pachs_jax.search import checks, pachs
 
-  say = print if jax.process_index() == 0 else lambda *a, **k: None
+  say = _say if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
   if getattr(args, 'improve_allowance', None) is not None:  # before the model loads
     after_goal = args.after_goal or planner.default_config(args.task, args.algorithm).after_goal
@@ -363,6 +363,14 @@ def skip_glfw_probe(environ) -> None:
   library = os.path.join(list(spec.submodule_search_locations)[0], variant, 'libglfw.so')
   if sys.platform.startswith('linux') and os.path.isfile(library):
     environ['PYGLFW_LIBRARY'] = library
+
+
+def _say(text: str, file=None, flush: bool = True) -> None:
+  """Prints text and its newline in one write (a signal's message never lands mid-line)."""
+  file = sys.stdout if file is None else file
+  file.write(f'{text}\n')
+  if flush:
+    file.flush()
 
 
 def signal_name(signum: int) -> str:
