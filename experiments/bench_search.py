@@ -28,7 +28,8 @@ import bench_engines
 import common
 import open_loop
 import stats
-from pachs_jax import envs, planner, programs, sharding
+from pachs_jax import envs, planner
+from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import mujoco_c
 from pachs_jax.sac import actor_critic as ac_lib
 from pachs_jax.search import pachs

@@ -35,7 +35,7 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
       name, _, began, ended, thread = record.args
       reads.append((name[:12], thread, round(began - T_START, 3), round(ended - T_START, 3)))
 
-  store_log = logging.getLogger('pachs_jax.compile_cache')
+  store_log = logging.getLogger('pachs_jax.runtime.compile_cache')
   store_log.addHandler(Reads())
   store_log.setLevel(logging.DEBUG)
   times, ends = {}, {}
@@ -47,10 +47,11 @@ def child(task: str, instances: int, budget, backend: str) -> dict:
     times[name], ends[name] = now - mark, round(now - T_START, 3)
     mark = now
 
-  from pachs_jax import compile_cache
+  from pachs_jax.runtime import compile_cache
   with compile_cache.prefetching(sys.argv[1:]) as prefetch:  # as `pachs plan` (cli.main) does
     import jax
-    from pachs_jax import planner, programs
+    from pachs_jax import planner
+    from pachs_jax.runtime import programs
     from pachs_jax.search import pachs
     from pachs_jax.search.checks import instance_keys
     phase('imports')
@@ -300,10 +301,11 @@ def profile(argv) -> int:
     add_to_phase(warp_context.Module, 'load', 'warp module loads')
     add_to_phase(warp_context.Module, 'hash_module', 'warp module hashing (inside loads)')
   with profile_phase('import pachs_jax'):
-    from pachs_jax import cli, compile_cache, planner
+    from pachs_jax import cli, planner
+    from pachs_jax.runtime import compile_cache
     from pachs_jax.envs import mujoco_c
     from pachs_jax.sac import checkpoint
-    from pachs_jax import programs
+    from pachs_jax.runtime import programs
   add_to_phase(planner, 'load_model', 'load_model (env + physics + checkpoint)')
   physics = []
   inner_backend = mujoco_c.make_backend

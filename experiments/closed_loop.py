@@ -20,7 +20,8 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import anytime, argtypes, flags, planner, replan, signals, trees
+from pachs_jax import argtypes, flags, planner, replan, trees
+from pachs_jax.runtime import anytime, signals
 from pachs_jax.episodes import Worlds
 from pachs_jax.envs import mujoco_c, pusht
 from pachs_jax.search import baselines as bl
@@ -149,7 +150,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = dataclasses.replace(config, max_iterations=config.max_evaluations
                                  // config.evaluations_per_iteration)
     mppi = bl.make_mppi(env, model, config)
-    previous = {}
+    previous, timing = {}, {}
 
     def query(nodes, keys, executed):
       # warm start: the last plan without its executed actions (its last action repeated),
@@ -161,7 +162,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
         idx = np.minimum(np.arange(config.horizon)[None] + executed[:, None], last[:, None])
         shifted = np.take_along_axis(previous['actions'], idx[:, :, None], axis=1)
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
-      out = mppi.plan(nodes, keys, time_limit_s=args.query_time, nominal=jnp.asarray(nominal))
+      out = anytime.run_search(mppi, nodes, keys, jnp.asarray(nominal),
+                               time_limit_s=args.query_time, timing=timing)
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return (previous['actions'], previous['length'], np.asarray(out.evaluated),
               np.asarray(out.found), {})

@@ -20,7 +20,8 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import planner, programs
+from pachs_jax import planner
+from pachs_jax.runtime import programs
 from pachs_jax.envs import pusht
 from pachs_jax.envs import coverage, layouts
 from pachs_jax.search import baselines as bl

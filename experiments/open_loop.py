@@ -17,7 +17,8 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import argtypes, envs, flags, planner, programs, sharding
+from pachs_jax import argtypes, envs, flags, planner
+from pachs_jax.runtime import programs, sharding
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs
 from pachs_jax.search.result import StopReason

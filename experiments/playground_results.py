@@ -15,7 +15,8 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import argtypes, envs, planner, programs
+from pachs_jax import argtypes, envs, planner
+from pachs_jax.runtime import programs
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import pachs
 from pachs_jax.search.result import StopReason

@@ -17,7 +17,8 @@ import sys
 import threading
 
 import xla_cpu
-from pachs_jax import argtypes, files
+from pachs_jax import argtypes
+from pachs_jax.runtime import files
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 TRAIN_SEED = argtypes.integer(0, SEED_LIMIT, f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}]')

@@ -16,7 +16,8 @@ import numpy as np
 import common
 import open_loop
 import stats
-from pachs_jax import planner, programs
+from pachs_jax import planner
+from pachs_jax.runtime import programs
 
 # One-at-a-time variations around the defaults; 'res' scales the env's lattice resolution.
 SWEEP = {'weight': (1.0, 3.0, 5.0), 'num_actions': (4, 16), 'pop_size': (16, 256),

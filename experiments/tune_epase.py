@@ -14,7 +14,8 @@ import numpy as np
 
 import common
 import stats
-from pachs_jax import envs, programs
+from pachs_jax import envs
+from pachs_jax.runtime import programs
 from pachs_jax.search import baselines as bl
 
 

@@ -9,7 +9,8 @@ import os
 import sys
 import time
 
-from pachs_jax import argtypes, flags, signals
+from pachs_jax import argtypes, flags
+from pachs_jax.runtime import signals
 
 # The command's flags are checked before JAX, MuJoCo or matplotlib load: the imports of
 # pachs_jax modules that load them stand inside the functions that need them (start-up path).
@@ -111,7 +112,7 @@ def _plan_devices(args: argparse.Namespace):
                      '--devices 1, or drop --time-limit to run every instance to completion')
   import jax  # start-up path: lazy
 
-  from pachs_jax import sharding
+  from pachs_jax.runtime import sharding
   if args.devices == 'all':
     sharding.initialize_multihost()
     return jax.devices()
@@ -141,10 +142,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   import jax  # start-up path: lazy, after the outputs' checks
   import numpy as np
 
-  from pachs_jax import compile_cache, envs, planner, progress
+  from pachs_jax import envs, planner
+  from pachs_jax.runtime import compile_cache, progress
   if not args.no_cache:
     compile_cache.enable()
-  from pachs_jax import programs, sharding
+  from pachs_jax.runtime import programs, sharding
   from pachs_jax.search import checks, pachs
 
   say = _say if jax.process_index() == 0 else lambda *a, **k: None
@@ -382,7 +384,7 @@ def _main_prefetching(words, guard) -> int:
   # `pachs plan`: the executables this command used last time load beside the imports and model
   # load (not with --no-cache, nor where --devices may join a multi-host job first)
   if words[:1] == ['plan'] and not any(w.startswith(('--no-cache', '--devices')) for w in words):
-    from pachs_jax import compile_cache  # start-up path: lazy (JAX)
+    from pachs_jax.runtime import compile_cache  # start-up path: lazy (JAX)
     with compile_cache.prefetching(words) as prefetch:
       return _main(words, prefetch, guard)
   return _main(words, guard=guard)
@@ -464,7 +466,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                     'the first planned)')
   plan.add_argument('--json', default=None, type=argtypes.path('a file'),
                     help='write the result rows, each with its '
-                    'instance\'s plan (actions, states; pachs_jax.plans.from_json), as JSON')
+                    'instance\'s plan (actions, states; pachs_jax.saved_plans.from_json), as JSON')
   plan.add_argument('--no-cache', action='store_true',
                     help='no persistent compilation cache (default: on, in ~/.cache/pachs_jax; '
                          'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')

@@ -9,7 +9,8 @@ from typing import Callable, Dict, Optional, Sequence
 
 import numpy as np
 
-from pachs_jax import files, plans
+from pachs_jax import saved_plans
+from pachs_jax.runtime import files
 
 def check_distinct(paths: Dict[str, Optional[str]]) -> None:
   """ValueError naming both flags when two of flag -> path (None: not given) name one file."""
@@ -50,10 +51,10 @@ def write_atomically(path: str, write: Callable) -> str:
 
 def json_document(saved: dict, result, instances: Sequence[int],
                   physics: Optional[str] = None) -> dict:
-  """saved (the rows and settings) with each row given its instance's plan (`plans.to_json`)
+  """saved (the rows and settings) with each row given its instance's plan (`saved_plans.to_json`)
   under 'plan', made with `physics` (`base.Env.physics`); the rows keep their other keys."""
-  found = plans.from_result(result, physics)
-  rows = [dict(row, plan=plans.to_json(p)) for row, p in zip(saved['rows'], found)]
+  found = saved_plans.from_result(result, physics)
+  rows = [dict(row, plan=saved_plans.to_json(p)) for row, p in zip(saved['rows'], found)]
   return dict(saved, rows=rows)
 
 
@@ -63,14 +64,14 @@ def write_json(path: str, document: dict) -> str:
   return write_atomically(path, lambda f: f.write(text))
 
 
-def _title(env, plan: plans.Plan, instance: int) -> str:
+def _title(env, plan: saved_plans.Plan, instance: int) -> str:
   outcome = 'reached the goal' if plan.ends_at_goal else 'partial path (no goal)'
   return (f'{env.name} instance {instance}: {plan.length} steps, cost {plan.cost:.2f}\n'
           f'{outcome}')
 
 
-def _instance_plan(result, instances: Sequence[int], instance: int) -> plans.Plan:
-  return plans.from_result(result)[list(instances).index(instance)]
+def _instance_plan(result, instances: Sequence[int], instance: int) -> saved_plans.Plan:
+  return saved_plans.from_result(result)[list(instances).index(instance)]
 
 
 def write_still(path: str, env, result, instances: Sequence[int], instance: int) -> str:

@@ -10,7 +10,8 @@ from typing import Callable, List, Optional, Sequence
 import jax
 import numpy as np
 
-from pachs_jax import compile_cache, envs, programs, replan, signals
+from pachs_jax import envs, replan
+from pachs_jax.runtime import compile_cache, programs, signals
 from pachs_jax.envs import mujoco_c, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs

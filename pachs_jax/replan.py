@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from pachs_jax import programs, trees
+from pachs_jax import trees
+from pachs_jax.runtime import programs
 from pachs_jax.envs import base
 from pachs_jax.search.result import SearchResult
 

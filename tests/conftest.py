@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pachs_jax import compile_cache
+from pachs_jax.runtime import compile_cache
 
 try:  # the tests compile MuJoCo Warp's CPU kernels (once per machine) at -O0: on a new 2-core
   import warp  # machine about 40 s of kernel compilation become 21 s
@@ -30,7 +30,7 @@ LONGEST_FILES = (
     'test_shelf.py', 'test_bad_input_search.py', 'test_train_files.py',
     'test_bad_input_models.py', 'test_layouts.py', 'test_protocol.py', 'test_plan_outputs.py',
     'test_compact.py', 'test_mujoco_c.py', 'test_sac.py', 'test_warp.py', 'test_plan.py',
-    'test_widen.py', 'test_plans.py', 'test_novelty.py', 'test_plan_interrupt.py',
+    'test_widen.py', 'test_saved_plans.py', 'test_novelty.py', 'test_plan_interrupt.py',
     'test_coverage.py', 'test_mppi.py')
 
 

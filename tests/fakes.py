@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 
-from pachs_jax import anytime
+from pachs_jax.runtime import anytime
 
 
 class Clock:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fakes import Result, State, patch_clock
-from pachs_jax import anytime
+from pachs_jax.runtime import anytime
 from pachs_jax.search.result import StopReason
 
 

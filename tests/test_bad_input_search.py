@@ -17,9 +17,9 @@ import pytest
 from pachs_jax import cli, planner
 from pachs_jax.envs import gridworld, point_mass, pusht
 from pachs_jax.search import Capacities, SearchConfig, StopReason, make_search, memory, pachs
-from pachs_jax import programs
-from pachs_jax.programs import plan
-from pachs_jax import sharding
+from pachs_jax.runtime import programs
+from pachs_jax.runtime.programs import plan
+from pachs_jax.runtime import sharding
 from pachs_jax.search import baselines as bl
 from pachs_jax.search.baselines import epase
 from pachs_jax.search.checks import instance_keys

@@ -11,7 +11,7 @@ import pytest
 from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, compact, make_search, pachs
-from pachs_jax.programs import Programs, plan
+from pachs_jax.runtime.programs import Programs, plan
 
 
 def test_batch_sizes():

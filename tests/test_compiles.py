@@ -7,10 +7,10 @@ import jax
 import numpy as np
 import pytest
 
-from pachs_jax import compile_cache
+from pachs_jax.runtime import compile_cache
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, make_search
-from pachs_jax.programs import Programs, plan
+from pachs_jax.runtime.programs import Programs, plan
 
 OBSTACLES = np.zeros((8, 8), bool)
 OBSTACLES[1:7, 4] = True

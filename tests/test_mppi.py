@@ -9,6 +9,7 @@ import pytest
 from conftest import UniformActorCritic, assert_results_equal, take
 
 from pachs_jax.envs.point_mass import PointMassEnv
+from pachs_jax.runtime import anytime
 from pachs_jax.search import StopReason
 from pachs_jax.search import baselines as bl
 from pachs_jax.search.baselines import common
@@ -69,7 +70,7 @@ def planner(env):
 def result(planner, start):
   # a wall-clock limit far away: one jitted iteration per host step, the same compiled step
   # as the tests that call planner.step
-  return planner.plan(start, jax.random.PRNGKey(0), time_limit_s=1e6)
+  return anytime.run_search(planner, start, jax.random.PRNGKey(0), time_limit_s=1e6)
 
 
 # ---------------------------------------------------------------- behaviour
@@ -130,12 +131,12 @@ def test_result_reaches_goal_and_replays(env, start, planner, result):
 def test_batch_equals_one_by_one(start, planner, result):
   keys = instance_keys(jax.random.PRNGKey(0), 3)
   for i in range(3):
-    one = planner.plan(take(start, i), keys[i:i + 1], time_limit_s=1e6)
+    one = anytime.run_search(planner, take(start, i), keys[i:i + 1], time_limit_s=1e6)
     assert_results_equal(one, take(result, i))
 
 
 def test_time_limit_stops_after_one_iteration(start, planner):
-  out = planner.plan(start, jax.random.PRNGKey(0), time_limit_s=1e-9)
+  out = anytime.run_search(planner, start, jax.random.PRNGKey(0), time_limit_s=1e-9)
   np.testing.assert_array_equal(np.asarray(out.iterations), [1, 1, 0])
   np.testing.assert_array_equal(np.asarray(out.stop_reason),
                                 [StopReason.TIME_LIMIT, StopReason.TIME_LIMIT, StopReason.GOAL])
@@ -162,7 +163,7 @@ def far(env):
 
 def test_budget_is_respected(env, far, small_config):
   planner = bl.make_mppi(env, Attractor(), small_config)
-  out = planner.plan(far, jax.random.PRNGKey(1))
+  out = anytime.run_search(planner, far, jax.random.PRNGKey(1))
   assert int(out.stop_reason[0]) == StopReason.BUDGET and not bool(out.found[0])
   assert int(out.evaluated[0]) <= small_config.max_evaluations
   assert int(out.evaluated[0]) == int(out.iterations[0]) * 32 * 4 == 1024
@@ -272,6 +273,6 @@ def test_bad_inputs_raise(env, start, planner):
   with pytest.raises(ValueError, match='sample_actions'):
     bl.make_mppi(env, Attractor(), bl.MppiConfig(policy_prior_samples=1))
   with pytest.raises(ValueError, match='time_limit_s'):
-    planner.plan(start, jax.random.PRNGKey(0), time_limit_s=0.0)
+    anytime.run_search(planner, start, jax.random.PRNGKey(0), time_limit_s=0.0)
   with pytest.raises(ValueError, match='start_nodes'):
-    planner.plan(jax.tree.map(lambda x: x[0], start), jax.random.PRNGKey(0))
+    anytime.run_search(planner, jax.tree.map(lambda x: x[0], start), jax.random.PRNGKey(0))

@@ -218,7 +218,7 @@ def test_world_executes_and_perturbations_change_the_outcome(env, push):
 # ---- the search end to end ----
 
 def test_search_on_the_cpu_backend_stops_at_its_iteration_limit(env, cenv):
-  from pachs_jax import programs
+  from pachs_jax.runtime import programs
   from pachs_jax.search import pachs
   from pachs_jax.search.capacity import Capacities
   from pachs_jax.search.config import SearchConfig

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from fakes import Result, State, patch_clock
-from pachs_jax import anytime, argtypes, cli, planner, progress, programs
+from pachs_jax import argtypes, cli, planner
+from pachs_jax.runtime import anytime, programs, progress
 from pachs_jax.search import memory
 from pachs_jax.search.result import StopReason
 
@@ -192,7 +193,7 @@ def test_a_k_whose_iteration_cannot_fit_is_refused_naming_k(monkeypatch):
 def test_garbage_cache_entries_are_removed_and_good_ones_kept(tmp_path):
   import zlib
   from jax._src import compilation_cache as jax_cache
-  from pachs_jax import compile_cache
+  from pachs_jax.runtime import compile_cache
   good = tmp_path / 'jit_good-0123-cache'
   try:
     good.write_bytes(jax_cache.compress_executable(b'an executable'))

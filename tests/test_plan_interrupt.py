@@ -8,7 +8,8 @@ import jax
 import numpy as np
 import pytest
 
-from pachs_jax import anytime, planner, programs, signals
+from pachs_jax import planner
+from pachs_jax.runtime import anytime, programs, signals
 from pachs_jax.search import checks
 from pachs_jax.search.result import StopReason
 

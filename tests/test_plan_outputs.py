@@ -10,7 +10,8 @@ import pytest
 from conftest import trees_equal
 from PIL import Image
 
-from pachs_jax import cli, demo, envs, outputs, plans, programs
+from pachs_jax import cli, demo, envs, outputs, saved_plans
+from pachs_jax.runtime import programs
 from pachs_jax.envs import mujoco_c, render
 from pachs_jax.search import baselines as bl
 
@@ -66,9 +67,9 @@ def test_short_pusht_plan_finds_paths_that_replay_and_writes_them(tmp_path, caps
   env = mujoco_c.make_backend(envs.make('pusht-fixed'), 'mujoco-c')
   for row in rows:
     assert {'instance', 'found', 'cost', 'path_length', 'stop'} <= set(row)  # kept keys
-    plan = plans.from_json(row['plan'])
+    plan = saved_plans.from_json(row['plan'])
     assert plan.length == row['path_length'] and plan.cost == row['cost'] and plan.found
-    again = plans.replay(env, plan)
+    again = saved_plans.replay(env, plan)
     assert trees_equal(again.states, plan.states)  # the same physics: bit for bit
     assert again.valid and again.is_goal
     assert again.cost == pytest.approx(plan.cost, rel=1e-5)

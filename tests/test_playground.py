@@ -111,7 +111,7 @@ def test_pachs_plan_command_with_the_shipped_model(tmp_path, capsys):
   backend are refused with one line each."""
   import json
 
-  from pachs_jax import cli, planner, plans
+  from pachs_jax import cli, planner, saved_plans
   rows = str(tmp_path / 'rows.json')
   code = cli.main(['plan', '--env', 'playground:ReacherEasy', '--instances', '0-1',
                    '--budget', '200', '--no-cache', '--json', rows])
@@ -123,7 +123,7 @@ def test_pachs_plan_command_with_the_shipped_model(tmp_path, capsys):
   found = [r for r in saved['rows'] if r['found']]
   assert found
   reacher = playground.make('playground:ReacherEasy', check=False)
-  plan = plans.from_json(found[0]['plan'],
+  plan = saved_plans.from_json(found[0]['plan'],
                          like=jax.eval_shape(reacher.sample_instance, jax.random.PRNGKey(0)))
   assert plan.length > 0
   evaluate = jax.jit(reacher.evaluate)  # one program for every step (an eager step compiles)

@@ -9,7 +9,7 @@ import numpy as np
 
 from conftest import assert_results_equal
 from pachs_jax.envs import gridworld
-from pachs_jax.programs import Programs, plan
+from pachs_jax.runtime.programs import Programs, plan
 from pachs_jax.search import SearchConfig, make_search
 
 

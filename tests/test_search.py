@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from conftest import assert_results_equal, take
-from pachs_jax import compile_cache
+from pachs_jax.runtime import compile_cache
 from pachs_jax.envs import gridworld
 from pachs_jax.search import Capacities, SearchConfig, StopReason, instance_keys, make_search
-from pachs_jax.programs import Programs, plan
+from pachs_jax.runtime.programs import Programs, plan
 
 SIZE = 14
 POCKET = (1, 12)  # a free cell walled in: unreachable from outside

@@ -14,8 +14,8 @@ from conftest import assert_results_equal
 from pachs_jax import planner
 from pachs_jax.envs import gridworld
 from pachs_jax.search import SearchConfig, StopReason, make_search
-from pachs_jax.programs import Programs, plan
-from pachs_jax import sharding
+from pachs_jax.runtime.programs import Programs, plan
+from pachs_jax.runtime import sharding
 from pachs_jax.search import capacity, segment
 
 OBSTACLES = np.zeros((12, 12), bool)

@@ -16,8 +16,8 @@ import pytest
 
 from conftest import assert_results_equal, jax_cache_env, result_leaves
 from pachs_jax.search import SearchConfig, make_search
-from pachs_jax.programs import plan
-from pachs_jax import sharding
+from pachs_jax.runtime.programs import plan
+from pachs_jax.runtime import sharding
 
 # Shared by the in-process tests and the subprocesses (the same source text).
 SETUP = textwrap.dedent('''
@@ -42,7 +42,7 @@ SETUP = textwrap.dedent('''
     CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400)
 
     from pachs_jax.search import baselines as bl
-    from pachs_jax import sharding
+    from pachs_jax.runtime import sharding
 
     class GreedyActor(RandomActor):
       # The single rollout's deterministic policy: the move of the best Q.
@@ -225,7 +225,7 @@ def test_bad_input_raises(search):
 # result gathered whole on every process, equal field by field to the unsharded plan this
 # process saved (`references`).
 TWO_HOSTS = textwrap.dedent('''
-    from pachs_jax import sharding as _sharding
+    from pachs_jax.runtime import sharding as _sharding
     assert _sharding.initialize_multihost(), 'the job was not joined'
 ''') + SETUP + textwrap.dedent('''
     import sys

@@ -10,7 +10,7 @@ import pytest
 
 SCRIPT = textwrap.dedent('''
     import os, signal, sys, time
-    from pachs_jax.signals import Interrupted, SignalGuard
+    from pachs_jax.runtime.signals import Interrupted, SignalGuard
     mode, signame = sys.argv[1], sys.argv[2]
     signum = getattr(signal, signame)
     with SignalGuard('prog') as guard:
@@ -99,7 +99,7 @@ def test_a_signal_that_breaks_an_import_during_start_up_prints_one_line(monkeypa
   # ImportError it caused: start-up stopped, one line, the signal's exit code; another
   # ImportError is not taken for a signal
   from pachs_jax import cli
-  from pachs_jax.signals import Interrupted
+  from pachs_jax.runtime.signals import Interrupted
 
   def broken_import(words, guard):
     try:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import jax_cache_env
 
-from pachs_jax import files
+from pachs_jax.runtime import files
 from pachs_jax.sac import checkpoint, reporting, train
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -22,7 +22,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tensorstore as ts
 
-from pachs_jax import files
+from pachs_jax.runtime import files
 from pachs_jax.envs import base
 from pachs_jax.sac import config as config_lib
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic

@@ -10,7 +10,7 @@ from typing import Dict
 
 import tqdm
 
-from pachs_jax import files
+from pachs_jax.runtime import files
 
 CSV_COLUMNS = ('env_steps', 'epoch', 'walltime', 'sps', 'episode_return', 'success_rate',
                'episodes', 'reward_mean', 'critic_loss', 'actor_loss', 'alpha_loss', 'alpha',

@@ -13,6 +13,6 @@ __all__ = ['ActorCritic', 'Capacities', 'Search', 'SearchConfig', 'SearchResult'
 
 def __getattr__(name):
   if name == 'plan':
-    raise AttributeError('pachs_jax.search.plan is now pachs_jax.programs.plan (compiling, '
+    raise AttributeError('pachs_jax.search.plan is now pachs_jax.runtime.programs.plan (compiling, '
                          'threads and wall-clock timing live above the search core)')
   raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

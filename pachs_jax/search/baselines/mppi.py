@@ -13,7 +13,6 @@ from flax import struct
 
 from pachs_jax import trees
 from pachs_jax.envs import base
-from pachs_jax import anytime
 from pachs_jax.search.baselines import common
 from pachs_jax.search.checks import check_actor_critic, check_start_nodes, instance_keys
 from pachs_jax.search.config import normalize_numbers, positive_int
@@ -120,14 +119,13 @@ class MppiState(common.SamplingState):
 class Mppi:
   """Jitted functions: init(start_nodes [I], key, nominal [I, H, A] | None) -> MppiState;
   step(state) -> state after one iteration (stopped instances unchanged); run(state) -> state
-  when all instances stopped; result(state) -> SearchResult; plan(start_nodes, key,
-  time_limit_s=None, nominal=None) -> SearchResult with wall_time_s (host loop, see `plan`)."""
+  when all instances stopped; result(state) -> SearchResult. `runtime.anytime.run_search`
+  runs them to the end or under a wall clock."""
 
   init: Callable[..., MppiState]
   step: Callable[[MppiState], MppiState]
   run: Callable[[MppiState], MppiState]
   result: Callable[[MppiState], SearchResult]
-  plan: Callable[..., SearchResult]
   config: MppiConfig
 
 
@@ -328,28 +326,5 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
         heap_overflow=zeros, pool_overflow=zeros, table_overflow=zeros,
         wall_time_s=jnp.float32(jnp.nan))
 
-  timing = {}  # instance count -> the last result's time (`anytime.timed_result`)
-  init_jit, step_jit, run_jit, result_jit = (jax.jit(init), jax.jit(step), jax.jit(run),
-                                             jax.jit(result))
-
-  def plan(start_nodes: base.NodeState, key: jax.Array, time_limit_s: Optional[float] = None,
-           nominal: Optional[jax.Array] = None) -> SearchResult:
-    """Plans from start_nodes [I] (key: one PRNG key or [I, 2]; nominal: optional warm start
-    [I, H, A]). time_limit_s None: all iterations in one jitted loop; otherwise one jitted
-    iteration per host step while the next one and the result, timed as their last runs,
-    would end within the wall-clock limit (at least one iteration), and instances still running
-    then report TIME_LIMIT. Compilation happens before the clock starts."""
-    if time_limit_s is not None and not time_limit_s > 0:
-      raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-    num = check_start_nodes(start_nodes, env)
-    keys = instance_keys(key, num)
-    init_c = init_jit.lower(start_nodes, keys, nominal).compile()
-    shape = jax.eval_shape(init, start_nodes, keys, nominal)
-    loop_c = (run_jit if time_limit_s is None else step_jit).lower(shape).compile()
-    result_c = result_jit.lower(shape).compile()
-
-    return anytime.timed_result(loop_c, init_c(start_nodes, keys, nominal), result_c,
-                                time_limit_s, timing=timing.setdefault(num, {}))
-
-  return Mppi(init=init_jit, step=step_jit, run=run_jit, result=result_jit, plan=plan,
-              config=config)
+  return Mppi(init=jax.jit(init), step=jax.jit(step), run=jax.jit(run),
+              result=jax.jit(result), config=config)

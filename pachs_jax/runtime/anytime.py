@@ -109,3 +109,21 @@ def timed_result(advance: Callable[..., Any], state: Any,
     out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING, reason,
                                             out.stop_reason))
   return out.replace(wall_time_s=np.float32(now - start))
+
+
+def run_search(search: Any, start_nodes: Any, key: jax.Array, *init_args,
+               time_limit_s: Optional[float] = None,
+               timing: Optional[Dict[str, float]] = None) -> SearchResult:
+  """The SearchResult [I] of a search given as jitted `init(start_nodes [I], key, *init_args)`,
+  `step`, `run` and `result` (e.g. `search.baselines.Mppi`). time_limit_s None: `run` to the
+  end in one call; otherwise one `step` per host step while the next one and the result, timed
+  as their last runs (`timing`, see `timed_result`), would end within the limit (at least one);
+  instances still running then report TIME_LIMIT. Compiled before the clock starts."""
+  if time_limit_s is not None and not time_limit_s > 0:
+    raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
+  init = search.init.lower(start_nodes, key, *init_args).compile()
+  shape = jax.eval_shape(search.init, start_nodes, key, *init_args)
+  loop = (search.run if time_limit_s is None else search.step).lower(shape).compile()
+  result = search.result.lower(shape).compile()
+  return timed_result(loop, init(start_nodes, key, *init_args), result, time_limit_s,
+                      timing=timing)

@@ -15,9 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pachs_jax import anytime
-from pachs_jax import compile_cache
-from pachs_jax import signals
+from pachs_jax.runtime import anytime
+from pachs_jax.runtime import compile_cache
+from pachs_jax.runtime import signals
 from pachs_jax.envs import base
 from pachs_jax.search import memory
 from pachs_jax.search.checks import (check_model_outputs, check_start_nodes, conform_start_nodes,

@@ -15,7 +15,7 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from pachs_jax.envs import base
-from pachs_jax.programs import check_model
+from pachs_jax.runtime.programs import check_model
 from pachs_jax.search import memory, pachs
 from pachs_jax.search.checks import check_start_nodes, instance_keys
 from pachs_jax.search.config import SearchConfig

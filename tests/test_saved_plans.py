@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from conftest import UniformActorCritic, trees_equal
 
-from pachs_jax import plans
+from pachs_jax import saved_plans
 from pachs_jax.envs import gridworld, point_mass
-from pachs_jax.programs import plan
+from pachs_jax.runtime.programs import plan
 from pachs_jax.search import Capacities, SearchConfig, instance_keys, make_search
 
 
@@ -28,7 +28,7 @@ def grid_plans():
   env, actor_critic, nodes, goals = _grid_problem()
   config = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=2000)
   result = plan(env, actor_critic, nodes, config, instance_keys(jax.random.PRNGKey(0), 3))
-  return env, result, plans.from_result(result), goals
+  return env, result, saved_plans.from_result(result), goals
 
 
 def test_plans_hold_the_results_paths(grid_plans):
@@ -48,7 +48,7 @@ def test_plans_hold_the_results_paths(grid_plans):
 def test_replay_reaches_the_searchs_states_bit_for_bit(grid_plans):
   env, _, found, _ = grid_plans
   for p in found:
-    again = plans.replay(env, p)
+    again = saved_plans.replay(env, p)
     assert trees_equal(again.states, p.states)
     assert again.valid and again.is_goal
     assert again.step_costs.shape == (p.length,)
@@ -58,11 +58,11 @@ def test_replay_reaches_the_searchs_states_bit_for_bit(grid_plans):
 def test_json_round_trip_is_exact_and_replays(grid_plans):
   env, _, found, _ = grid_plans
   for p in found:
-    back = plans.from_json(json.loads(json.dumps(plans.to_json(p))))
+    back = saved_plans.from_json(json.loads(json.dumps(saved_plans.to_json(p))))
     assert trees_equal(back.states, p.states)
     np.testing.assert_array_equal(back.actions, p.actions)
     assert (back.cost, back.found, back.length) == (p.cost, p.found, p.length)
-    assert trees_equal(plans.replay(env, back).states, p.states)
+    assert trees_equal(saved_plans.replay(env, back).states, p.states)
 
 
 def test_segment_edges_expand_into_transitions_and_replay_exactly():
@@ -76,29 +76,29 @@ def test_segment_edges_expand_into_transitions_and_replay_exactly():
   cut = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1),
              search=make_search(env, UniformActorCritic(2), config,
                                 capacities=Capacities(max_path_length=4)))
-  for whole, part in zip(plans.from_result(result), plans.from_result(cut)):
+  for whole, part in zip(saved_plans.from_result(result), saved_plans.from_result(cut)):
     assert whole.length == whole.states.t[-1] > 3  # transitions, not edges
-    again = plans.replay(env, whole)
+    again = saved_plans.replay(env, whole)
     assert trees_equal(again.states, whole.states) and again.valid
     assert again.cost == pytest.approx(whole.cost, rel=1e-5)
     assert part.truncated and part.length == 4
     np.testing.assert_array_equal(part.actions, whole.actions[:4])
-    assert trees_equal(plans.replay(env, part).states, part.states)
+    assert trees_equal(saved_plans.replay(env, part).states, part.states)
 
 
 def test_bad_plans_are_refused():
   env = point_mass.PointMassEnv()
   with pytest.raises(ValueError, match='not a plan'):
-    plans.from_json({'actions': []})
-  good = plans.to_json(plans.Plan(
+    saved_plans.from_json({'actions': []})
+  good = saved_plans.to_json(saved_plans.Plan(
       actions=np.zeros((2, 2), np.float32), cost=0.0, found=False, ends_at_goal=False,
       truncated=False, states=jax.tree.map(
           lambda x: np.stack([np.asarray(x)] * 3), env.node_from_positions([0, 0], [1, 1]))))
   with pytest.raises(ValueError, match='L \\+ 1 rows'):
-    plans.from_json(dict(good, actions=[[0.0, 0.0]]))
-  three_d = plans.from_json(good)
+    saved_plans.from_json(dict(good, actions=[[0.0, 0.0]]))
+  three_d = saved_plans.from_json(good)
   with pytest.raises(ValueError, match='takes \\[L, 3\\]'):
-    plans.replay(point_mass.PointMassEnv(point_mass.PointMassConfig(dim=3)), three_d)
+    saved_plans.replay(point_mass.PointMassEnv(point_mass.PointMassConfig(dim=3)), three_d)
 
 
 def test_a_plan_of_another_node_type_round_trips_through_json_with_like():
@@ -111,39 +111,39 @@ def test_a_plan_of_another_node_type_round_trips_through_json_with_like():
 
   states = Node(pos=np.arange(6, dtype=np.float32).reshape(3, 2) / 7,
                 extra={'count': np.arange(3, dtype=np.int32)})
-  plan = plans.Plan(actions=np.full((2, 1), 0.3, np.float32), states=states, cost=1.5,
+  plan = saved_plans.Plan(actions=np.full((2, 1), 0.3, np.float32), states=states, cost=1.5,
                     found=True, ends_at_goal=True, truncated=False)
-  data = json.loads(json.dumps(plans.to_json(plan)))
+  data = json.loads(json.dumps(saved_plans.to_json(plan)))
   assert data['node_type'].endswith('Node')
-  back = plans.from_json(data, like=states)
+  back = saved_plans.from_json(data, like=states)
   assert back.states.pos.tobytes() == states.pos.tobytes()
   np.testing.assert_array_equal(back.states.extra['count'], states.extra['count'])
   assert back.states.extra['count'].dtype == np.int32
   with pytest.raises(ValueError, match='needs like='):
-    plans.from_json(data)
+    saved_plans.from_json(data)
 
 
 def test_a_plan_records_its_physics_and_refuses_another(grid_plans):
   env, result, _, _ = grid_plans
-  made = plans.from_result(result, physics=env.physics)[0]
-  back = plans.from_json(json.loads(json.dumps(plans.to_json(made))))
+  made = saved_plans.from_result(result, physics=env.physics)[0]
+  back = saved_plans.from_json(json.loads(json.dumps(saved_plans.to_json(made))))
   assert back.physics == env.physics == 'jax'
-  assert plans.replay(env, back).is_goal
+  assert saved_plans.replay(env, back).is_goal
   # a plan made by another engine reaches other states here: refused in one line
-  other = plans.from_json(dict(plans.to_json(made), physics='mujoco-c'))
+  other = saved_plans.from_json(dict(saved_plans.to_json(made), physics='mujoco-c'))
   with pytest.raises(ValueError, match='made with mujoco-c physics .* simulates with jax'):
-    plans.replay(env, other)
+    saved_plans.replay(env, other)
   # plans saved without a record replay as before
-  unknown = plans.from_json({k: v for k, v in plans.to_json(made).items() if k != 'physics'})
-  assert unknown.physics is None and plans.replay(env, unknown).is_goal
+  unknown = saved_plans.from_json({k: v for k, v in saved_plans.to_json(made).items() if k != 'physics'})
+  assert unknown.physics is None and saved_plans.replay(env, unknown).is_goal
 
 
 def test_make_env_builds_the_engine_a_plan_names():
-  assert plans.make_env('pusht-fixed', 'mjx').physics == 'mjx'
-  env = plans.make_env('pusht-obs', 'mujoco-c', layout='wall')
+  assert saved_plans.make_env('pusht-fixed', 'mjx').physics == 'mjx'
+  env = saved_plans.make_env('pusht-obs', 'mujoco-c', layout='wall')
   try:
     assert env.physics == 'mujoco-c' and env.layout.name == 'wall'
   finally:
     env.close()
   with pytest.raises(ValueError, match="'shelf' simulates with 'jax', not 'mjx'"):
-    plans.make_env('shelf', 'mjx')
+    saved_plans.make_env('shelf', 'mjx')

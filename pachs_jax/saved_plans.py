@@ -168,7 +168,7 @@ def replay(env: base.Env, plan: Plan) -> Replay:
   if plan.physics is not None and plan.physics != env.physics:
     raise ValueError(f'this plan was made with {plan.physics} physics and env {env.name!r} '
                      f'simulates with {env.physics}, where it reaches other states: replay it '
-                     f"on plans.make_env(task, {plan.physics!r}, layout)")
+                     f"on saved_plans.make_env(task, {plan.physics!r}, layout)")
   if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
     raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
                      f'takes [L, {env.action_size}]')
