@@ -211,10 +211,10 @@ def replay_begins(steps: int, length: int, every: int = HORIZON) -> list:
 def planner_env(config: pusht.PushTConfig, planner: str) -> base.Env:
   """The env whose `evaluate` is the named planner physics of config ('mjx', 'mujoco-c',
   'warp')."""
-  from pachs_jax.envs import mujoco_c  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import backends  # pylint: disable=import-outside-toplevel
   if planner not in PLANNERS:
     raise ValueError(f'planner must be one of {PLANNERS}, got {planner!r}')
-  return mujoco_c.make_backend(pusht.PushTEnv(config), planner, nthread=1)
+  return backends.make_backend(pusht.PushTEnv(config), planner, nthread=1)
 
 
 def c_replay(config: pusht.PushTConfig, rollouts: Rollouts, begins, length: int,

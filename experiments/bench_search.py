@@ -30,7 +30,7 @@ import open_loop
 import stats
 from pachs_jax import envs, planner
 from pachs_jax.runtime import programs, sharding
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import backends
 from pachs_jax.sac import actor_critic as ac_lib
 from pachs_jax.search import pachs
 from pachs_jax.search.checks import instance_keys
@@ -86,7 +86,7 @@ def throughput(argv):
   parser.add_argument('--num-actions', type=int, default=8)
   parser.add_argument('--budget', type=int, default=100_000)
   parser.add_argument('--weight', type=float, default=2.0)
-  parser.add_argument('--backend', default='mjx', choices=mujoco_c.BACKENDS,
+  parser.add_argument('--backend', default='mjx', choices=backends.BACKENDS,
                       help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads; warp: '
                       'MuJoCo Warp)')
   parser.add_argument('--raw-steps', type=int, default=20,

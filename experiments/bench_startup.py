@@ -282,8 +282,8 @@ def profile(argv) -> int:
 
     def widened(self, *names, **kwargs):
       if names[:1] == ('--backend',) and 'choices' in kwargs:
-        from pachs_jax.envs import mujoco_c
-        kwargs['choices'] = list(mujoco_c.BACKENDS)
+        from pachs_jax.envs import backends
+        kwargs['choices'] = list(backends.BACKENDS)
       return add_argument(self, *names, **kwargs)
     argparse._ActionsContainer.add_argument = widened  # pylint: disable=protected-access
 
@@ -303,19 +303,19 @@ def profile(argv) -> int:
   with profile_phase('import pachs_jax'):
     from pachs_jax import cli, planner
     from pachs_jax.runtime import compile_cache
-    from pachs_jax.envs import mujoco_c
+    from pachs_jax.envs import backends
     from pachs_jax.sac import checkpoint
     from pachs_jax.runtime import programs
   add_to_phase(planner, 'load_model', 'load_model (env + physics + checkpoint)')
   physics = []
-  inner_backend = mujoco_c.make_backend
+  inner_backend = backends.make_backend
 
   def make_backend(*a, **k):
     with profile_phase('make_backend (physics backend, put_model)'):
       env = inner_backend(*a, **k)
     physics.append(type(env).__name__)
     return env
-  mujoco_c.make_backend = make_backend
+  backends.make_backend = make_backend
   add_to_phase(checkpoint, 'load_actor_critic', 'checkpoint load')
   add_to_phase(planner, 'canonical_instances', 'canonical instances')
   add_to_phase(programs, 'check_model_outputs', 'model check (thread)')

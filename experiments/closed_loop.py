@@ -1,7 +1,7 @@
 """Closed loop, PushT: plans made with MJX (float32) executed in MuJoCo C worlds (float64).
 
 The protocol is the original's (README, 'Closed loop'); all episodes of a planner share each
-query's wall clock; `--perturb` scales the worlds' parameters (`mujoco_c.Perturbation`);
+query's wall clock; `--perturb` scales the worlds' parameters (`world_lib.Perturbation`);
 `--world planner` executes the plans in the planners' own edge physics instead, so that they
 transfer (up to the numerics of another batch size)."""
 
@@ -23,7 +23,7 @@ import stats
 from pachs_jax import argtypes, flags, planner, replan, trees
 from pachs_jax.runtime import anytime, signals
 from pachs_jax.episodes import Worlds
-from pachs_jax.envs import mujoco_c, pusht
+from pachs_jax.envs import pusht, world as world_lib
 from pachs_jax.search import baselines as bl
 from pachs_jax.search import compact
 from pachs_jax.search.result import StopReason
@@ -34,20 +34,20 @@ PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 COMPACT_FRACTIONS = (0.75, 0.5, 0.25, 0.125)
 
 
-def parse_perturbation(text: str) -> mujoco_c.Perturbation:
+def parse_perturbation(text: str) -> world_lib.Perturbation:
   if not text:
-    return mujoco_c.Perturbation()
+    return world_lib.Perturbation()
   values = {}
   for item in text.split(','):
     name, _, value = item.partition('=')
-    if name not in {f.name for f in dataclasses.fields(mujoco_c.Perturbation)}:
+    if name not in {f.name for f in dataclasses.fields(world_lib.Perturbation)}:
       raise ValueError(f'unknown perturbation {name!r}; valid: '
-                       f'{[f.name for f in dataclasses.fields(mujoco_c.Perturbation)]}')
+                       f'{[f.name for f in dataclasses.fields(world_lib.Perturbation)]}')
     try:
       values[name] = float(value)
     except ValueError:
       raise ValueError(f'--perturb {name}: a number, got {value!r}') from None
-  return mujoco_c.Perturbation(**values)
+  return world_lib.Perturbation(**values)
 
 
 WORLDS = ('mujoco-c', 'planner')

@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from pachs_jax import argtypes, cli, envs
-from pachs_jax.envs import layouts, mujoco_c
+from pachs_jax.envs import backends, layouts
 
 
 def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
@@ -39,7 +39,7 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                         help='the first N canonical instances, 0..N-1 (default: '
                         f'{instances or "the task set: 30 PushT, 100 shelf"})')
   if backend:
-    parser.add_argument('--backend', default='mjx', choices=mujoco_c.BACKENDS,
+    parser.add_argument('--backend', default='mjx', choices=backends.BACKENDS,
                         help="edge physics (mujoco-c: MuJoCo C on the CPU threads; warp: MuJoCo "
                         "Warp; auto: warp or mjx on an accelerator, mujoco-c without one)")
   if seed:

@@ -21,7 +21,7 @@ import numpy as np
 
 import common
 from pachs_jax import planner
-from pachs_jax.envs import mujoco_c, warp_import
+from pachs_jax.envs import backends, warp_import, world as world_lib
 from pachs_jax.search.baselines import common as replay_lib
 
 
@@ -30,18 +30,18 @@ def world_trajectories(env, model, starts, steps: int, seed: int):
   MuJoCo C world per instance."""
   sample = jax.jit(lambda key, obs: model.sample_actions(key, obs, 1)[:, 0])
   num = jax.tree.leaves(starts)[0].shape[0]
-  worlds = [mujoco_c.World(env) for _ in range(num)]
+  worlds = [world_lib.World(env) for _ in range(num)]
   nodes = [[w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))]
            for i, w in enumerate(worlds)]
   actions = np.zeros((num, steps, env.action_size), np.float32)
   key = jax.random.PRNGKey(seed)
   for t in range(steps):
-    batch = jax.tree.map(jnp.asarray, mujoco_c.stack_nodes([n[-1] for n in nodes]))
+    batch = jax.tree.map(jnp.asarray, world_lib.stack_nodes([n[-1] for n in nodes]))
     act = np.clip(np.asarray(sample(jax.random.fold_in(key, t), env.observe(batch))), -1, 1)
     actions[:, t] = act
     for i, w in enumerate(worlds):
       nodes[i].append(w.execute(act[i:i + 1])[-1])
-  stacked = [mujoco_c.stack_nodes(n) for n in nodes]  # per instance [T + 1]
+  stacked = [world_lib.stack_nodes(n) for n in nodes]  # per instance [T + 1]
   return actions, jax.tree.map(lambda *x: np.stack(x), *stacked)
 
 
@@ -65,9 +65,9 @@ def main():
   horizons = [int(h) for h in args.horizons.split(',') if int(h) <= args.steps]
 
   env, model = planner.load_model(args.task, backend='mjx', layout=args.layout)
-  physics = {'mjx': env, 'mujoco-c backend': mujoco_c.make_backend(env, 'mujoco-c', None)}
+  physics = {'mjx': env, 'mujoco-c backend': backends.make_backend(env, 'mujoco-c', None)}
   if warp_import.available():
-    physics['warp'] = mujoco_c.make_backend(env, 'warp')
+    physics['warp'] = backends.make_backend(env, 'warp')
   else:
     print(f'no warp row: {warp_import.INSTALL_HINT}', flush=True)
   starts = env.canonical_instances(args.instances)

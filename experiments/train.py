@@ -179,7 +179,7 @@ def _main(args: argparse.Namespace) -> int:
       SACConfig, config_from_dict, config_to_dict)
   from pachs_jax.sac.reporting import RunReporter  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
-  from pachs_jax.envs import mujoco_c  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import backends, mujoco_c  # pylint: disable=import-outside-toplevel
 
   try:
     train.check_run_dir(args.out)  # every output path writable, before any work
@@ -218,7 +218,7 @@ def _main(args: argparse.Namespace) -> int:
     except ValueError as e:
       raise SystemExit(str(e)) from None
   try:
-    env = mujoco_c.make_backend(env, args.physics)
+    env = backends.make_backend(env, args.physics)
   except ValueError as e:
     raise SystemExit(f'error: --physics: {e}') from None
   physics = 'MuJoCo C' if isinstance(env, mujoco_c.MujocoCEnv) else 'JAX'

@@ -14,7 +14,7 @@ from matplotlib.path import Path
 from tqdm import tqdm
 
 from pachs_jax import envs, outputs
-from pachs_jax.envs import coverage, mujoco_c, pusht, render
+from pachs_jax.envs import backends, coverage, pusht, render
 
 MAX_STEPS = 2000  # control steps a demo may take (100 s of simulated time)
 REST_Z, LIFT_Z = 0.015, 0.07  # m: tip height when pushing, and when passing over the T
@@ -141,14 +141,14 @@ def scripted_push(env, node, num_steps: int, progress: bool = False):
 def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None,
              progress: bool = False, backend: str = 'auto') -> dict:
   """Runs `scripted_push` on a canonical instance of a PushT task (physics `backend`, see
-  `mujoco_c.make_backend`), draws it to the image `out` (and, with `gif`, an animation with
+  `backends.make_backend`), draws it to the image `out` (and, with `gif`, an animation with
   the MuJoCo rendering of the arm); returns a JSON-ready summary. Files are written
   atomically; ValueError for bad arguments before any work."""
   if isinstance(num_steps, bool) or not isinstance(num_steps, int) or \
       not 1 <= num_steps <= MAX_STEPS:
     raise ValueError(f'steps must be an integer in 1..{MAX_STEPS}, got {num_steps!r}')
   outputs.check_distinct({'--out': out, '--gif': gif})
-  env = mujoco_c.make_backend(envs.make(task), backend)
+  env = backends.make_backend(envs.make(task), backend)
   if not env.name.startswith('pusht'):
     raise ValueError(f'the scripted demo drives PushT tasks; got {task!r}')
   node = jax.tree.map(lambda x: x[instance], env.canonical_instances(instance + 1))

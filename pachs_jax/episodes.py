@@ -13,7 +13,7 @@ import numpy as np
 
 from pachs_jax import replan
 from pachs_jax.envs import base
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import world as world_lib
 
 
 class Worlds:
@@ -22,14 +22,14 @@ class Worlds:
 
   env: the PushT env (any backend) whose model and control rule the worlds use.
   starts: NodeState [E] the episodes' start states.
-  perturbation: a `mujoco_c.Perturbation` of the worlds' models (None: the env's model).
+  perturbation: a `world_lib.Perturbation` of the worlds' models (None: the env's model).
   """
 
   def __init__(self, env: base.Env, starts: base.NodeState,
-               perturbation: Optional[mujoco_c.Perturbation] = None):
+               perturbation: Optional[world_lib.Perturbation] = None):
     self.env = env
     self.num = num = jax.tree.leaves(starts)[0].shape[0]
-    self.worlds = [mujoco_c.World(env, perturbation) for _ in range(num)]
+    self.worlds = [world_lib.World(env, perturbation) for _ in range(num)]
     self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
                   for i, w in enumerate(self.worlds)]
     self.visited: List[List[base.NodeState]] = [[node] for node in self.nodes]
@@ -49,7 +49,7 @@ class Worlds:
 
   def batch(self) -> base.NodeState:
     """NodeState [E] of the worlds' current states."""
-    return jax.tree.map(jnp.asarray, mujoco_c.stack_nodes(self.nodes))
+    return jax.tree.map(jnp.asarray, world_lib.stack_nodes(self.nodes))
 
   def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
     """Runs actions [E, T, A], the first lengths[e] of each, in the active worlds, checking the
@@ -71,7 +71,7 @@ class Worlds:
 
   def trajectory(self, episode: int) -> base.NodeState:
     """NodeState [S + 1, ...] the states episode went through, the start first."""
-    return mujoco_c.stack_nodes(self.visited[episode])
+    return world_lib.stack_nodes(self.visited[episode])
 
 
 @dataclasses.dataclass

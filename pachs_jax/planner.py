@@ -12,7 +12,7 @@ import numpy as np
 
 from pachs_jax import envs, replan
 from pachs_jax.runtime import compile_cache, programs, signals
-from pachs_jax.envs import mujoco_c, playground, pusht, registry
+from pachs_jax.envs import backends, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
 from pachs_jax.search.config import SearchConfig
@@ -93,7 +93,7 @@ def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str])
   if isinstance(task, envs.Env):
     envs.check_task(task)
     return task
-  return mujoco_c.make_backend(envs.make(task, layout=layout), backend, nthread)
+  return backends.make_backend(envs.make(task, layout=layout), backend, nthread)
 
 
 def load_model(task, path: Optional[str] = None, backend: str = 'mjx',

@@ -150,12 +150,12 @@ def make_env(task: str, physics: str, layout: Optional[str] = None) -> base.Env:
   """The env of a task name (`envs.make`, layout for pusht-obs) simulated by `physics`, the
   engine a plan records (`Plan.physics`), to replay it where it was made."""
   from pachs_jax import envs  # pylint: disable=import-outside-toplevel  (MuJoCo)
-  from pachs_jax.envs import mujoco_c, pusht  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import backends, pusht  # pylint: disable=import-outside-toplevel
   env = envs.make(task, layout=layout)
   if physics == env.physics:
     return env
-  built = (mujoco_c.make_backend(env, physics)
-           if physics in mujoco_c.BACKENDS and isinstance(env, pusht.PushTEnv) else env)
+  built = (backends.make_backend(env, physics)
+           if physics in backends.BACKENDS and isinstance(env, pusht.PushTEnv) else env)
   if built.physics != physics:
     raise ValueError(f'task {task!r} simulates with {env.physics!r}, not {physics!r}')
   return built

@@ -44,10 +44,10 @@ def test_free_env_reads_the_same_pose_cost_and_observation():
 
 
 def test_free_env_mujoco_c_edges_follow_the_world():
-  from pachs_jax.envs import mujoco_c
+  from pachs_jax.envs import mujoco_c, world as world_lib
   env = pusht.PushTEnv(pusht.PushTConfig(**FREE))
   backend = mujoco_c.MujocoCEnv(env, nthread=1)
-  world = mujoco_c.World(env)
+  world = world_lib.World(env)
   node = env.node_from_pose(np.array([-0.3, -0.25, 0.3]), np.asarray(pusht.FIXED_GOAL))
   node = jax.tree.map(np.asarray, node)
   world.reset(node)

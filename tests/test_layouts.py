@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pachs_jax import cli, envs
-from pachs_jax.envs import coverage, layouts, mujoco_c, pusht
+from pachs_jax.envs import backends, coverage, layouts, pusht
 
 
 def _polygons_overlap(a: np.ndarray, b: np.ndarray, tol: float = 1e-6) -> bool:
@@ -141,7 +141,7 @@ def _obstacle_geometry(model):
 
 def test_mujoco_c_and_mjx_see_the_same_blocks(made):
   env, nodes = made['gate']
-  cenv = mujoco_c.make_backend(env, 'mujoco-c')
+  cenv = backends.make_backend(env, 'mujoco-c')
   try:
     pos, size, quat = _obstacle_geometry(env.mj_model)
     blocks = np.asarray(layouts.layout('gate').blocks)

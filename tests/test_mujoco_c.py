@@ -9,7 +9,7 @@ from conftest import UniformActorCritic, pad_rows
 
 from pachs_jax import envs
 from pachs_jax.envs import panda, pusht
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import backends, mujoco_c, world as world_lib
 
 BATCH = 64
 
@@ -65,7 +65,7 @@ def _push(env, num_steps=30):
     actions.append(a.astype(np.float32))
     d.ctrl[:] = np.clip(d.qpos[:7] + 0.1 * a, panda.JOINT_LOWER, panda.JOINT_UPPER)
     mujoco.mj_step(m, d, nstep=env.config.substeps)
-  return mujoco_c.stack_nodes(nodes), np.stack(actions)
+  return world_lib.stack_nodes(nodes), np.stack(actions)
 
 
 @pytest.fixture(scope='module')
@@ -88,7 +88,7 @@ def test_single_node_round_trip_is_exact(env):
 
 
 def test_batched_round_trip_is_exact_and_matches_mj_get_state(env):
-  nodes = mujoco_c.stack_nodes([_random_node(env, s) for s in range(3)])
+  nodes = world_lib.stack_nodes([_random_node(env, s) for s in range(3)])
   state, warm, ctrl = mujoco_c.batch_to_rollout(env, nodes)
   m = env.mj_model
   assert state.shape == (3, mujoco.mj_stateSize(m, mujoco_c.FULLPHYSICS))
@@ -170,10 +170,10 @@ def test_delegation_and_make_backend(env, cenv):
   assert cenv.config is env.config and cenv.mj_model is env.mj_model
   assert cenv.observation_size == env.observation_size
   assert cenv.action_size == 7
-  assert mujoco_c.make_backend(env, 'mjx') is env
+  assert backends.make_backend(env, 'mjx') is env
   with pytest.raises(ValueError, match='backend'):
-    mujoco_c.make_backend(env, 'gpu')
-  auto = mujoco_c.make_backend(env, 'auto', nthread=1)
+    backends.make_backend(env, 'gpu')
+  auto = backends.make_backend(env, 'auto', nthread=1)
   assert isinstance(auto, mujoco_c.MujocoCEnv) == (jax.default_backend() == 'cpu')
   if isinstance(auto, mujoco_c.MujocoCEnv):
     auto.close()
@@ -186,17 +186,17 @@ def test_delegation_and_make_backend(env, cenv):
 def test_world_executes_and_perturbations_change_the_outcome(env, push):
   nodes, actions = push
   start = jax.tree.map(lambda x: x[0], nodes)
-  world = mujoco_c.World(env)
+  world = world_lib.World(env)
   assert np.array_equal(world.reset(start).qpos, np.asarray(start.qpos))
   path = world.execute(actions)
   assert len(path) == len(actions) and int(path[-1].t) == len(actions)
   # The unperturbed world replays the closed-loop push that generated the actions.
   np.testing.assert_allclose(path[-2].qpos, nodes.qpos[-1], atol=1e-6)
-  ref = mujoco_c.World(env)
+  ref = world_lib.World(env)
   ref.reset(start)
   np.testing.assert_array_equal(ref.execute(actions)[-1].qpos, path[-1].qpos)
   moved = np.linalg.norm(path[-1].qpos[7:9] - start.qpos[7:9])
-  slippery = mujoco_c.World(env, mujoco_c.Perturbation(friction=0.3))
+  slippery = world_lib.World(env, world_lib.Perturbation(friction=0.3))
   slippery.reset(start)
   moved_slippery = np.linalg.norm(slippery.execute(actions)[-1].qpos[7:9] - start.qpos[7:9])
   print(f'\nT displacement: nominal {moved:.4f} m, friction x0.3 {moved_slippery:.4f} m')
@@ -204,13 +204,13 @@ def test_world_executes_and_perturbations_change_the_outcome(env, push):
   # The env's model is untouched by the perturbed copy.
   assert slippery.model.dof_frictionloss[7] == pytest.approx(0.3 * env.mj_model.dof_frictionloss[7])
   assert env.mj_model.dof_frictionloss[7] == pytest.approx(0.5 * pusht.T_MASS * 9.81)
-  heavy = mujoco_c.Perturbation(t_mass=2.0, actuator_gain=0.5)
+  heavy = world_lib.Perturbation(t_mass=2.0, actuator_gain=0.5)
   m = heavy.apply(env.mj_model)
   t_body = env.mj_model.body('tblock').id
   assert m.body_mass[t_body] == pytest.approx(2 * env.mj_model.body_mass[t_body])
   np.testing.assert_allclose(m.actuator_gainprm[:, 0], 0.5 * env.mj_model.actuator_gainprm[:, 0])
   with pytest.raises(ValueError, match='friction'):
-    mujoco_c.Perturbation(friction=-1.0)
+    world_lib.Perturbation(friction=-1.0)
   with pytest.raises(ValueError, match='actions'):
     world.execute(actions[:, :3])
 

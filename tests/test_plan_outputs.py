@@ -12,7 +12,7 @@ from PIL import Image
 
 from pachs_jax import cli, demo, envs, outputs, saved_plans
 from pachs_jax.runtime import programs
-from pachs_jax.envs import mujoco_c, render
+from pachs_jax.envs import backends, render
 from pachs_jax.search import baselines as bl
 
 
@@ -64,7 +64,7 @@ def test_short_pusht_plan_finds_paths_that_replay_and_writes_them(tmp_path, caps
   np.testing.assert_allclose(np.asarray(cost), [r['cost'] for r in rows], rtol=1e-5)
 
   # the plans in the rows replay bit for bit on the same physics
-  env = mujoco_c.make_backend(envs.make('pusht-fixed'), 'mujoco-c')
+  env = backends.make_backend(envs.make('pusht-fixed'), 'mujoco-c')
   for row in rows:
     assert {'instance', 'found', 'cost', 'path_length', 'stop'} <= set(row)  # kept keys
     plan = saved_plans.from_json(row['plan'])
@@ -142,7 +142,7 @@ def test_shelf_plans_are_drawn_and_animated():
 
 
 def test_scripted_pusher_pushes_the_t_through_the_gate():
-  env = mujoco_c.make_backend(envs.make('pusht-obs'), 'mujoco-c')
+  env = backends.make_backend(envs.make('pusht-obs'), 'mujoco-c')
   node = jax.tree.map(lambda x: x[0], env.canonical_instances(1))
   nodes, tips, cov, pushes = demo.scripted_push(env, node, 200)
   start, end = nodes.qpos[0, 7:9], nodes.qpos[-1, 7:9]

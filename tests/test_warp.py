@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pachs_jax.envs import mujoco_c, point_mass, pusht, warp_import
+from pachs_jax.envs import backends, mujoco_c, point_mass, pusht, warp_import
 
 needs_warp = pytest.mark.skipif(not warp_import.available(),
                                 reason=f'MuJoCo Warp is not installed ({warp_import.INSTALL_HINT})')
@@ -83,23 +83,23 @@ def test_overflow_is_reported_per_edge():
 def test_make_backend_warp_choices(monkeypatch):
   env = pusht.PushTEnv()
   with pytest.raises(ValueError, match="backend 'warp' needs a PushT env"):
-    mujoco_c.make_backend(point_mass.PointMassEnv(), 'warp')
+    backends.make_backend(point_mass.PointMassEnv(), 'warp')
   monkeypatch.setattr(warp_import, 'available', lambda: False)
   with pytest.raises(ImportError, match=r"pip install -e '\.\[cuda\]'"):
-    mujoco_c.make_backend(env, 'warp')
+    backends.make_backend(env, 'warp')
   # auto never picks Warp where it is missing, and on the CPU picks MuJoCo C for PushT
   if jax.default_backend() == 'cpu':
-    assert isinstance(mujoco_c.make_backend(env, 'auto', 1), mujoco_c.MujocoCEnv)
+    assert isinstance(backends.make_backend(env, 'auto', 1), mujoco_c.MujocoCEnv)
 
 
 @needs_warp
 def test_make_backend_builds_and_unwraps_warp():
   from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
   env = pusht.PushTEnv(pusht.PushTConfig(variant='obs'))
-  warp_env = mujoco_c.make_backend(env, 'warp')
+  warp_env = backends.make_backend(env, 'warp')
   assert isinstance(warp_env, warp_physics.WarpPushTEnv) and warp_env.config == env.config
   assert warp_env.fingerprint != env.fingerprint
-  back = mujoco_c.make_backend(warp_env, 'mjx')
+  back = backends.make_backend(warp_env, 'mjx')
   assert type(back) is pusht.PushTEnv and back.config == env.config
 
 

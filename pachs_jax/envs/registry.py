@@ -92,7 +92,7 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
 
 TASKS = tuple(SPECS)
 
-# The physics backends of PushT edges (`mujoco_c.make_backend`): named here, where a command
+# The physics backends of PushT edges (`backends.make_backend`): named here, where a command
 # line reads them without importing MuJoCo.
 BACKENDS = ('auto', 'mjx', 'mujoco-c', 'warp')
 

@@ -16,7 +16,7 @@ from typing import Any, Dict, Optional, Protocol
 import jax
 import numpy as np
 
-from pachs_jax.envs import mujoco_c
+from pachs_jax.envs import backends, mujoco_c
 from pachs_jax.sac import checkpoint
 from pachs_jax.sac import evaluator
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
@@ -235,10 +235,10 @@ def wait_ready(tree: Any) -> Any:
 
 def evaluation_env(trainer: Trainer):
   """The env of the evaluation rollouts: the trainer's, with MuJoCo C physics for PushT when
-  JAX runs on the CPU (`mujoco_c.make_backend` 'auto')."""
+  JAX runs on the CPU (`backends.make_backend` 'auto')."""
   if isinstance(trainer.env, mujoco_c.MujocoCEnv):
     return trainer.env
-  return mujoco_c.make_backend(trainer.env, 'auto')
+  return backends.make_backend(trainer.env, 'auto')
 
 
 def evaluation_env_steps(trainer: Trainer) -> int:
