@@ -113,7 +113,7 @@ def throughput(argv):
   for num_instances, k in [(i, k) for i in map(int, args.instances.split(','))
                            for k in map(int, args.pop_sizes.split(','))]:
     config = planner.default_config(args.task, pop_size=k, num_actions=args.num_actions,
-                                    max_evaluations=args.budget, weight=args.weight)
+                                    budget=args.budget, weight=args.weight)
     index = np.arange(num_instances) % 30
     starts = jax.tree.map(lambda x: x[index], starts_all)
     search = programs.Programs(pachs.make_search(env, model, config))
@@ -198,7 +198,7 @@ def scale(argv):
     parser.error('--devices, --instances, --seeds and --repeats must be positive')
 
   env, model = planner.load_model(args.task, args.checkpoint, args.backend)
-  tuned = planner.default_config(args.task, max_evaluations=args.budget)
+  tuned = planner.default_config(args.task, budget=args.budget)
   try:
     pop_sizes = list(dict.fromkeys(int(k) for k in args.pop_sizes.split(','))) \
         if args.pop_sizes else [tuned.pop_size]
@@ -479,8 +479,8 @@ def live_lanes(argv):
                          instances=30, backend=True, layout=True)
   args = parser.parse_args(argv)
   env, model = planner.load_model('pusht-obs', backend=args.backend, layout=args.layout)
-  config = planner.default_config('pusht-obs', max_evaluations=args.budget,
-                                  compact_fractions=planner.COMMAND_COMPACT_FRACTIONS)
+  config = planner.default_config('pusht-obs', budget=args.budget,
+                                  **planner.accelerator_settings(False))
   search = pachs.make_search(env, model, config)
   canonical = env.canonical_instances(args.instances)
   starts = jax.tree.map(lambda x: np.concatenate([np.asarray(x)] * args.rounds), canonical)

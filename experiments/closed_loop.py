@@ -94,7 +94,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
   by the executed actions."""
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
-    config = planner.default_config(task, algorithm, max_evaluations=args.budget,
+    config = planner.default_config(task, algorithm, budget=args.budget,
                                     **flags.search_overrides(args))
     session = replan.Session(env, model, config, candidates=args.candidates,
                              chunk_iterations=args.chunk_iterations)
@@ -112,7 +112,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)})
     return query, config
   if name == 'parallel':
-    config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=args.budget)
+    config = bl.ParallelRolloutConfig(num_copies=args.copies, budget=args.budget)
     rollout = bl.make_parallel_rollout(env, model, config)
     # physics batches as PACHS's: the copies of the episodes still running, gathered
     sizes = compact.batch_sizes(num * args.copies, args.compact_fractions, minimum=args.copies)
@@ -146,8 +146,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
               {'iterations': np.asarray(out.iterations)})
     return query, config
   if name == 'mppi':
-    config = bl.MppiConfig(max_evaluations=args.budget)
-    config = dataclasses.replace(config, max_iterations=config.max_evaluations
+    config = bl.MppiConfig(budget=args.budget)
+    config = dataclasses.replace(config, max_iterations=config.budget
                                  // config.evaluations_per_iteration)
     mppi = bl.make_mppi(env, model, config)
     previous, timing = {}, {}
@@ -359,7 +359,7 @@ def main():
     if name in names:
       common.checked(parser, lambda name=name: planner.default_config(
           args.task, 'original' if name == 'pachs-original' else 'pachs',
-          max_evaluations=args.budget, **flags.search_overrides(args)))
+          budget=args.budget, **flags.search_overrides(args)))
   perturbation = common.checked(parser, lambda: parse_perturbation(args.perturb))
   common.check_out(parser, args.out)
   label = common.task_label(args.task, args.layout)

@@ -69,7 +69,7 @@ def evaluate(name: str, num: int, backend: str, pachs_budget: int, seed: int) ->
     config = dataclasses.replace(
         planner.command_config(TASK, jax.default_backend() == 'cpu',
                                env.physics == 'mujoco-c'),
-        max_evaluations=pachs_budget)
+        budget=pachs_budget)
     plan = programs.plan(env, model, nodes, config, jax.random.PRNGKey(seed))
     plan_found = np.asarray(plan.found)
     row.update({'pachs_budget': pachs_budget, 'pachs_config': repr(config),

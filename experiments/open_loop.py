@@ -57,7 +57,7 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
     overrides.update({k: v for k, v in flags.search_overrides(args).items() if v is not None})
     overrides['after_goal'] = AFTER_GOAL_PLANNERS.get(name, overrides.get('after_goal'))
     config = planner.default_config(task, 'original' if name == 'pachs-original' else 'pachs',
-                                    max_evaluations=budget, **overrides)
+                                    budget=budget, **overrides)
     if args.lattice_scale is not None:
       base = config.lattice_resolution or np.asarray(env.default_lattice_resolution).tolist()
       config = dataclasses.replace(config, lattice_resolution=tuple(
@@ -76,15 +76,15 @@ def make_planner(name: str, task: str, env, model, args, mesh=None):
     config = bl.SingleRolloutConfig()
     shard_fn = sharding.keyless(bl.make_single_rollout(env, model, config))
   elif name == 'parallel':
-    config = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=budget)
+    config = bl.ParallelRolloutConfig(num_copies=args.copies, budget=budget)
     shard_fn = bl.make_parallel_rollout(env, model, config).plan
   elif name == 'beam':
-    config = bl.BeamConfig(beam_width=args.beam_width, num_actions=16, max_evaluations=budget)
+    config = bl.BeamConfig(beam_width=args.beam_width, num_actions=16, budget=budget)
     shard_fn = bl.make_beam_search(env, model, config)
   elif name == 'epase':
     setup = bl.shelf_setup(env, spread=args.epase_spread)
     config = bl.EpaseConfig(weight=args.epase_weight, pop_size=args.pop_size or 16,
-                            max_evaluations=args.epase_budget,
+                            budget=args.epase_budget,
                             lattice_resolution=setup.lattice_resolution)
     shard_fn = sharding.keyless(bl.make_epase(env, setup.primitives, setup.heuristic, config,
                                               edge_fn=setup.edge_fn).plan)
@@ -292,7 +292,7 @@ def main():
     if name in ('pachs', 'pachs-original') or name in AFTER_GOAL_PLANNERS:
       common.checked(parser, lambda name=name: planner.default_config(
           args.task, 'original' if name == 'pachs-original' else 'pachs',
-          max_evaluations=args.budget,
+          budget=args.budget,
           **{k: v for k, v in flags.search_overrides(args).items() if v is not None}))
   common.check_out(parser, args.out)
   label = common.task_label(args.task, args.layout)

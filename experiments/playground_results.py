@@ -80,11 +80,11 @@ def main(argv=None) -> int:
       jax.jit(bl.make_single_rollout(env, model, single)), starts)
   budgets = [int(b) for b in args.budgets.split(',')]
   for budget in budgets:
-    parallel = bl.ParallelRolloutConfig(num_copies=args.copies, max_evaluations=budget)
+    parallel = bl.ParallelRolloutConfig(num_copies=args.copies, budget=budget)
     run(f'parallel rollout {budget}', f'{args.copies} stochastic copies, budget {budget}',
         jax.jit(bl.make_parallel_rollout(env, model, parallel).plan), starts,
         jax.random.split(key, args.instances))
-    config = planner.default_config(args.task, max_evaluations=budget, pop_size=args.pop_size)
+    config = planner.default_config(args.task, budget=budget, pop_size=args.pop_size)
     search = programs.Programs(pachs.make_search(env, model, config))
     start = time.perf_counter()
     programs.plan(env, model, starts, config, key, search=search)  # compiles

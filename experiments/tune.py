@@ -58,7 +58,7 @@ def main():
     if chosen and label not in chosen:
       continue
     if args.budget:
-      config = dataclasses.replace(config, max_evaluations=args.budget)
+      config = dataclasses.replace(config, budget=args.budget)
     start = time.perf_counter()
     result = programs.plan(env, model, starts, config, keys)
     compile_s = time.perf_counter() - start - float(result.wall_time_s)
@@ -66,7 +66,7 @@ def main():
     row = {'setting': label, 'w': config.weight, 'N': config.num_actions, 'K': config.pop_size,
            'lattice_resolution': (str(tuple(round(x, 4) for x in config.lattice_resolution))
                                   if config.lattice_resolution else 'default'),
-           'budget': config.max_evaluations, 'found': int(r.found.sum()), 'runs': num,
+           'budget': config.budget, 'found': int(r.found.sum()), 'runs': num,
            'success_rate': float(r.found.mean()), 'wall_s': float(r.wall_time_s),
            'compile_s': compile_s, 'evaluated_mean': float(r.evaluated.mean()),
            'cost_success_mean': stats.mean_where(r.cost, r.found),

@@ -40,7 +40,7 @@ def main():
       [float(x) for x in args.weights.split(',')], [float(x) for x in args.inflations.split(',')],
       [float(x) for x in args.steps.split(',')], [int(x) for x in args.spreads.split(',')]):
     setup = bl.shelf_setup(env, step_deg=step, inflation=inflation, spread=spread)
-    config = bl.EpaseConfig(weight=w, pop_size=args.pop_size, max_evaluations=args.budget,
+    config = bl.EpaseConfig(weight=w, pop_size=args.pop_size, budget=args.budget,
                             lattice_resolution=setup.lattice_resolution)
     search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
     start = time.perf_counter()

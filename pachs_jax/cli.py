@@ -140,14 +140,10 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
   import jax  # start-up path: lazy, after the outputs' checks
-  import numpy as np
 
-  from pachs_jax import envs, planner
-  from pachs_jax.runtime import compile_cache, progress
-  if not args.no_cache:
-    compile_cache.enable()
-  from pachs_jax.runtime import programs, sharding
-  from pachs_jax.search import checks, pachs
+  from pachs_jax import planner
+  from pachs_jax.envs import registry
+  from pachs_jax.runtime import programs, progress
 
   say = _say if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
@@ -156,37 +152,32 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     if after_goal != 'improve':
       raise ValueError(f'--improve-allowance applies with --after-goal improve; here the first '
                        f'goal ends the search (after_goal {after_goal!r})')
-  env, model = planner.load_model(args.task, args.checkpoint, args.backend, layout=args.layout)
-  num_available = envs.spec(args.task).num_instances
-  mujoco_c = env.physics == 'mujoco-c'
-  cpu_instances = planner.CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][0]
-  few = args.instances is None and on_cpu and cpu_instances != 'all' and num_available > 1
+  planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
+                             cache=not args.no_cache, layout=args.layout, prefetch=prefetch,
+                             algorithm=args.algorithm, **flags.search_overrides(args))
+  env, config, num_available = planning.env, planning.config, planning.num_instances
+  cpu = registry.cpu_planning(env.physics)
+  few = args.instances is None and on_cpu and cpu.instances != 'all' and num_available > 1
   if args.instances is None:
-    args.instances = cpu_instances if on_cpu else 'all'
+    args.instances = cpu.instances if on_cpu else 'all'
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
   instances = planner.parse_instances(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
-  config = planner.command_config(args.task, on_cpu, mujoco_c, args.budget,
-                                  algorithm=args.algorithm, **flags.search_overrides(args))
-  budget = config.max_evaluations
-  checks.env_lattice_resolution(env, config.lattice_resolution)  # before the instances are made
   if on_cpu:
-    physics = ('MuJoCo C on all CPU threads' if mujoco_c
+    physics = ('MuJoCo C on all CPU threads' if env.physics == 'mujoco-c'
                else 'MJX on the CPU (slow: milliseconds per world and step)')
     gpu = planner.command_config(args.task, False, False)
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
-        f'{num_available} instances x {gpu.max_evaluations:,} evaluations in seconds: pip '
+        f'{num_available} instances x {gpu.budget:,} evaluations in seconds: pip '
         'install -e .[cuda]', file=sys.stderr, flush=True)
   if few:
     say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
         f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
         'more', file=sys.stderr, flush=True)
-  starts_all = planner.canonical_instances(env, num_available)
-  starts = jax.device_put(jax.tree.map(lambda x: np.asarray(x)[instances], starts_all))
-  core = pachs.make_search(env, model, config)
   if devices is None:  # the memory the search needs, before the 'planning' line
-    programs.check_memory(env, model, starts, config, core)
+    programs.check_memory(env, planning.model, planning.canonical(instances), config,
+                          planning.search.search)
   model_path = args.checkpoint or planner.checkpoint_path(args.task)
   where = jax.devices()[0].platform
   if devices is not None:
@@ -194,15 +185,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   say(f'planning {env.name} instances {args.instances} with {model_path}: '
       f'w={config.weight} N={config.num_actions} K={config.pop_size} H={config.edge_steps} '
       f'R={config.rollout_lanes} '
-      f'budget={budget} '
+      f'budget={config.budget} '
       f'on {where}', flush=True)
   start = time.perf_counter()
-  key = jax.random.PRNGKey(args.seed)
   if devices is None:
     line = progress.ProgressLine()
-    # one-shot: the whole search in the loop of the live instances' physics size (no further
-    # loop to compile or load; docs/startup_and_caching.md)
-    search = programs.Programs(core, prefetch=prefetch)
     say('note: compiling (or loading from the cache) the search programs', file=sys.stderr,
         flush=True)
 
@@ -213,17 +200,17 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
         guard.keep()         # chunk and the command keeps what it found
 
     try:
-      result = programs.plan(env, model, starts, config, key, time_limit_s=args.time_limit,
-                             search=search, shrink=False,
-                             progress=line if jax.process_index() == 0 else None,
-                             stop=guard and guard.stop, started=started)
+      # one-shot (shrink=False): the whole search in the loop of the live instances' physics
+      # size, no further loop to compile or load (docs/startup_and_caching.md)
+      result = planning.plan(instances, seed=args.seed, time_limit_s=args.time_limit,
+                             stop=guard and guard.stop, started=started, shrink=False,
+                             progress=line if jax.process_index() == 0 else None)
     finally:
       line.close()
   else:
     if guard is not None:
       guard.phase = 'the sharded search (it keeps no partial results)'
-    result = sharding.plan_sharded(env, model, starts, config, key,
-                                   mesh=sharding.instance_mesh(devices))
+    result = planning.plan(instances, seed=args.seed, devices=devices)
   total = time.perf_counter() - start
   rows = planner.result_rows(result, instances)
   if jax.process_index() != 0:
@@ -282,7 +269,7 @@ def _loop(args: argparse.Namespace) -> int:
   worlds = episodes.Worlds(env, planning.canonical(instances))
   print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '
         f'{env.physics} physics: {args.query_time:g} s per query, {args.execute} actions '
-        f'executed, at most {args.max_queries} queries, budget {config.max_evaluations}',
+        f'executed, at most {args.max_queries} queries, budget {config.budget}',
         flush=True)
   log = episodes.run(planning.session(), worlds, args.query_time, args.execute,
                      args.max_queries, args.seed)
@@ -434,9 +421,13 @@ def _main(words, prefetch=None, guard=None) -> int:
   plan.add_argument('--instances', default=None,
                     help="canonical instances, e.g. '0-29', '0,4' or 'all' (default: all; "
                          "on a CPU with MJX physics, '0')")
+  gpu_budgets = ', '.join(f'{name} {spec.search_defaults["budget"]}'
+                          for name, spec in registry.SPECS.items())
+  cpu = registry.CPU_PLANNING
   plan.add_argument('--budget', type=int, default=None,
-                    help='edge evaluations per instance (default: 100000 on a GPU; on a CPU '
-                         '20000 with MuJoCo C physics, 2000 with MJX)')
+                    help=f"edge evaluations per instance (default: the task's, on a GPU "
+                         f"{gpu_budgets}; on a CPU {cpu['mujoco-c'].budget} with MuJoCo C "
+                         f"physics, {cpu['other'].budget} with MJX)")
   plan.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
   flags.add_search_flags(plan, ['weight', 'num_actions'])
   plan.add_argument('--algorithm', default='pachs', choices=registry.ALGORITHMS,

@@ -38,8 +38,8 @@ SEARCH_FLAGS: Dict[str, tuple] = {
     'compact_fractions': (('--compact-fractions',), dict(
         type=lambda s: argtypes.numbers(s, 'fractions'),
         help='smaller physics batches as fractions of the I x K lanes, comma separated '
-        "('' simulates every lane; default on a GPU: planner.COMMAND_COMPACT_FRACTIONS, "
-        '0.5,0.25,0.125,0.015625; on a CPU none)')),
+        "('' simulates every lane; default on a GPU: envs.registry.ACCELERATOR_SEARCH; on a "
+        'CPU none)')),
     'widen_factors': (('--widen-factors',), dict(
         type=lambda s: tuple(int(m) if m == int(m) else m for m in argtypes.numbers(s, 'factors')),
         help='once the instances still searching hold at most 1/m of the I x K lanes, each '

@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from pachs_jax import envs, replan
-from pachs_jax.runtime import compile_cache, programs, signals
+from pachs_jax.runtime import compile_cache, programs, sharding, signals
 from pachs_jax.envs import backends, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import pachs
@@ -20,23 +20,10 @@ from pachs_jax.search.result import SearchResult, StopReason
 
 CHECKPOINT_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'checkpoints')
 
-# `pachs plan` on a CPU-only machine without a given budget: (instances, edge evaluations per
-# instance) by physics backend, MuJoCo C ('mujoco-c') or MJX on the CPU ('other').
-CPU_DEFAULTS = {'mujoco-c': ('all', 20_000), 'other': ('0', 2_000)}
-
-# On an accelerator, where a physics call costs about the same from a few to thousands of
-# worlds: SearchConfig.compact_fractions, the smallest batch that holds the live instances'
-# lanes, in halving sizes down to an eighth, then a 64th (docs/results.md, "Keeping the GPU
-# full"). SearchConfig.widen_factors cuts the wall further but spends evaluations less well
-# (behind the parallel rollout at 8,000-17,000 evaluations), so it is not set by default. None
-# applies on a CPU.
-COMMAND_COMPACT_FRACTIONS = (0.5, 0.25, 0.125, 0.015625)
-
-
 def accelerator_settings(on_cpu: bool) -> dict:
   """The SearchConfig fields that `pachs plan`, `Planner` and the benchmarks set on an
   accelerator (none on a CPU)."""
-  return {} if on_cpu else {'compact_fractions': COMMAND_COMPACT_FRACTIONS}
+  return {} if on_cpu else dict(registry.ACCELERATOR_SEARCH)
 
 
 def default_config(task: Optional[str], algorithm: str = 'pachs',
@@ -58,16 +45,16 @@ def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
                    **explicit) -> SearchConfig:
   """The SearchConfig of `pachs plan`.
 
-  The task's defaults; on a CPU without a `budget`, the backend's CPU budget (`CPU_DEFAULTS`)
-  and the task's `cpu_overrides`; on a GPU, `accelerator_settings`. Non-None `explicit`
+  The task's defaults; on a CPU without a `budget`, the physics' CPU budget
+  (`registry.CPU_PLANNING`) and the task's `cpu_overrides`; on a GPU, `accelerator_settings`. Non-None `explicit`
   SearchConfig fields (weight, num_actions, ...) win over all of these.
   """
   settings = accelerator_settings(on_cpu)
   if on_cpu and budget is None:
     settings.update(envs.spec(task).cpu_overrides if task is not None else {})
-    budget = CPU_DEFAULTS['mujoco-c' if mujoco_c else 'other'][1]
+    budget = registry.cpu_planning('mujoco-c' if mujoco_c else 'other').budget
   settings.update({k: v for k, v in explicit.items() if v is not None})
-  return default_config(task, algorithm, max_evaluations=budget, **settings)
+  return default_config(task, algorithm, budget=budget, **settings)
 
 
 def checkpoint_path(task: str) -> str:
@@ -163,12 +150,13 @@ class Planner:
   backend: 'auto' (MuJoCo C physics on a CPU-only machine), 'mjx' or 'mujoco-c';
   budget and the SearchConfig fields in `overrides` as in `command_config`;
   cache: turn on the persistent compilation cache (`compile_cache.enable`);
-  layout: pusht-obs's obstacle layout (None: the default).
+  layout: pusht-obs's obstacle layout (None: the default);
+  prefetch: a command line's `compile_cache.Prefetch` (None: nothing loaded ahead).
   """
 
   def __init__(self, task: str, checkpoint: Optional[str] = None, backend: str = 'auto',
                budget: Optional[int] = None, cache: bool = True, layout: Optional[str] = None,
-               **overrides):
+               prefetch: Optional[compile_cache.Prefetch] = None, **overrides):
     if cache:
       compile_cache.enable()
     self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
@@ -181,8 +169,14 @@ class Planner:
     else:
       self.config = command_config(task, on_cpu, c_physics, budget, **overrides)
       self._num_instances = envs.spec(task).num_instances
-    self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config))
+    self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
+                                    prefetch=prefetch)
     self._canonical = None
+
+  @property
+  def num_instances(self) -> int:
+    """The size of the task's canonical instance set."""
+    return self._num_instances
 
   def canonical(self, instances: Sequence[int]):
     """NodeState [len(instances)] of the task's canonical instances (generated once);
@@ -194,7 +188,9 @@ class Planner:
 
   def plan(self, instances: Optional[Sequence[int]] = None, start_nodes=None, seed: int = 0,
            time_limit_s: Optional[float] = None, stop: Optional[Callable[[], bool]] = None,
-           progress: Optional[Callable[[programs.Progress], None]] = None) -> SearchResult:
+           progress: Optional[Callable[[programs.Progress], None]] = None,
+           started: Optional[Callable[[], object]] = None, shrink: bool = True,
+           devices: Optional[Sequence] = None) -> SearchResult:
     """Plans the canonical `instances` (indices) or the given start_nodes [I]; returns the
     SearchResult [I] (wall_time_s without compilation).
 
@@ -202,27 +198,36 @@ class Planner:
     (about 0.3 s each); once it returns True, the instances still searching report
     'interrupted' with their real-time answer. Ctrl-C (SIGINT in the main thread) during the
     search does the same; before the search (while compiling) and a second Ctrl-C raise
-    KeyboardInterrupt as usual. progress: called with a `programs.Progress` after each chunk.
+    KeyboardInterrupt as usual. progress: called with a `programs.Progress` after each chunk;
+    started: called once when the search begins (after compiling). shrink: as in
+    `programs.plan` (False: a one-shot search, no further loop to compile).
+    devices: shard the instances over these devices (`sharding.plan_sharded`: every instance
+    to its end, no time limit, stop, progress or partial result).
     """
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
-    for name, fn in (('stop', stop), ('progress', progress)):  # before the signal handlers
-      if fn is not None and not callable(fn):
+    for name, fn in (('stop', stop), ('progress', progress), ('started', started)):
+      if fn is not None and not callable(fn):  # before the signal handlers
         raise ValueError(f'{name} must be a function or None, got {fn!r}')
     key = jax.random.PRNGKey(check_seed(seed))
     if start_nodes is None:
       start_nodes = self.canonical(instances)
+    if devices is not None:
+      if time_limit_s is not None:
+        raise ValueError('a time limit (anytime mode) is not supported with sharding: plan on '
+                         'one device, or run every instance to completion')
+      return sharding.plan_sharded(self.env, self.model, start_nodes, self.config, key,
+                                   mesh=sharding.instance_mesh(devices))
     with signals.interrupt_requests() as interrupted:
       asked = interrupted if stop is None else (lambda: interrupted() or bool(stop()))
       try:
         return programs.plan(self.env, self.model, start_nodes, self.config, key,
                              time_limit_s=time_limit_s, search=self.search, stop=asked,
-                             progress=progress)
+                             progress=progress, started=started, shrink=shrink)
       except signals.StoppedBeforeSearch:
         if interrupted():
           raise KeyboardInterrupt from None
         raise
-
 
   def session(self, horizon: Optional[int] = None,
               candidates: Sequence[str] = replan.CANDIDATES) -> replan.Session:

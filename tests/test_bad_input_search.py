@@ -25,7 +25,7 @@ from pachs_jax.search.baselines import epase
 from pachs_jax.search.checks import instance_keys
 
 SIZE = 10
-CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=500)
+CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=2, budget=500)
 
 
 @pytest.fixture(scope='module')
@@ -174,17 +174,17 @@ def test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can(grid, m
   env, ac, nodes = grid
   limit = 40_000_000
   _fake_memory(monkeypatch, limit)
-  huge = dataclasses.replace(CONFIG, max_evaluations=5_000_000)
-  with pytest.raises(ValueError, match='max_evaluations=5000000 needs .* of search state for 4 '
+  huge = dataclasses.replace(CONFIG, budget=5_000_000)
+  with pytest.raises(ValueError, match='budget of 5,000,000 evaluations needs .* of search state for 4 '
                      'instances per device') as info:
     plan(env, ac, nodes, huge, jax.random.PRNGKey(0))
   best = int(re.search(r'largest budget that fits is about ([\d,]+)', str(info.value))
              .group(1).replace(',', ''))
   size = lambda budget: memory.search_bytes(
-      make_search(env, ac, dataclasses.replace(CONFIG, max_evaluations=budget)), nodes, 4)
+      make_search(env, ac, dataclasses.replace(CONFIG, budget=budget)), nodes, 4)
   assert size(best) <= limit < size(int(best * 1.05))
   check = lambda config: programs.check_memory(env, ac, nodes, config)
-  assert size(best) < check(dataclasses.replace(CONFIG, max_evaluations=best)) <= limit
+  assert size(best) < check(dataclasses.replace(CONFIG, budget=best)) <= limit
   with pytest.raises(ValueError, match='largest budget that fits'):
     sharding.plan_sharded(env, ac, nodes, huge, jax.random.PRNGKey(0))
   # edges of 4 transitions: the budgets tried stay at or above 4 (a smaller one is invalid)
@@ -207,7 +207,7 @@ def test_state_bytes_are_exact_and_checked_against_real_memory(grid):
   assert available > 0 and ('RAM' in where or 'free' in where)
   # 8192 instances of a 10**6 budget: 2 TB, more than any machine (traced, not allocated);
   # a budget of 1 takes 0.3 GB
-  big = make_search(env, ac, dataclasses.replace(CONFIG, max_evaluations=10**6))
+  big = make_search(env, ac, dataclasses.replace(CONFIG, budget=10**6))
   with pytest.raises(ValueError, match=r'needs 2.\d+ TB .* largest budget that fits'):
     memory.check_fits(functools.partial(make_search, env, ac), big, nodes, 8192)
 
@@ -216,15 +216,15 @@ def test_state_bytes_are_exact_and_checked_against_real_memory(grid):
 
 def test_numpy_and_jax_numbers_are_accepted_and_normalised():
   mixed = SearchConfig(weight=np.float32(2.0), pop_size=np.int64(8), num_actions=jnp.int32(4),
-                       max_evaluations=np.uint16(100),
+                       budget=np.uint16(100),
                        lattice_resolution=np.array([0.5, 1.0], np.float32),
                        compact_fractions=(np.float64(0.5), jnp.float32(0.25)))
-  plain = SearchConfig(weight=2.0, pop_size=8, num_actions=4, max_evaluations=100,
+  plain = SearchConfig(weight=2.0, pop_size=8, num_actions=4, budget=100,
                        lattice_resolution=(0.5, 1.0),
                        compact_fractions=(0.5, 0.25))
   assert mixed == plain and hash(mixed) == hash(plain)
   assert type(mixed.weight) is float and type(mixed.pop_size) is int
-  assert type(mixed.num_actions) is int and type(mixed.max_evaluations) is int
+  assert type(mixed.num_actions) is int and type(mixed.budget) is int
   assert all(type(r) is float for r in mixed.lattice_resolution)
   assert type(SearchConfig(weight=2).weight) is float
   capped = Capacities(max_iterations=np.int32(7), pool=jnp.int64(8), table=np.uint8(16))
@@ -241,10 +241,10 @@ def test_numpy_and_jax_numbers_are_accepted_and_normalised():
   assert beam == bl.BeamConfig(beam_width=4, weight=1.5, lattice_resolution=(1.0, 1.0))
   assert type(beam.beam_width) is int
   mppi = bl.MppiConfig(num_samples=np.int32(16), horizon=np.int64(4),
-                       temperature=np.float32(0.5), max_evaluations=jnp.int32(1000),
+                       temperature=np.float32(0.5), budget=jnp.int32(1000),
                        policy_prior_samples=np.int64(2))
   assert mppi == bl.MppiConfig(num_samples=16, horizon=4, temperature=0.5,
-                               max_evaluations=1000, policy_prior_samples=2)
+                               budget=1000, policy_prior_samples=2)
   assert bl.ParallelRolloutConfig(num_copies=np.int64(4)).num_copies.__class__ is int
   assert bl.SingleRolloutConfig(max_steps=np.int16(3)) == bl.SingleRolloutConfig(max_steps=3)
   assert epase.EpaseConfig(weight=np.float64(3)) == epase.EpaseConfig(weight=3.0)

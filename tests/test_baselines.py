@@ -91,7 +91,7 @@ def test_single_rollout_stops_at_episode_length(env, start):
 
 
 def test_parallel_rollout_budget_and_restarts(env, start):
-  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  config = bl.ParallelRolloutConfig(num_copies=3, budget=40, episode_length=5)
   rollout = bl.make_parallel_rollout(env, Oscillating(env), config)
   state = rollout.init(take(start, 0), jax.random.PRNGKey(0))
   for i in range(1, 6):
@@ -113,7 +113,7 @@ def test_parallel_rollout_budget_and_restarts(env, start):
 def test_parallel_rollout_compacted_steps_match_full_steps(env, start):
   # instance 3 starts at its goal: its copies leave the physics batch, and the 3 running
   # instances' 9 copies fit a batch of 9 lanes; every step matches the full batch's
-  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  config = bl.ParallelRolloutConfig(num_copies=3, budget=40, episode_length=5)
   rollout = bl.make_parallel_rollout(env, gridworld.GridActorCritic(env), config)
   full = small = rollout.init(start, jax.random.PRNGKey(0))
   assert not bool(full.active[3])
@@ -126,7 +126,7 @@ def test_parallel_rollout_compacted_steps_match_full_steps(env, start):
 def test_parallel_rollout_stop_returns_an_unfinished_copy(env, start):
   # episodes of 5 steps; stopped after 3 steps no copy has finished, yet a 3-step rollout is
   # returned (TIME_LIMIT), and an instance that already stopped keeps its result
-  config = bl.ParallelRolloutConfig(num_copies=3, max_evaluations=40, episode_length=5)
+  config = bl.ParallelRolloutConfig(num_copies=3, budget=40, episode_length=5)
   rollout = bl.make_parallel_rollout(env, Oscillating(env), config)
   state = rollout.init(take(start, 0), jax.random.PRNGKey(0))
   for _ in range(3):
@@ -148,7 +148,7 @@ def test_parallel_rollout_finds_goal_and_batches(env):
   ac = gridworld.GridActorCritic(env)
   start = env.node(np.array([[0, 1], [6, 3], [1, 9]], np.float32),
                    np.array([[4, 1], [9, 3], [0, 0]], np.float32))
-  config = bl.ParallelRolloutConfig(num_copies=4, max_evaluations=50, episode_length=6)
+  config = bl.ParallelRolloutConfig(num_copies=4, budget=50, episode_length=6)
   rollout = bl.make_parallel_rollout(env, ac, config)
   result = rollout.plan(start, jax.random.PRNGKey(1))
   np.testing.assert_array_equal(np.asarray(result.found), [True, True, False])
@@ -166,7 +166,7 @@ def test_parallel_rollout_finds_goal_and_batches(env):
 
 @pytest.fixture(scope='module')
 def beam_search(env):
-  config = bl.BeamConfig(beam_width=4, num_actions=8, max_evaluations=1000)
+  config = bl.BeamConfig(beam_width=4, num_actions=8, budget=1000)
   return bl.make_beam_search(env, gridworld.GridActorCritic(env), config)
 
 
@@ -197,7 +197,7 @@ def test_beam_batch_equals_one_by_one(env, start, beam_search):
 
 
 def test_beam_budget_is_exact(env, start):
-  config = bl.BeamConfig(beam_width=2, num_actions=8, max_evaluations=21, score='next')
+  config = bl.BeamConfig(beam_width=2, num_actions=8, budget=21, score='next')
   result = bl.make_beam_search(env, Greedy(env), config)(start, jax.random.PRNGKey(0))
   # instance 1 needs more than 21 evaluations (2 beam states x 8 moves per step)
   assert int(result.stop_reason[1]) == StopReason.BUDGET and int(result.evaluated[1]) == 21
@@ -216,7 +216,7 @@ def _grid_heuristic(env):
 @pytest.fixture(scope='module')
 def grid_epase(env):
   return bl.make_epase(env, env.moves, _grid_heuristic(env),
-                       bl.EpaseConfig(pop_size=1, max_evaluations=3000))
+                       bl.EpaseConfig(pop_size=1, budget=3000))
 
 
 def test_epase_capacities_bound_its_pool(env, start, grid_epase):
@@ -308,7 +308,7 @@ def test_epase_finds_a_goal_on_the_shelf():
   setup = bl.shelf_setup(env)
   start = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), 1))
   # this start needs about 1,200 evaluations at w = 10, K = 8 (1,185 when written)
-  config = bl.EpaseConfig(weight=10.0, pop_size=8, max_evaluations=2000,
+  config = bl.EpaseConfig(weight=10.0, pop_size=8, budget=2000,
                           lattice_resolution=setup.lattice_resolution)
   search = bl.make_epase(env, setup.primitives, setup.heuristic, config, edge_fn=setup.edge_fn)
   state = search.init(start)

@@ -72,7 +72,7 @@ def test_pachs_with_compaction_equals_without():
   starts = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
   goals = np.array([[1, 1], [0, 0], [8, 2], [5, 3], [9, 0], [8, 3]])
   nodes = env.node(starts, goals)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=300)
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=300)
   key = jax.random.PRNGKey(1)
   want = plan(env, ac, nodes, config, key)
   assert np.asarray(want.found).sum() >= 4
@@ -107,7 +107,7 @@ def test_loops_are_compiled_for_the_sizes_reached():
   # the loop of the 8-lane batch is compiled and run, never the full one.
   env = CountingGrid(np.zeros((6, 6), bool), connectivity=8)
   ac = gridworld.GridActorCritic(env)
-  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=200,
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=200,
                         compact_fractions=(0.25, 0.5))
   search = Programs(make_search(env, ac, config))
   nodes = env.node(np.array([[0, 0]]), np.array([[5, 4]]))

@@ -16,7 +16,7 @@ OBSTACLES = np.zeros((8, 8), bool)
 OBSTACLES[1:7, 4] = True
 STARTS = np.array([[3, 1], [0, 0], [7, 7]])
 GOALS = np.array([[3, 7], [7, 7], [0, 0]])
-CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=400,
+CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=400,
                       compact_fractions=(0.5,))
 
 

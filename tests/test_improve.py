@@ -17,7 +17,7 @@ from pachs_jax.search import rules as rules_lib
 
 from test_segment import GOALS, OBSTACLES, STARTS, NoisyGridActor, _replay
 
-CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
+CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=3000,
                       edge_steps=3, rollout_share=0.5, chain_restart='novel')
 COARSENING = 2  # the novel restarts' coarse cells: lattice cells merged 2 to a side
 
@@ -72,7 +72,7 @@ def test_stop_is_the_search_without_an_improvement_phase(runs):
 @pytest.mark.parametrize('allowance', [0.0, 1.0, np.inf])
 def test_evaluations_stay_within_the_allowance_and_the_budget(runs, allowance):
   # allowance inf is the `runs` fixture's 'improve' search (CONFIG's budget)
-  budget = CONFIG.max_evaluations
+  budget = CONFIG.budget
   config = dataclasses.replace(CONFIG, after_goal='improve', improve_allowance=allowance)
   result = jax.tree.map(np.asarray, (runs['improve'] if np.isinf(allowance) else _run(config))[3])
   assert (result.evaluated <= budget).all()
@@ -96,7 +96,7 @@ def test_improve_finds_the_known_shortcut_across_an_open_field():
   env = gridworld.GridWorld(np.zeros((12, 12), bool), connectivity=8, episode_length=36)
   starts, goals = np.array([[0, 0], [11, 0]]), np.array([[11, 11], [0, 11]])
   optimal = 11 * np.sqrt(2)
-  config = dataclasses.replace(CONFIG, max_evaluations=4000, after_goal='improve')
+  config = dataclasses.replace(CONFIG, budget=4000, after_goal='improve')
   _, _, state, result = _run(config, env, starts, goals)
   result = jax.tree.map(np.asarray, result)
   assert (result.first_goal_cost > optimal + 10).any(), result.first_goal_cost

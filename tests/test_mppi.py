@@ -152,7 +152,7 @@ def test_time_limit_stops_after_one_iteration(start, planner):
 @pytest.fixture(scope='module')
 def small_config():
   return bl.MppiConfig(num_samples=32, horizon=4, temperature=0.1, noise_std=0.5,
-                       max_iterations=100, max_evaluations=1100, policy_prior_samples=0,
+                       max_iterations=100, budget=1100, policy_prior_samples=0,
                        terminal_weight=0.0)
 
 
@@ -165,7 +165,7 @@ def test_budget_is_respected(env, far, small_config):
   planner = bl.make_mppi(env, Attractor(), small_config)
   out = anytime.run_search(planner, far, jax.random.PRNGKey(1))
   assert int(out.stop_reason[0]) == StopReason.BUDGET and not bool(out.found[0])
-  assert int(out.evaluated[0]) <= small_config.max_evaluations
+  assert int(out.evaluated[0]) <= small_config.budget
   assert int(out.evaluated[0]) == int(out.iterations[0]) * 32 * 4 == 1024
   # without the critic the edge costs pull the plan toward the goal
   _, _, nodes = _replay_cost(env, far, out.path_actions)
@@ -175,7 +175,7 @@ def test_budget_is_respected(env, far, small_config):
 
 
 def test_terminal_critic_steers_the_plan(env, far, small_config):
-  config = dataclasses.replace(small_config, terminal_weight=1.0, max_evaluations=1024)
+  config = dataclasses.replace(small_config, terminal_weight=1.0, budget=1024)
   planner = bl.make_mppi(env, Attractor(), config)
   state = planner.init(far, jax.random.PRNGKey(1))
   # warm start: the deterministic policy's actions
@@ -223,7 +223,7 @@ class PushRight(UniformActorCritic):
 
 def test_invalid_edges_are_penalised_and_cut(far, small_config):
   env = Wall()
-  config = dataclasses.replace(small_config, policy_prior_samples=16, max_evaluations=1024)
+  config = dataclasses.replace(small_config, policy_prior_samples=16, budget=1024)
   planner = bl.make_mppi(env, PushRight(DIM), config)
   state = planner.run(planner.init(far, jax.random.PRNGKey(2)))
   iterations = int(state.iterations[0])
@@ -259,7 +259,7 @@ def test_invalid_edges_are_penalised_and_cut(far, small_config):
     (dict(num_samples=8, policy_prior_samples=9), 'policy_prior_samples'),
     (dict(terminal_weight=float('inf')), 'terminal_weight'),
     (dict(invalid_penalty=-1.0), 'invalid_penalty'),
-    (dict(num_samples=10, horizon=10, max_evaluations=99), 'max_evaluations'),
+    (dict(num_samples=10, horizon=10, budget=99), 'budget'),
     (dict(fallback='mean'), 'fallback'),
 ])
 def test_bad_configs_raise(kwargs, match):

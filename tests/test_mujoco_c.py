@@ -227,7 +227,7 @@ def test_search_on_the_cpu_backend_stops_at_its_iteration_limit(env, cenv):
   starts = env.canonical_instances(2)
   # two iterations evaluate at most 2 K = 8 edges, far below the budget of 64, and no canonical
   # instance starts at its goal or is reached in two random steps: the iteration limit stops both
-  config = SearchConfig(num_actions=4, pop_size=4, max_evaluations=64)
+  config = SearchConfig(num_actions=4, pop_size=4, budget=64)
   search = pachs.make_search(cenv, UniformActorCritic(7), config,
                              capacities=Capacities(max_iterations=2))
   result = programs.plan(cenv, UniformActorCritic(7), starts, config, jax.random.PRNGKey(0),

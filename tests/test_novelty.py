@@ -84,7 +84,7 @@ def test_draw_follows_its_weights_at_a_total_where_randint_is_biased():
 def novel_search():
   env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=24)
   ac = NoisyGridActor(env)
-  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=3000,
                         edge_steps=3, rollout_share=0.5, chain_restart='novel')
   rules = rules_lib.from_config(env, ac, config)._replace(
       restart=rules_lib.restart_novel(coarsening=2))
@@ -126,7 +126,7 @@ def test_chains_restart_at_the_start_or_at_earlier_nodes_that_fit_an_episode(res
   # episodes of 12 transitions (4 edges of 3): chains restart every few iterations. After an
   # iteration a chain holds its new successor (a node added in it) or its restart node.
   env = gridworld.GridWorld(OBSTACLES, connectivity=8, episode_length=12)
-  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000,
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=3000,
                         edge_steps=3, rollout_share=0.5, chain_restart=restart)
   search = make_search(env, NoisyGridActor(env), config)
   starts, goals = np.array([[5, 1], [0, 0]]), np.array([[11, 11], [11, 0]])

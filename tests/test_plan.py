@@ -9,6 +9,7 @@ import sys
 import pytest
 
 from pachs_jax import cli, planner
+from pachs_jax.envs import registry
 
 
 def test_sharded_plan_runs_end_to_end(tmp_path):
@@ -41,7 +42,7 @@ def test_bad_devices_give_clear_errors(argv, message, capsys):
 
 @pytest.mark.parametrize('argv, message', [
     (['plan', '--task', 'pusht-fixed', '--instances', '40'], 'instances must lie in 0..29'),
-    (['plan', '--task', 'pusht-fixed', '--budget', '0'], 'max_evaluations must be a positive'),
+    (['plan', '--task', 'pusht-fixed', '--budget', '0'], 'budget must be a positive'),
     (['plan', '--task', 'pusht-fixed', '-w', '-1'], 'weight must be a finite number >= 0'),
     (['plan', '--task', 'pusht-fixed', '--checkpoint', planner.checkpoint_path('shelf')],
      "model of task 'shelf'"),
@@ -63,24 +64,24 @@ def test_unknown_task_is_rejected(capsys):
 def test_command_config_budget_and_cpu_overrides():
   # GPU: the task's defaults and the paper's budget (the original algorithm: its own settings)
   default = planner.command_config('pusht-obs', on_cpu=False, mujoco_c=False)
-  assert (default.pop_size, default.edge_steps, default.max_evaluations) == (64, 8, 100_000)
+  assert (default.pop_size, default.edge_steps, default.budget) == (64, 8, 100_000)
   assert default.lattice_resolution is None
   gpu = planner.command_config('pusht-obs', on_cpu=False, mujoco_c=False, algorithm='original')
-  assert (gpu.pop_size, gpu.edge_steps, gpu.max_evaluations) == (256, 1, 100_000)
+  assert (gpu.pop_size, gpu.edge_steps, gpu.budget) == (256, 1, 100_000)
   assert gpu.lattice_resolution == (0.005, 0.005, 0.05, 0.01, 0.01)
-  assert gpu.compact_fractions == planner.COMMAND_COMPACT_FRACTIONS != ()
+  assert gpu.compact_fractions == registry.ACCELERATOR_SEARCH['compact_fractions'] != ()
   assert planner.command_config('pusht-obs', False, False, compact_fractions=()) \
       .compact_fractions == ()
   # CPU without a budget: the CPU budget of the physics backend and the CPU overrides
   cpu = planner.command_config('pusht-obs', on_cpu=True, mujoco_c=True, algorithm='original')
-  assert (cpu.pop_size, cpu.max_evaluations) == (64, 20_000)
+  assert (cpu.pop_size, cpu.budget) == (64, 20_000)
   assert cpu.lattice_resolution == (0.01, 0.01, 0.1, 0.02, 0.02)
   assert cpu.compact_fractions == ()  # compaction does not pay on the CPU
-  assert planner.command_config('pusht-fixed', True, False).max_evaluations == 2_000
+  assert planner.command_config('pusht-fixed', True, False).budget == 2_000
   # a given budget keeps the tuned settings; explicit values win over everything
   assert planner.command_config('pusht-obs', True, True, 50_000, 'original').pop_size == 256
   mine = planner.command_config('pusht-obs', True, True, pop_size=32, weight=3.0)
-  assert (mine.pop_size, mine.weight, mine.max_evaluations) == (32, 3.0, 20_000)
+  assert (mine.pop_size, mine.weight, mine.budget) == (32, 3.0, 20_000)
   with pytest.raises(ValueError, match='unknown task'):
     planner.command_config('pusht', False, False)
 

@@ -163,7 +163,7 @@ class _Config:
   pop_size: int
   num_actions: int = 8
   edge_steps: int = 8
-  max_evaluations: int = 1000
+  budget: int = 1000
 
 
 def test_iteration_bytes_follow_k_n_and_the_instances():

@@ -22,7 +22,7 @@ def _loops(search: Programs):
 def test_compile_first_compiles_every_reachable_loop_before_the_search():
   env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
   ac = gridworld.GridActorCritic(env)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, max_evaluations=200,
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=200,
                         compact_fractions=(0.25, 0.5))
   nodes = env.node(np.array([[0, 0], [7, 7], [2, 6], [5, 1]]),
                    np.array([[6, 5], [0, 1], [7, 0], [5, 6]]))

@@ -133,7 +133,7 @@ def test_choose_prefers_the_cheapest_goal_then_the_search_then_the_remainder_the
 def session(env):
   # a budget of 16 one-step edges: far too few for a goal 0.6 to 0.8 away in 0.1 steps
   # among uniform proposals; the policy candidate off (TowardGoal would solve it)
-  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, max_evaluations=16)
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
   return replan.Session(env, TowardGoal(DIM), config, horizon=16, candidates=('remainder',))
 
 
@@ -168,7 +168,7 @@ def test_an_answer_is_never_worse_than_the_last_answers_remainder(env, session):
 
 
 def test_a_search_goal_cheaper_than_the_remainder_wins(env):
-  config = SearchConfig(weight=1.0, pop_size=8, num_actions=8, max_evaluations=4000)
+  config = SearchConfig(weight=1.0, pop_size=8, num_actions=8, budget=4000)
   session = replan.Session(env, TowardGoal(DIM), config, horizon=32, candidates=('remainder',))
   start, goal = np.array([[0.0, 0.0]], np.float32), np.array([[0.3, 0.0]], np.float32)
   nodes = _nodes(env, start, goal)
@@ -193,7 +193,7 @@ def test_a_search_goal_cheaper_than_the_remainder_wins(env):
 ])
 def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):
-    replan.Session(env, TowardGoal(DIM), SearchConfig(max_evaluations=16), **kwargs)
+    replan.Session(env, TowardGoal(DIM), SearchConfig(budget=16), **kwargs)
 
 
 def test_executed_must_match_the_episodes(env, session):

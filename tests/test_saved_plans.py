@@ -26,7 +26,7 @@ def _grid_problem():
 @pytest.fixture(scope='module')
 def grid_plans():
   env, actor_critic, nodes, goals = _grid_problem()
-  config = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=2000)
+  config = SearchConfig(weight=1.0, num_actions=8, pop_size=2, budget=2000)
   result = plan(env, actor_critic, nodes, config, instance_keys(jax.random.PRNGKey(0), 3))
   return env, result, saved_plans.from_result(result), goals
 
@@ -70,7 +70,7 @@ def test_segment_edges_expand_into_transitions_and_replay_exactly():
   # with paths cut at 4 transitions: the plan holds the transitions, and their prefix
   env = point_mass.PointMassEnv()
   nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(3), 2))
-  config = SearchConfig(weight=1.0, num_actions=4, pop_size=4, max_evaluations=600,
+  config = SearchConfig(weight=1.0, num_actions=4, pop_size=4, budget=600,
                         edge_steps=3)
   result = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1))
   cut = plan(env, UniformActorCritic(2), nodes, config, jax.random.PRNGKey(1),

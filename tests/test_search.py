@@ -59,7 +59,7 @@ class Problem:
     return take(self.nodes, i), self.keys[i:i + 1]
 
 
-BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, max_evaluations=3000)
+BASE = SearchConfig(weight=1.0, num_actions=8, pop_size=1, budget=3000)
 
 
 @pytest.fixture(scope='module')
@@ -228,7 +228,7 @@ def test_pop_many_finds_paths_with_correct_cost(problem):
 
 
 def test_tiny_budget_stops_on_budget(problem):
-  config = dataclasses.replace(BASE, pop_size=4, max_evaluations=6)
+  config = dataclasses.replace(BASE, pop_size=4, budget=6)
   res = _np(plan(problem.env, problem.actor_critic, problem.nodes, config, problem.keys))
   hit = res.stop_reason == StopReason.BUDGET
   assert hit[:NUM_FOUND - 1].all()
@@ -316,7 +316,7 @@ def test_iterations_evaluate_k_edges_while_r_holds_k(problem, lane_search):
 
 
 @pytest.mark.parametrize('changes,match', [
-    (dict(max_evaluations=0), 'max_evaluations'), (dict(pop_size=0), 'pop_size'),
+    (dict(budget=0), 'budget'), (dict(pop_size=0), 'pop_size'),
     (dict(num_actions=0), 'num_actions'), (dict(weight=-1.0), 'weight'),
     (dict(weight=float('nan')), 'weight'),
     (dict(lattice_resolution=(1.0, 0.0)), 'lattice')])
@@ -334,7 +334,7 @@ def test_capacities_validation(capacities, match):
 
 
 @pytest.mark.parametrize('config,capacities', [
-    (BASE, Capacities(pool=2**30)), (dataclasses.replace(BASE, max_evaluations=2**28), None)])
+    (BASE, Capacities(pool=2**30)), (dataclasses.replace(BASE, budget=2**28), None)])
 def test_int32_limits_are_refused_before_any_work(problem, config, capacities):
   with pytest.raises(ValueError, match='below 2\\*\\*31'):
     make_search(problem.env, problem.actor_critic, config, capacities=capacities)

@@ -41,7 +41,7 @@ def grid():
   return env, NoisyGridActor(env), env.node(STARTS, GOALS)
 
 
-CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, max_evaluations=3000, edge_steps=3)
+CONFIG = SearchConfig(weight=1.0, num_actions=8, pop_size=4, budget=3000, edge_steps=3)
 
 
 @pytest.fixture(scope='module')
@@ -105,7 +105,7 @@ def test_segment_stops_at_goal_and_before_an_invalid_step(grid):
 
 def test_budget_counts_every_transition(grid):
   env, ac, nodes = grid
-  config = dataclasses.replace(CONFIG, max_evaluations=10, edge_steps=4, pop_size=1)
+  config = dataclasses.replace(CONFIG, budget=10, edge_steps=4, pop_size=1)
   r = jax.tree.map(np.asarray, plan(env, ac, nodes, config, jax.random.PRNGKey(0)))
   far = r.path_length[:3] > 8
   assert (r.evaluated <= 10).all() and (r.evaluated % 4 == 0).all()
@@ -140,7 +140,7 @@ def test_segments_with_compaction_equal_without(grid, share, restart, sharded):
 @pytest.mark.parametrize('changes, match', [
     (dict(edge_steps=0), 'edge_steps'),
     (dict(edge_steps=2.5), 'edge_steps'),
-    (dict(edge_steps=3001), 'exceeds max_evaluations'),
+    (dict(edge_steps=3001), 'exceeds budget'),
 ])
 def test_edge_steps_validation(changes, match):
   with pytest.raises(ValueError, match=match):
@@ -148,7 +148,7 @@ def test_edge_steps_validation(changes, match):
 
 
 def test_pool_and_heaps_are_sized_per_edge():
-  sizes = capacity.sizes(None, CONFIG.max_evaluations, CONFIG.num_actions + 1,
+  sizes = capacity.sizes(None, CONFIG.budget, CONFIG.num_actions + 1,
                          CONFIG.edge_steps, heap_per_node=CONFIG.num_actions)
   assert sizes.pool == 3000 // 3 + 1
   assert sizes.dummy_heap == 1001
@@ -190,7 +190,7 @@ def test_a_chain_goal_ends_the_search_at_once(grid):
   ac = gridworld.GridActorCritic(env)  # its one sample is the first move
   start = np.array([[4, 4]])
   node = env.node(start, start + np.asarray(env.moves)[:1])
-  one = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=100)
+  one = SearchConfig(weight=1.0, num_actions=8, pop_size=2, budget=100)
   popped = jax.tree.map(np.asarray, plan(env, ac, node, one, jax.random.PRNGKey(0)))
   chained = jax.tree.map(np.asarray, plan(env, ac, node,
                                           dataclasses.replace(one, rollout_share=0.5),

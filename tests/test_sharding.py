@@ -39,7 +39,7 @@ SETUP = textwrap.dedent('''
     STARTS = np.array([[0, 0], [9, 9], [2, 8], [5, 1], [0, 9], [8, 3]])
     GOALS = np.array([[9, 9], [0, 0], [8, 2], [5, 9], [9, 0], [8, 3]])  # the last: start == goal
     NODES = ENV.node(STARTS, GOALS)
-    CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, max_evaluations=400)
+    CONFIG = SearchConfig(weight=1.5, num_actions=8, pop_size=2, budget=400)
 
     from pachs_jax.search import baselines as bl
     from pachs_jax.runtime import sharding
@@ -54,13 +54,13 @@ SETUP = textwrap.dedent('''
     def baselines():
       # name -> (per-shard fn(start_nodes, keys), the unsharded call fn(start_nodes, key)).
       rollout = bl.make_parallel_rollout(
-          ENV, AC, bl.ParallelRolloutConfig(num_copies=4, max_evaluations=300, episode_length=12))
+          ENV, AC, bl.ParallelRolloutConfig(num_copies=4, budget=300, episode_length=12))
       beam = bl.make_beam_search(ENV, AC, bl.BeamConfig(beam_width=4, num_actions=4,
-                                                        max_evaluations=300))
+                                                        budget=300))
       heuristic = bl.Heuristic(init=lambda s: jax.numpy.zeros(s.t.shape[:1]),
                                value=lambda data, n: AC.heuristic(n.qpos, n.goal))
       epase = bl.make_epase(ENV, ENV.moves, heuristic, bl.EpaseConfig(pop_size=2,
-                                                                      max_evaluations=300))
+                                                                      budget=300))
       single = bl.make_single_rollout(ENV, GreedyActor(ENV))
       return {'rollout': (rollout.plan, rollout.plan), 'beam': (beam, beam),
               'epase': (sharding.keyless(epase.plan), lambda s, k: epase.plan(s)),
@@ -216,7 +216,7 @@ def test_bad_input_raises(search):
   with pytest.raises(ValueError, match='keys'):
     sharding.plan_sharded(ENV, AC, NODES, CONFIG, jnp.zeros((4, 2), jnp.uint32), search=search)
   with pytest.raises(ValueError, match='another config'):
-    other = SearchConfig(weight=1.0, num_actions=8, pop_size=2, max_evaluations=400)
+    other = SearchConfig(weight=1.0, num_actions=8, pop_size=2, budget=400)
     sharding.plan_sharded(ENV, AC, NODES, other, key, search=search)
 
 

@@ -62,7 +62,7 @@ def test_tail_instances_pop_m_k_edges_and_paths_stay_exact(problem):
   assert widened[4] >= 20  # the pocket instance alone ran full 4 K iterations
   out = _np(search.result(state))
   np.testing.assert_array_equal(out.found, np.isfinite(problem.optimal))
-  assert (out.evaluated <= WIDE.max_evaluations).all()
+  assert (out.evaluated <= WIDE.budget).all()
   assert (out.lane_utilization <= 1.0 + 1e-6).all()  # of the m K lanes a widened step offers
   for i in np.flatnonzero(out.found):  # each path replays to its goal at its cost
     length = int(out.path_length[i])

@@ -68,7 +68,7 @@ def check_algorithm(algorithm: str) -> str:
 
 
 # Weight w, actions per expansion N, edges popped per iteration K, edge evaluations per instance.
-_SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'max_evaluations': 100_000}
+_SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'budget': 100_000}
 # PushT: edges of 8 transitions, and without a goal in time the path to the state whose
 # incoming edge costs least per transition; PushT-Obs also extends chains of the actor's edges
 # in 56 of its K = 64 lanes, restarting them at nodes of rarely visited coarse cells, and after
@@ -87,10 +87,36 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
              options=('layout',)),
     TaskSpec('shelf', _shelf, 'shelf', 100,
-             dict(_SEARCH, pop_size=16, max_evaluations=20_000)),
+             dict(_SEARCH, pop_size=16, budget=20_000)),
 )}
 
 TASKS = tuple(SPECS)
+
+@dataclasses.dataclass(frozen=True)
+class CpuPlanning:
+  """What `pachs plan` and `Planner` plan on a CPU-only machine when no budget is given:
+  instances ('all' or a `planner.parse_instances` text; `pachs plan` only) and budget (edge
+  evaluations per instance)."""
+
+  instances: str
+  budget: int
+
+
+# By physics: MuJoCo C on all CPU threads ('mujoco-c'), or MJX on the CPU ('other'; milliseconds
+# per world and step). docs/task_defaults.md.
+CPU_PLANNING = {'mujoco-c': CpuPlanning('all', 20_000), 'other': CpuPlanning('0', 2_000)}
+
+
+def cpu_planning(physics: str) -> CpuPlanning:
+  """`CPU_PLANNING` of an env's physics (`Env.physics`)."""
+  return CPU_PLANNING['mujoco-c' if physics == 'mujoco-c' else 'other']
+
+
+# On an accelerator, where a physics call costs about the same from a few to thousands of
+# worlds: SearchConfig.compact_fractions, the smallest batch that holds the live instances'
+# lanes, in halving sizes down to an eighth, then a 64th (docs/results.md, "Keeping the GPU
+# full"). None applies on a CPU.
+ACCELERATOR_SEARCH = {'compact_fractions': (0.5, 0.25, 0.125, 0.015625)}
 
 # The physics backends of PushT edges (`backends.make_backend`): named here, where a command
 # line reads them without importing MuJoCo.
@@ -100,7 +126,7 @@ PLAYGROUND_PREFIX = 'playground:'  # 'playground:NAME': Playground's env NAME (e
 
 # The search defaults of a Playground task or a user's task (not tuned): the same w and N, a
 # smaller K (a few edges per iteration suit a single instance on a CPU) and a budget of 20,000.
-USER_SEARCH = dict(_SEARCH, pop_size=16, max_evaluations=20_000)
+USER_SEARCH = dict(_SEARCH, pop_size=16, budget=20_000)
 
 
 def _playground_spec(name: str) -> TaskSpec:

@@ -280,7 +280,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     def on_chunk(state, elapsed_s):
       active = np.asarray(state.active)[:num_instances]
       done = np.asarray(state.evaluated)[:num_instances]
-      budget = config.max_evaluations
+      budget = config.budget
       progress(Progress(int(np.sum(~active)), num_instances,
                         int(np.sum(np.where(active, np.minimum(done, budget), budget))),
                         budget * num_instances, elapsed_s))

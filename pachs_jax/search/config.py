@@ -93,20 +93,20 @@ class EdgeSearchConfig:
   weight: heuristic weight w >= 0 (keys g + w h).
   pop_size: K: per instance and iteration, the edges popped (PACHS: up to K states expanded
     and K edges evaluated).
-  max_evaluations: edge-evaluation budget per instance.
+  budget: edge-evaluation budget per instance.
   lattice_resolution: [L] lattice cell sizes (None: the environment's default).
   """
 
   weight: float = 1.0
   pop_size: int = 16
-  max_evaluations: int = 100_000
+  budget: int = 100_000
   lattice_resolution: Optional[Tuple[float, ...]] = None
 
   def __post_init__(self):
     owner = type(self).__name__
     normalize_numbers(self)
     object.__setattr__(self, 'weight', check_weight(owner, self.weight))
-    for name in ('pop_size', 'max_evaluations'):
+    for name in ('pop_size', 'budget'):
       positive_int(owner, name, getattr(self, name))
     object.__setattr__(self, 'lattice_resolution',
                        lattice_resolution_tuple(owner, self.lattice_resolution))
@@ -167,9 +167,9 @@ class SearchConfig(EdgeSearchConfig):
     if (isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share < 1):
       raise ValueError(f'SearchConfig.rollout_share must be a number in [0, 1), got {share!r}')
     object.__setattr__(self, 'rollout_share', float(share))
-    if self.edge_steps > self.max_evaluations:
-      raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds max_evaluations '
-                       f'({self.max_evaluations}): no edge would fit the budget')
+    if self.edge_steps > self.budget:
+      raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds budget '
+                       f'({self.budget}): no edge would fit the budget')
     if self.after_goal not in AFTER_GOALS:
       raise ValueError(f'SearchConfig.after_goal must be one of {AFTER_GOALS}, got '
                        f'{self.after_goal!r}')

@@ -20,16 +20,16 @@ from pachs_jax.search.phases import NO_NODE
 class Incumbent:
   """Per instance [I]: node int32 the cheapest goal node found (NO_NODE: none), cost float32 its
   g (inf: none); first_evaluated, first_iterations int32 the evaluations and iterations when the
-  first goal was found, first_cost float32 that goal's g (-1, -1, inf before); limit int32 the
-  evaluations the instance may spend (the budget, then the first goal's evaluations plus the
-  improvement allowance)."""
+  first goal was found, first_cost float32 that goal's g (-1, -1, inf before);
+  evaluation_limit int32 the evaluations the instance may spend (the budget, then the first
+  goal's evaluations plus the improvement allowance)."""
 
   node: jax.Array
   cost: jax.Array
   first_evaluated: jax.Array
   first_iterations: jax.Array
   first_cost: jax.Array
-  limit: jax.Array
+  evaluation_limit: jax.Array
 
   @property
   def found(self) -> jax.Array:
@@ -41,7 +41,7 @@ def init(num_instances: int, budget: int) -> Incumbent:
   none = jnp.full((num_instances,), -1, jnp.int32)
   inf = jnp.full((num_instances,), jnp.inf, jnp.float32)
   return Incumbent(node=none, cost=inf, first_evaluated=none, first_iterations=none,
-                   first_cost=inf, limit=jnp.full((num_instances,), budget, jnp.int32))
+                   first_cost=inf, evaluation_limit=jnp.full((num_instances,), budget, jnp.int32))
 
 
 def offer(incumbent: Incumbent, pool: pool_lib.NodePool, found: jax.Array,
@@ -62,7 +62,7 @@ def cheapest(pool: pool_lib.NodePool, node: jax.Array, at_goal: jax.Array):
 def settle(incumbent: Incumbent, evaluated: jax.Array, iterations: jax.Array,
            allowance: float, budget: int) -> Incumbent:
   """incumbent with the first goal recorded where it was found this iteration (evaluated,
-  iterations [I]: the counts after it) and the limit set to the first goal's evaluations times
+  iterations [I]: the counts after it) and the evaluation limit set to the first goal's evaluations times
   1 + allowance, at most the budget (allowance inf: the budget)."""
   first = incumbent.found & (incumbent.first_evaluated < 0)
   extra = (jnp.full(evaluated.shape, float(budget)) if math.isinf(allowance) else
@@ -71,7 +71,7 @@ def settle(incumbent: Incumbent, evaluated: jax.Array, iterations: jax.Array,
       first_evaluated=jnp.where(first, evaluated, incumbent.first_evaluated),
       first_iterations=jnp.where(first, iterations, incumbent.first_iterations),
       first_cost=jnp.where(first, incumbent.cost, incumbent.first_cost),
-      limit=jnp.where(first, jnp.ceil(extra).astype(jnp.int32), incumbent.limit))
+      evaluation_limit=jnp.where(first, jnp.ceil(extra).astype(jnp.int32), incumbent.evaluation_limit))
 
 
 def on_path(pool: pool_lib.NodePool, final: jax.Array) -> jax.Array:

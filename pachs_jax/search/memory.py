@@ -132,7 +132,7 @@ def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_in
   """Returns the device bytes of a PACHS search of num_instances (padded) instances, its state
   and one iteration's working set; ValueError when they exceed the device's memory
   (`device_memory`), naming K and N when the working set is the larger part, else the largest
-  budget (max_evaluations) that fits beside the working set. search_for(config) -> the search
+  budget that fits beside the working set. search_for(config) -> the search
   of another budget (e.g. `make_search` with env, model and the search's capacities bound).
   need: the state's bytes when the caller knows them (None: traced with `search_bytes`).
   working: one iteration's bytes (`iteration_bytes`). Compiles nothing."""
@@ -149,14 +149,14 @@ def check_fits(search_for: Callable, search, start_nodes: base.NodeState, num_in
   available -= working
 
   def bytes_at(budget):
-    if budget == config.max_evaluations:
+    if budget == config.budget:
       return need
-    smaller = search_for(dataclasses.replace(config, max_evaluations=budget))
+    smaller = search_for(dataclasses.replace(config, budget=budget))
     return search_bytes(smaller, start_nodes, num_instances)
 
   steps = getattr(config, 'edge_steps', 1)  # a budget below one edge's transitions is invalid
-  best = largest_budget(bytes_at, config.max_evaluations, available, minimum=steps)
-  what = (f'the budget max_evaluations={config.max_evaluations} needs {_gb(need)} of search '
+  best = largest_budget(bytes_at, config.budget, available, minimum=steps)
+  what = (f'the budget of {config.budget:,} evaluations needs {_gb(need)} of search '
           f'state for {num_instances} instance{"s" * (num_instances > 1)} per device, but '
           f'{where}')
   if best == 0:

@@ -151,7 +151,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   `rules.from_config`); capacities: the arrays' sizes (None: derived from the budget)."""
   resolution = _check(env, actor_critic, config)
   capacities = capacity_lib.Capacities() if capacities is None else capacities
-  sizes = capacity_lib.sizes(capacities, config.max_evaluations, config.num_actions + 1,
+  sizes = capacity_lib.sizes(capacities, config.budget, config.num_actions + 1,
                              config.edge_steps, heap_per_node=config.num_actions)
   rules = rules_lib.from_config(env, actor_critic, config) if rules is None else rules
   edge_rule, restart = rules.edges, rules.restart
@@ -251,7 +251,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
         edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
-        incumbent.limit, lanes.size, steps)
+        incumbent.evaluation_limit, lanes.size, steps)
     # insertion: successors into the lattice and pool, their dummy edges into OPEN
     h = edge_rule.h(q, outcome)
     chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
@@ -271,10 +271,10 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
     evaluated = state.evaluated + phases.count(within) * steps
     incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
-                               config.improve_allowance, config.max_evaluations)
+                               config.improve_allowance, config.budget)
     done = incumbent.found  # the first goal, or (improving) the end of the allowance
     if improving:
-      done = done & ((evaluated >= incumbent.limit) | out_of_budget | open_empty | (overflow > 0)
+      done = done & ((evaluated >= incumbent.evaluation_limit) | out_of_budget | open_empty | (overflow > 0)
                      | (state.iterations + 1 >= sizes.iterations))
     return phases.finish(state, done, incumbent.node, open_empty, out_of_budget, overflow,
                          sizes.iterations, expanding, within, usable, steps,
@@ -294,7 +294,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                        chain=jnp.zeros((num_instances, r * widest), jnp.int32),
                        visits=restart.visits(start_cells, sizes.pool),
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
-                       incumbent=improve.init(num_instances, config.max_evaluations),
+                       incumbent=improve.init(num_instances, config.budget),
                        **phases.start_state(pool, table, live))
 
   def loop(state: SearchState, num_iterations, lanes: Optional[Lanes] = None,

@@ -136,7 +136,7 @@ def goal_check(pool: pool_lib.NodePool, popped: Popped,
 
 def evaluate(edge_fn: Callable[[base.NodeState, Any], base.EdgeOutcome],
              sources: base.NodeState, actions: Any, real: jax.Array,
-             evaluated: jax.Array, max_evaluations: int, batch_size: Optional[int] = None,
+             evaluated: jax.Array, budget: int, batch_size: Optional[int] = None,
              edge_evaluations: int = 1):
   """Evaluates the real edges [I, K] that fit each instance's remaining budget.
 
@@ -148,7 +148,7 @@ def evaluate(edge_fn: Callable[[base.NodeState, Any], base.EdgeOutcome],
   """
   num_instances, k = real.shape
   within = real & (jnp.cumsum(real, axis=1) * edge_evaluations
-                   <= (max_evaluations - evaluated)[:, None])
+                   <= (budget - evaluated)[:, None])
   lanes = num_instances * k
   outcome = compact.evaluate_live(edge_fn, flat(sources, lanes), flat(actions, lanes),
                                   within.reshape(lanes), batch_size)

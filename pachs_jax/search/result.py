@@ -16,7 +16,7 @@ class StopReason:
 
   RUNNING = 0  # not stopped yet (a chunked run that was interrupted)
   GOAL = 1  # a dummy edge of a goal state was popped
-  BUDGET = 2  # a popped edge needed an evaluation beyond `max_evaluations`
+  BUDGET = 2  # a popped edge needed an evaluation beyond `budget`
   ITERATIONS = 3  # `Capacities.max_iterations` loop iterations done
   OPEN_EMPTY = 4  # OPEN held no edge: every reachable lattice cell was expanded
   CAPACITY = 5  # the heap, node pool or lattice table overflowed (see the overflow counts)

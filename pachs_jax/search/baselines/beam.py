@@ -26,13 +26,13 @@ SCORES = ('edge', 'next')
 @dataclasses.dataclass(frozen=True)
 class BeamConfig:
   """beam_width: B states kept per step; num_actions: N actions sampled per beam state;
-  max_evaluations: edge budget per instance; max_depth: steps (None: env.episode_length), also
+  budget: edge evaluations per instance; max_depth: steps (None: env.episode_length), also
   the path buffer length; weight: w on the critic's cost-to-go; score: 'edge' or 'next';
   dedup: merge candidates of one lattice cell; lattice_resolution: cell sizes (None: env's)."""
 
   beam_width: int = 64
   num_actions: int = 16
-  max_evaluations: int = 100_000
+  budget: int = 100_000
   max_depth: Optional[int] = None
   weight: float = 1.0
   score: str = 'edge'
@@ -41,7 +41,7 @@ class BeamConfig:
 
   def __post_init__(self):
     normalize_numbers(self)
-    for name in ('beam_width', 'num_actions', 'max_evaluations'):
+    for name in ('beam_width', 'num_actions', 'budget'):
       positive_int('BeamConfig', name, getattr(self, name))
     positive_int('BeamConfig', 'max_depth', self.max_depth, allow_none=True)
     check_weight('BeamConfig', self.weight)
@@ -87,7 +87,7 @@ def make_beam_search(env: base.Env, actor_critic: ActorCritic, config: BeamConfi
   if not isinstance(config, BeamConfig):
     raise ValueError(f'config must be a BeamConfig, got {type(config).__name__}')
   check_actor_critic(actor_critic, ('sample_actions', 'q_values'))
-  b, n, budget = config.beam_width, config.num_actions, config.max_evaluations
+  b, n, budget = config.beam_width, config.num_actions, config.budget
   depth_limit = config.max_depth or env.episode_length
   w = float(config.weight)
   a_size = env.action_size

@@ -89,7 +89,7 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
   primitives = jnp.asarray(prims)
   resolution = env_lattice_resolution(env, config.lattice_resolution)
   capacities = capacity_lib.Capacities() if capacities is None else capacities
-  sizes = capacity_lib.sizes(capacities, config.max_evaluations, num_prims + 1)
+  sizes = capacity_lib.sizes(capacities, config.budget, num_prims + 1)
   w, k, slots, dummy = float(config.weight), config.pop_size, num_prims + 1, num_prims
 
   def init(start_nodes: base.NodeState) -> EpaseState:
@@ -118,7 +118,7 @@ def make_epase(env: base.Env, motion_primitives, heuristic: Heuristic,
     outcome, within, usable, out_of_budget = phases.evaluate(
         edge_fn, pool_lib.gather_nodes(pool, popped.node), prim,
         popped.mask & (popped.slot != dummy) & working, state.evaluated,
-        config.max_evaluations)
+        config.budget)
     # insert the successors
     cells = phases.unflat(env.lattice_key(phases.flat(outcome.next_node, num * k), resolution),
                           num)

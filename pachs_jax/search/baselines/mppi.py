@@ -38,7 +38,7 @@ class MppiConfig:
   num_samples: S action sequences per iteration; horizon: H edges per sequence (also the
   returned path's buffer length); temperature: lambda > 0 of the softmax weights, in cost
   units; noise_std: std of the Gaussian perturbation, in action units ([-1, 1]);
-  max_iterations: iterations per plan; max_evaluations: edge budget (an iteration costs S * H);
+  max_iterations: iterations per plan; budget: edge evaluations (an iteration costs S * H);
   policy_prior_samples: P of the S sequences drawn from the stochastic policy (None: S // 8);
   terminal_weight: weight >= 0 of the critic's cost-to-go at a rollout's last state;
   invalid_penalty: cost >= 0 charged per edge from a rollout's first invalid edge to the
@@ -51,7 +51,7 @@ class MppiConfig:
   temperature: float = 1.0
   noise_std: float = 0.3
   max_iterations: int = 8
-  max_evaluations: int = 100_000
+  budget: int = 100_000
   policy_prior_samples: Optional[int] = None
   terminal_weight: float = 1.0
   invalid_penalty: float = 10.0
@@ -59,7 +59,7 @@ class MppiConfig:
 
   def __post_init__(self):
     normalize_numbers(self)
-    for name in ('num_samples', 'horizon', 'max_iterations', 'max_evaluations'):
+    for name in ('num_samples', 'horizon', 'max_iterations', 'budget'):
       positive_int('MppiConfig', name, getattr(self, name))
     _finite_number('MppiConfig', 'temperature', self.temperature, positive=True)
     for name in ('noise_std', 'terminal_weight', 'invalid_penalty'):
@@ -69,10 +69,10 @@ class MppiConfig:
                           or not 0 <= p <= self.num_samples):
       raise ValueError('MppiConfig.policy_prior_samples must be None or an int in '
                        f'[0, num_samples = {self.num_samples}], got {p!r}')
-    if self.evaluations_per_iteration > self.max_evaluations:
-      raise ValueError('MppiConfig.max_evaluations must cover one iteration of num_samples * '
+    if self.evaluations_per_iteration > self.budget:
+      raise ValueError('MppiConfig.budget must cover one iteration of num_samples * '
                        f'horizon = {self.evaluations_per_iteration} evaluations, got '
-                       f'{self.max_evaluations}')
+                       f'{self.budget}')
     if self.fallback not in FALLBACKS:
       raise ValueError(f'MppiConfig.fallback must be one of {FALLBACKS}, got {self.fallback!r}')
 
@@ -153,7 +153,7 @@ def make_mppi(env: base.Env, actor_critic: ActorCritic, config: MppiConfig = Mpp
     needed.append('q_values')
   check_actor_critic(actor_critic, needed)
   s, h, p = config.num_samples, config.horizon, config.num_policy_samples
-  per_iteration, budget = config.evaluations_per_iteration, config.max_evaluations
+  per_iteration, budget = config.evaluations_per_iteration, config.budget
   a_size = env.action_size
   penalty = float(config.invalid_penalty)
   weight = float(config.terminal_weight)

@@ -126,18 +126,18 @@ def make_single_rollout(env: base.Env, actor_critic, config: SingleRolloutConfig
 
 @dataclasses.dataclass(frozen=True)
 class ParallelRolloutConfig:
-  """num_copies: M policy copies per instance; max_evaluations: edge budget per instance;
+  """num_copies: M policy copies per instance; budget: edge evaluations per instance;
   episode_length: steps before a copy restarts (None: env.episode_length); fallback: which
   rollout to return without a goal, 'last_cost' or 'total_cost' (see the module docstring)."""
 
   num_copies: int = 256
-  max_evaluations: int = 100_000
+  budget: int = 100_000
   episode_length: Optional[int] = None
   fallback: str = 'last_cost'
 
   def __post_init__(self):
     normalize_numbers(self)
-    for name in ('num_copies', 'max_evaluations'):
+    for name in ('num_copies', 'budget'):
       positive_int('ParallelRolloutConfig', name, getattr(self, name))
     positive_int('ParallelRolloutConfig', 'episode_length', self.episode_length,
                         allow_none=True)
@@ -196,7 +196,7 @@ def make_parallel_rollout(env: base.Env, actor_critic: ActorCritic,
   if not isinstance(config, ParallelRolloutConfig):
     raise ValueError(f'config must be a ParallelRolloutConfig, got {type(config).__name__}')
   check_actor_critic(actor_critic, ('sample_actions',))
-  m, budget = config.num_copies, config.max_evaluations
+  m, budget = config.num_copies, config.budget
   steps = config.episode_length or env.episode_length
   action_size = env.action_size
 
