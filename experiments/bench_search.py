@@ -424,7 +424,7 @@ def buckets(argv):
 
 def trace_iterations(search, starts, keys, compacted: bool) -> list:
   """One row per iteration: live instances before it, physics lanes, wall ms; the loop of
-  `lanes_for(state)` (compaction and widening), else of all I * K lanes."""
+  `lanes_for(state)` (compaction), else of all I * K lanes."""
   num = keys.shape[0]
   live = jax.device_put(np.ones(num, bool))
   state = search.init(starts, keys, live)
@@ -445,7 +445,7 @@ def trace_iterations(search, starts, keys, compacted: bool) -> list:
     state = sizes[size][0](state, np.int32(1))
     jax.block_until_ready(state.active)
     rows.append({'live': active, 'lanes': (size and size.size) or num * k,
-                 'useful_lanes': active * k * (size.widen if size else 1),
+                 'useful_lanes': active * k,
                  'ms': 1e3 * (time.perf_counter() - began)})
   return rows, {str(s): c for s, (_, c) in sizes.items()}
 

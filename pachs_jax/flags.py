@@ -40,10 +40,6 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         help='smaller physics batches as fractions of the I x K lanes, comma separated '
         "('' simulates every lane; default on a GPU: envs.registry.ACCELERATOR_SEARCH; on a "
         'CPU none)')),
-    'widen_factors': (('--widen-factors',), dict(
-        type=lambda s: tuple(int(m) if m == int(m) else m for m in argtypes.numbers(s, 'factors')),
-        help='once the instances still searching hold at most 1/m of the I x K lanes, each '
-        "pops m x K edges, for each m of these factors (comma separated; '' keeps K)")),
     'realtime_answer': (('--realtime-answer',), dict(
         choices=REALTIME_ANSWERS, help="the state an unfinished search answers with: best_f "
         "(the best OPEN entry's; the original algorithm's and a user's task's default), min_h "

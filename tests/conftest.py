@@ -30,7 +30,7 @@ LONGEST_FILES = (
     'test_shelf.py', 'test_bad_input_search.py', 'test_train_files.py',
     'test_bad_input_models.py', 'test_layouts.py', 'test_protocol.py', 'test_plan_outputs.py',
     'test_compact.py', 'test_mujoco_c.py', 'test_sac.py', 'test_warp.py', 'test_plan.py',
-    'test_widen.py', 'test_saved_plans.py', 'test_novelty.py', 'test_plan_interrupt.py',
+    'test_saved_plans.py', 'test_novelty.py', 'test_plan_interrupt.py',
     'test_coverage.py', 'test_mppi.py')
 
 

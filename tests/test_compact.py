@@ -86,7 +86,7 @@ def test_pachs_with_compaction_equals_without():
   assert set(env.batches) == {32}, env.batches
   loops = lambda: [name for name in search.compiled[(8, jax.default_backend())]
                    if isinstance(name, tuple)]
-  assert loops() == [('loop', pachs.Lanes(None, 1))]
+  assert loops() == [('loop', pachs.Lanes(None))]
   # shrinking, with the same programs (the smaller sizes' loops compile now)
   env.batches.clear()
   got = plan(env, ac, nodes, compacted, key, search=search)
@@ -115,5 +115,5 @@ def test_loops_are_compiled_for_the_sizes_reached():
   jax.effects_barrier()
   assert bool(out.found[0])
   loops = [key for key in search.compiled[(8, jax.default_backend())] if isinstance(key, tuple)]
-  assert loops == [('loop', pachs.Lanes(8, 1))]
+  assert loops == [('loop', pachs.Lanes(8))]
   assert set(env.batches) == {8}

@@ -124,7 +124,7 @@ def timed(fn: Callable[..., SearchResult], *args) -> SearchResult:
 
 def _loop_name(lanes) -> str:
   """The stored name of the loop program of a `pachs.Lanes` layout."""
-  return f'loop size={lanes.size}' + (f' widen={lanes.widen}' if lanes.widen > 1 else '')
+  return f'loop size={lanes.size}'
 
 
 def _ready(programs: dict, name, waiting: Optional[dict] = None):

@@ -123,10 +123,6 @@ class SearchConfig(EdgeSearchConfig):
     incoming edge has the least cost per transition, `path.min_cost_answer`).
   compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
     (`compact.evaluate_live`); () always simulates all lanes.
-  widen_factors: integers m >= 2: once the instances still searching hold at most 1 / m of the
-    I * K lanes, each pops m * K edges (m * R chain lanes), so that the physics batch stays
-    full to the last instance (`pachs.lanes_of`); () keeps K throughout. An instance's search
-    then depends on how many others in its batch are still searching.
   edge_steps: H, the transitions of one edge: its sampled action, then H - 1 actions that the
     actor samples along the way (`segment`); an edge costs H evaluations, and a successor's h
     is the critic's at its state. 1: the original's one-step edges, h = q - c.
@@ -149,7 +145,6 @@ class SearchConfig(EdgeSearchConfig):
   num_actions: int = 16
   realtime_answer: str = 'best_f'
   compact_fractions: Tuple[float, ...] = ()
-  widen_factors: Tuple[int, ...] = ()
   edge_steps: int = 1
   rollout_share: float = 0.0
   chain_restart: str = 'start'
@@ -189,13 +184,6 @@ class SearchConfig(EdgeSearchConfig):
       raise ValueError('SearchConfig.compact_fractions must be fractions in (0, 1), got '
                        f'{self.compact_fractions!r}')
     object.__setattr__(self, 'compact_fractions', tuple(float(f) for f in fractions))
-    factors = (tuple(plain_number(m) for m in self.widen_factors)
-               if isinstance(self.widen_factors, (tuple, list)) else (None,))
-    if not all(isinstance(m, int) and not isinstance(m, bool) and 2 <= m <= 64
-               for m in factors):
-      raise ValueError('SearchConfig.widen_factors must be integers in [2, 64], got '
-                       f'{self.widen_factors!r}')
-    object.__setattr__(self, 'widen_factors', tuple(sorted(set(factors))))
     if self.realtime_answer == 'min_h' and not self.weight > 0:
       raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
                        f'and needs weight > 0, got {self.weight!r}')

@@ -70,16 +70,14 @@ def iteration_bytes(env: base.Env, config, num_instances: int) -> int:
   num_instances instances: the expansion's network batch (I x K states: the state, its
   observation, N sampled actions and their Q) and the evaluation's physics batch (I x K edges
   of H transitions: a state, an action, a cost and flags per transition), each counted twice
-  (inputs and outputs); a widened iteration (config.widen_factors, m) pops and expands m x K
-  per instance. A physics engine's own buffers (MJX's per-world data) come on top."""
+  (inputs and outputs). A physics engine's own buffers (MJX's per-world data) come on top."""
   node_bytes = tree_bytes(env.node_spec)
   lanes = num_instances * config.pop_size
   steps = getattr(config, 'edge_steps', 1)
   expansion = node_bytes + 4 * env.observation_size + config.num_actions * 4 * (
       env.action_size + 1)
   evaluation = steps * (node_bytes + 4 * env.action_size + 8)
-  widest = max(getattr(config, 'widen_factors', ()), default=1)
-  return 2 * lanes * (widest * expansion + evaluation)
+  return 2 * lanes * (expansion + evaluation)
 
 
 def largest_budget(bytes_at, budget: int, available: int, minimum: int = 1) -> int:

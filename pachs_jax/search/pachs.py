@@ -36,12 +36,10 @@ class SearchState(phases.EdgeSearchState):
   edge_heap: OPEN's real edges (s, a_j), key g(s) + w q_j.
   dummy_heap: OPEN's dummy edges (s, DUMMY), key g(s) + w h(s).
   rng: [I, 2] uint32 per-instance PRNG keys (folded with the iteration count).
-  chain: [I, R * W] int32 the node each rollout lane extends next (config.rollout_lanes R; W
-    the widest of config.widen_factors, 1 without; a step widened m times uses the first m R).
+  chain: [I, R] int32 the node each rollout lane extends next (config.rollout_lanes R).
   visits: the nodes per coarse cell, where chains restart with chain_restart 'novel' (a pool
     of one node otherwise).
-  lanes_offered: [I] int32 the edges the iterations so far could have evaluated (K each, m K
-    when widened).
+  lanes_offered: [I] int32 the edges the iterations so far could have evaluated (K each).
   incumbent: the cheapest goal found, the first goal's counts, the evaluation limit.
   """
 
@@ -55,12 +53,10 @@ class SearchState(phases.EdgeSearchState):
 
 
 class Lanes(NamedTuple):
-  """How one loop program lays out an iteration's edges: each instance pops widen * K edges
-  (widen * R of them extend chains), and the physics simulates `size` lanes gathered from
-  the I * widen * K (None: all of them, only with widen 1)."""
+  """How one loop program lays out an iteration's edges: the physics simulates `size` lanes
+  gathered from the I * K (None: all of them)."""
 
   size: Optional[int] = None
-  widen: int = 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,8 +70,7 @@ class Search:
     stopping early once another layout applies to the active instances (the input state's
     buffers are donated; `lanes` is static: one program per layout).
   lanes_of(num_active, I) -> the `Lanes` whose loop applies to num_active of I instances: the
-    widest of config.widen_factors whose edges fit the I * K lanes (1 when none does), then
-    the smallest of config.compact_fractions of I * K (each at least K) that holds them;
+    smallest of config.compact_fractions of I * K (each at least K) that holds their edges;
     lanes_for(state) -> the one that applies to state now (host; reads state.active).
   reachable(num_active, I) -> the layouts, in order, of a search that starts with num_active
     of I instances active.
@@ -110,11 +105,8 @@ class Search:
 def lanes_of(config: SearchConfig, num_active: int, num_instances: int) -> Lanes:
   """The `Lanes` of `Search.lanes_of` for config."""
   k, full = config.pop_size, num_instances * config.pop_size
-  widen = max((m for m in config.widen_factors if num_active * k * m <= full), default=1)
-  edges = num_active * k * widen
   sizes = compact.batch_sizes(full, config.compact_fractions, minimum=k)
-  size = next((s for s in sizes if s >= edges), None if widen == 1 else full)
-  return Lanes(size, widen)
+  return Lanes(next((s for s in sizes if s >= num_active * k), None))
 
 
 def reachable(config: SearchConfig, num_active: int, num_instances: int) -> Tuple[Lanes, ...]:
@@ -143,144 +135,204 @@ def _check(env: base.Env, actor_critic: ActorCritic, config: SearchConfig):
   return resolution
 
 
+@dataclasses.dataclass(frozen=True)
+class Parts:
+  """What one PACHS loop is built from: env, actor_critic, config, its `rules.Rules`, the
+  lattice resolution [L] and the arrays' sizes (`capacity.Sizes`)."""
+
+  env: base.Env
+  actor_critic: ActorCritic
+  config: SearchConfig
+  rules: rules_lib.Rules
+  resolution: jax.Array
+  sizes: capacity_lib.Sizes
+
+  @property
+  def slots(self) -> int:
+    """Heap slots per node: its N real edges, then its dummy edge (slot N)."""
+    return self.config.num_actions + 1
+
+
+@struct.dataclass
+class Expansion:
+  """An iteration after its expansion: popped the dummy edges popped [I, K], expanding [I, K]
+  the nodes expanded, working [I] the instances that expand and evaluate, and the heaps, pool
+  and incumbent after it."""
+
+  popped: phases.Popped
+  expanding: jax.Array
+  working: jax.Array
+  edge_heap: heap_lib.Heap
+  dummy_heap: heap_lib.Heap
+  pool: pool_lib.NodePool
+  incumbent: improve.Incumbent
+
+
+@struct.dataclass
+class Evaluation:
+  """An iteration's K edges [I, K] after their evaluation (the last R lanes extend chains):
+  parent node, action [I, K, A], q, mask (lanes that hold an edge worth evaluating), outcome,
+  within the budget (evaluated), usable (valid with finite cost), out_of_budget [I], and OPEN's
+  real edges after the pop."""
+
+  parent: jax.Array
+  action: jax.Array
+  q: jax.Array
+  mask: jax.Array
+  outcome: object
+  within: jax.Array
+  usable: jax.Array
+  out_of_budget: jax.Array
+  edge_heap: heap_lib.Heap
+
+
+def lane_keys(state: SearchState, stream: int, count: int) -> jax.Array:
+  """[I, count, 2] per-lane keys of this iteration's samples of one stream (1: inside the
+  segments, 2: the chains, 3: the chains' restarts), apart from the expansion's."""
+  keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
+  keys = jax.vmap(jax.random.fold_in, (0, None))(keys, stream)
+  return jax.vmap(lambda key: jax.random.split(key, count))(keys)
+
+
+def expand(parts: Parts, state: SearchState) -> Expansion:
+  """Pops the dummy edges up to the K-th real edge's key, offers the popped goals, and samples
+  and scores N edges at each node expanded (one network batch) into OPEN."""
+  config, after_goal = parts.config, parts.rules.after_goal
+  k, r, n = config.pop_size, config.rollout_lanes, config.num_actions
+  limit = heap_lib.kth_key(state.edge_heap, k - r)
+  dummy_heap, popped = phases.pop(state.dummy_heap, k, parts.slots, state.active, limit)
+  fresh, found, goal = phases.goal_check(state.pool, popped, n)
+  incumbent = improve.offer(state.incumbent, state.pool, found, goal)
+  working = after_goal.working(state.active, found)
+  expanding = fresh & working[:, None]
+  num_instances = expanding.shape[0]
+  sources = pool_lib.gather_nodes(state.pool, popped.node)
+  obs = phases.unflat(parts.env.observe(phases.flat(sources, num_instances * k)), num_instances)
+  rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
+  actions = clean_actions(jax.vmap(
+      lambda key, o: parts.actor_critic.sample_actions(key, o, n))(rng, obs))
+  q = cost_to_go(parts.actor_critic.q_values(phases.flat(obs, num_instances * k),
+                                             phases.flat(actions, num_instances * k)))
+  q = q.reshape(num_instances, k, n)
+  pool = pool_lib.close(state.pool, popped.node, expanding, actions, q)
+  f = pool_lib.gather(state.pool.g, popped.node)[:, :, None] + phases.weighted(q, config.weight)
+  values = popped.node[:, :, None] * parts.slots + jnp.arange(n)
+  edge_heap = heap_lib.push(state.edge_heap, f.reshape(num_instances, -1),
+                            values.reshape(num_instances, -1), jnp.repeat(expanding, n, axis=1))
+  return Expansion(popped, expanding, working, edge_heap, dummy_heap, pool, incumbent)
+
+
+def evaluate(parts: Parts, state: SearchState, expansion: Expansion, lanes: Lanes) -> Evaluation:
+  """Pops the K - R best real edges and takes the actor's edge at each of the R chains' tips,
+  then simulates those within the budget (one physics batch of `lanes.size`)."""
+  config, rules, env = parts.config, parts.rules, parts.env
+  k, r, n = config.pop_size, config.rollout_lanes, config.num_actions
+  pool, working = expansion.pool, expansion.working
+  edge_heap, edges = phases.pop(expansion.edge_heap, k - r, parts.slots, working)
+  rows = jnp.arange(edges.node.shape[0])[:, None]
+  action = pool.edge_actions[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
+  q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
+  parent, mask = edges.node, edges.mask
+  if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
+    tips = state.chain
+    num_instances = tips.shape[0]
+    obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
+    tip_action = segment.actor_samples(parts.actor_critic,
+                                       lane_keys(state, 2, r).reshape(-1, 2), obs)
+    tip_q = cost_to_go(parts.actor_critic.q_values(obs, tip_action[:, None]))
+    parent, action, q = (jnp.concatenate(x, axis=1) for x in (
+        (parent, tips), (action, tip_action.reshape(num_instances, r, -1)),
+        (q, tip_q.reshape(num_instances, r))))
+    mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
+  mask = rules.after_goal.prune(mask, pool_lib.gather(pool.g, parent), expansion.incumbent)
+  outcome, within, usable, out_of_budget = phases.evaluate(
+      rules.edges.simulate, pool_lib.gather_nodes(pool, parent),
+      rules.edges.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
+      expansion.incumbent.evaluation_limit, lanes.size, rules.edges.steps)
+  return Evaluation(parent, action, q, mask, outcome, within, usable, out_of_budget, edge_heap)
+
+
+def next_chains(parts: Parts, pool, visits, incumbent, keys, tip, written, is_goal):
+  """[I, R] the nodes the chains extend next, after the rollout lanes' successors tip [I, R]
+  (nodes of their own, not merged in the lattice): a chain goes on from its successor and
+  restarts (config.chain_restart; after the first goal, as `rules.after_goal` says) after an
+  unusable edge, a goal, a g at the incumbent's cost or where its next edge would pass an
+  episode's length."""
+  r, steps, rules = parts.config.rollout_lanes, parts.rules.edges.steps, parts.rules
+  if not r:
+    return tip
+  fits = lambda depth: depth + steps <= parts.env.episode_length
+  tip_g = pool_lib.gather(pool.g, tip)
+  go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
+           & (tip_g < incumbent.cost[:, None]))
+  restarts = jnp.broadcast_to(rules.restart.choose(pool, visits, keys, fits(pool.depth), r),
+                              tip.shape).astype(jnp.int32)
+  restarts = rules.after_goal.restarts(pool, incumbent, keys, fits(pool.depth), restarts)
+  return jnp.where(go_on, tip, restarts).astype(jnp.int32)
+
+
+def insert(parts: Parts, state: SearchState, expansion: Expansion,
+           evaluation: Evaluation) -> SearchState:
+  """Puts the successors into the lattice and pool and their dummy edges into OPEN, moves the
+  chains on, offers the goals generated and settles each instance's stop."""
+  config, rules, env = parts.config, parts.rules, parts.env
+  k, r, steps = config.pop_size, config.rollout_lanes, rules.edges.steps
+  outcome, usable, incumbent = evaluation.outcome, evaluation.usable, expansion.incumbent
+  h = rules.edges.h(evaluation.q, outcome)
+  chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
+  num_instances = usable.shape[0]
+  cells = phases.unflat(env.lattice_key(phases.flat(outcome.next_node, num_instances * k),
+                                        parts.resolution), num_instances)
+  size = expansion.pool.size[:, None]
+  pool, table, dummy_key, node, write = phases.insert(
+      expansion.pool, state.table, cells, evaluation.parent, outcome, usable,
+      evaluation.action, h, config.weight, unmerged=chain_lane if r else None)
+  new = write & (node >= size)  # not an open node whose g improved
+  visits = rules.restart.record(state.visits, node, new, cells)
+  chain = next_chains(parts, pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
+                      node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:])
+  incumbent = improve.offer(incumbent, pool, *improve.cheapest(
+      pool, node, write & outcome.is_goal & rules.after_goal.goal_lanes(chain_lane)))
+  dummy_heap = heap_lib.push(expansion.dummy_heap, dummy_key,
+                             node * parts.slots + config.num_actions, write)
+  overflow = (evaluation.edge_heap.overflow + dummy_heap.overflow + pool.overflow
+              + table.overflow)
+  open_empty = state.active & ~jnp.any(expansion.popped.mask | evaluation.mask, axis=1)
+  evaluated = state.evaluated + phases.count(evaluation.within) * steps
+  incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
+                             config.improve_allowance, config.budget)
+  stopping = (evaluation.out_of_budget | open_empty | (overflow > 0)
+              | (state.iterations + 1 >= parts.sizes.iterations))
+  done = rules.after_goal.done(incumbent, evaluated, stopping)
+  return phases.finish(state, done, incumbent.node, open_empty, evaluation.out_of_budget,
+                       overflow, parts.sizes.iterations, expansion.expanding,
+                       evaluation.within, usable, steps, edge_heap=evaluation.edge_heap,
+                       dummy_heap=dummy_heap, pool=pool, table=table, chain=chain,
+                       visits=visits, incumbent=incumbent,
+                       lanes_offered=state.lanes_offered + k * state.active)
+
+
+def step(parts: Parts, state: SearchState, lanes: Lanes) -> SearchState:
+  """One iteration of every instance: expansion, evaluation, insertion."""
+  expansion = expand(parts, state)
+  evaluation = evaluate(parts, state, expansion, lanes)
+  return insert(parts, state, expansion, evaluation)
+
+
 def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                 rules: Optional[rules_lib.Rules] = None,
                 capacities: Optional[capacity_lib.Capacities] = None) -> Search:
   """Builds the jitted PACHS functions for env, actor_critic and config; rules: the variant's
-  edge, chain-restart and real-time answer functions (None: those config names,
+  edge, chain-restart, real-time answer and after-goal functions (None: those config names,
   `rules.from_config`); capacities: the arrays' sizes (None: derived from the budget)."""
   resolution = _check(env, actor_critic, config)
   capacities = capacity_lib.Capacities() if capacities is None else capacities
   sizes = capacity_lib.sizes(capacities, config.budget, config.num_actions + 1,
                              config.edge_steps, heap_per_node=config.num_actions)
   rules = rules_lib.from_config(env, actor_critic, config) if rules is None else rules
-  edge_rule, restart = rules.edges, rules.restart
-  w, k, n = float(config.weight), config.pop_size, config.num_actions
-  slots, dummy = n + 1, n  # edge slots per node; the dummy edge's slot
-  steps, r = edge_rule.steps, config.rollout_lanes
-  widest = max(config.widen_factors, default=1)
-  improving = config.after_goal == 'improve'
-
-  def lattice_cells(nodes):
-    """[I, K, L] int32 lattice keys of nodes [I, K]."""
-    num_instances, lanes = jax.tree.leaves(nodes)[0].shape[:2]
-    return phases.unflat(env.lattice_key(phases.flat(nodes, num_instances * lanes),
-                                         resolution), num_instances)
-
-  def expand(state, popped, expanding):
-    """Samples and scores N edges at each expanded node; returns (pool, edge entries)."""
-    num_instances, k = expanding.shape
-    sources = pool_lib.gather_nodes(state.pool, popped.node)
-    obs = phases.unflat(env.observe(phases.flat(sources, num_instances * k)), num_instances)
-    rng = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
-    actions = jax.vmap(lambda key, o: actor_critic.sample_actions(key, o, n))(rng, obs)
-    actions = clean_actions(actions)
-    q = cost_to_go(actor_critic.q_values(phases.flat(obs, num_instances * k),
-                                               phases.flat(actions, num_instances * k)))
-    q = q.reshape(num_instances, k, n)
-    pool = pool_lib.close(state.pool, popped.node, expanding, actions, q)
-    f = pool_lib.gather(state.pool.g, popped.node)[:, :, None] + phases.weighted(q, w)
-    values = popped.node[:, :, None] * slots + jnp.arange(n)
-    return pool, (f.reshape(num_instances, -1), values.reshape(num_instances, -1),
-                  jnp.repeat(expanding, n, axis=1))
-
-  def lane_keys(state, stream: int, count: int):
-    """[I, count, 2] per-lane keys of this iteration's samples of one stream (1: inside the
-    segments, 2: the chains, 3: the chains' restarts), apart from expand's."""
-    keys = jax.vmap(jax.random.fold_in)(state.rng, state.iterations)
-    keys = jax.vmap(jax.random.fold_in, (0, None))(keys, stream)
-    return jax.vmap(lambda key: jax.random.split(key, count))(keys)
-
-  def chain_edges(state, pool, r):
-    """(tips [I, R], actions [I, R, A], q [I, R]): the actor's edge at each of the first R
-    rollout lanes' tip."""
-    tips = state.chain[:, :r]
-    num_instances = tips.shape[0]
-    obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
-    actions = segment.actor_samples(actor_critic, lane_keys(state, 2, r).reshape(-1, 2), obs)
-    q = cost_to_go(actor_critic.q_values(obs, actions[:, None]))
-    return tips, actions.reshape(num_instances, r, -1), q.reshape(num_instances, r)
-
-  def next_chains(pool, visits, incumbent, keys, tip, written, is_goal, r):
-    """[I, R] the nodes the chains extend next, after the rollout lanes' successors tip [I, R]
-    (nodes of their own, not merged in the lattice): a chain goes on from its successor and
-    restarts (config.chain_restart; after the first goal with after_goal 'improve', on the
-    incumbent's path) after an unusable edge, a goal, a g at the incumbent's cost or where its
-    next edge would pass an episode's length."""
-    if not r:
-      return tip
-    fits = lambda depth: depth + steps <= env.episode_length
-    tip_g = pool_lib.gather(pool.g, tip)
-    go_on = (written & ~is_goal & fits(pool_lib.gather(pool.depth, tip))
-             & (tip_g < incumbent.cost[:, None]))
-    restarts = jnp.broadcast_to(restart.choose(pool, visits, keys, fits(pool.depth), r),
-                                tip.shape).astype(jnp.int32)
-    if improving:  # the path walk and draw run only once some instance has a goal
-      path_keys = jax.vmap(lambda key: jax.random.fold_in(key, 1))(keys)
-      restarts = jax.lax.cond(
-          jnp.any(incumbent.found),
-          lambda: jnp.where(incumbent.found[:, None], improve.path_restarts(
-              pool, incumbent, path_keys, fits(pool.depth), r), restarts),
-          lambda: restarts)
-    return jnp.where(go_on, tip, restarts).astype(jnp.int32)
-
-  def step(state: SearchState, lanes: Lanes) -> SearchState:
-    k, r = lanes.widen * config.pop_size, lanes.widen * config.rollout_lanes
-    # expansion: the dummy edges up to the K-th real-edge key, one network batch
-    limit = heap_lib.kth_key(state.edge_heap, k - r)
-    dummy_heap, popped = phases.pop(state.dummy_heap, k, slots, state.active, limit)
-    fresh, found, goal = phases.goal_check(state.pool, popped, dummy)
-    incumbent = improve.offer(state.incumbent, state.pool, found, goal)
-    working = state.active if improving else state.active & ~found
-    expanding = fresh & working[:, None]
-    pool, new_edges = expand(state, popped, expanding)
-    edge_heap = heap_lib.push(state.edge_heap, *new_edges)
-    # evaluation: the K best real edges, one physics batch
-    edge_heap, edges = phases.pop(edge_heap, k - r, slots, working)
-    rows = jnp.arange(edges.node.shape[0])[:, None]
-    action = pool.edge_actions[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
-    q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
-    parent, mask = edges.node, edges.mask
-    if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
-      tips, tip_action, tip_q = chain_edges(state, pool, r)
-      parent, action, q = (jnp.concatenate(x, axis=1) for x in
-                           ((parent, tips), (action, tip_action), (q, tip_q)))
-      mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
-    if improving:  # prune the edges from nodes that cost as much as the incumbent
-      mask = mask & (pool_lib.gather(pool.g, parent) < incumbent.cost[:, None])
-    outcome, within, usable, out_of_budget = phases.evaluate(
-        edge_rule.simulate, pool_lib.gather_nodes(pool, parent),
-        edge_rule.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
-        incumbent.evaluation_limit, lanes.size, steps)
-    # insertion: successors into the lattice and pool, their dummy edges into OPEN
-    h = edge_rule.h(q, outcome)
-    chain_lane = jnp.broadcast_to(jnp.arange(k) >= k - r, usable.shape)
-    cells, size = lattice_cells(outcome.next_node), pool.size[:, None]
-    pool, table, dummy_key, node, write = phases.insert(
-        pool, state.table, cells, parent, outcome, usable, action, h, w,
-        unmerged=chain_lane if r else None)
-    new = write & (node >= size)  # not an open node whose g improved
-    visits = restart.record(state.visits, node, new, cells)
-    chain = next_chains(pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
-                        node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:], r)
-    # goals at generation: the chains' (as a rollout's), after the first goal every lane's
-    incumbent = improve.offer(incumbent, pool, *improve.cheapest(
-        pool, node, write & outcome.is_goal & (chain_lane | improving)))
-    dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * slots + dummy, write)
-    overflow = edge_heap.overflow + dummy_heap.overflow + pool.overflow + table.overflow
-    open_empty = state.active & ~jnp.any(popped.mask | mask, axis=1)
-    evaluated = state.evaluated + phases.count(within) * steps
-    incumbent = improve.settle(incumbent, evaluated, state.iterations + 1,
-                               config.improve_allowance, config.budget)
-    done = incumbent.found  # the first goal, or (improving) the end of the allowance
-    if improving:
-      done = done & ((evaluated >= incumbent.evaluation_limit) | out_of_budget | open_empty | (overflow > 0)
-                     | (state.iterations + 1 >= sizes.iterations))
-    return phases.finish(state, done, incumbent.node, open_empty, out_of_budget, overflow,
-                         sizes.iterations, expanding, within, usable, steps,
-                         edge_heap=edge_heap, dummy_heap=dummy_heap, pool=pool, table=table,
-                         chain=state.chain.at[:, :r].set(chain), visits=visits,
-                         incumbent=incumbent, lanes_offered=state.lanes_offered + k * state.active)
+  parts = Parts(env, actor_critic, config, rules, resolution, sizes)
+  k, n, r, steps = config.pop_size, config.num_actions, config.rollout_lanes, rules.edges.steps
+  slots, dummy = parts.slots, n  # edge slots per node; the dummy edge's slot
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
@@ -291,8 +343,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
     return SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
-                       chain=jnp.zeros((num_instances, r * widest), jnp.int32),
-                       visits=restart.visits(start_cells, sizes.pool),
+                       chain=jnp.zeros((num_instances, r), jnp.int32),
+                       visits=rules.restart.visits(start_cells, sizes.pool),
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
                        incumbent=improve.init(num_instances, config.budget),
                        **phases.start_state(pool, table, live))
@@ -311,7 +363,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
 
     def body(carry):
       state, done = carry
-      return step(state, lanes), done + 1
+      return step(parts, state, lanes), done + 1
 
     state, _ = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
     return state

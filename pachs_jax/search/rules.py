@@ -1,6 +1,6 @@
 """The rules that tell PACHS's variants apart, as functions passed into one loop: how an edge is
-simulated, where a chain of the actor's edges restarts, and which state an unfinished search
-answers with (docs/search_loop.md)."""
+simulated, where a chain of the actor's edges restarts, which state an unfinished search
+answers with and what a search does after its first goal (docs/search_loop.md)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
 
+from pachs_jax.search import improve
 from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import pool as pool_lib
@@ -99,18 +100,22 @@ ANSWERS = {'best_f': best_f_answer, 'min_h': path_lib.min_h_answer,
 
 
 class Rules(NamedTuple):
-  """The variant of PACHS a loop runs: its `Edges`, chain `Restart` and real-time answer."""
+  """The variant of PACHS a loop runs: its `Edges`, chain `Restart`, real-time answer and
+  `improve.AfterGoal`."""
 
   edges: Edges
   restart: Restart
   answer: Callable
+  after_goal: improve.AfterGoal = improve.stop_at_goal()
 
 
 def from_config(env, actor_critic, config: SearchConfig) -> Rules:
-  """The rules that config names: edge_steps, chain_restart and realtime_answer."""
+  """The rules that config names: edge_steps, chain_restart, realtime_answer and after_goal."""
   steps = config.edge_steps
   edges = one_step_edges(env) if steps == 1 else actor_edges(env, actor_critic, steps)
   lanes = config.rollout_lanes
   restart = (restart_novel() if config.chain_restart == 'novel' and lanes > 0
              else restart_at_start())
-  return Rules(edges, restart, ANSWERS[config.realtime_answer])
+  after_goal = (improve.improve_after_goal() if config.after_goal == 'improve'
+                else improve.stop_at_goal())
+  return Rules(edges, restart, ANSWERS[config.realtime_answer], after_goal)
