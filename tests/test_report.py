@@ -43,6 +43,19 @@ def test_result_links_in_readme_and_docs_exist():
   assert not missing
 
 
+def test_links_to_sections_of_the_results_exist():
+  """Every results.md#anchor in the README, a doc or a results README names a section."""
+  anchors = {report.anchor(title) for title, _ in report.SECTIONS}
+  docs = ['README.md'] + [os.path.join('docs', n) for n in os.listdir(os.path.join(ROOT, 'docs'))
+                          if n.endswith('.md')]
+  docs += [os.path.relpath(os.path.join(folder, 'README.md'), ROOT)
+           for folder, _, names in os.walk(os.path.join(ROOT, 'experiments', 'results'))
+           if 'README.md' in names]
+  named = {(doc, a) for doc in docs for a in re.findall(r'results\.md#([\w-]+)', read(doc))}
+  assert named
+  assert not [(doc, a) for doc, a in named if a not in anchors]
+
+
 def test_readme_table_sits_between_the_markers():
   readme = read('README.md')
   block, _ = report.headline_table()
