@@ -21,7 +21,6 @@ README = 'README.md'
 RESULTS_MD = 'docs/results.md'
 BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
 LAYOUTS = ('gate', 'slot', 'wall', 'detour', 'two-gaps')
-CURVE_POINTS = (1000, 3000, 10000, 30000, 100000)  # evaluations; the nearest budget of a curve
 PLACEHOLDER_NOTE = 'not measured yet; the maintainer runs `{command}`'
 
 
