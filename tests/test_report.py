@@ -43,6 +43,19 @@ def test_result_links_in_readme_and_docs_exist():
   assert not missing
 
 
+def test_links_to_sections_of_the_results_exist():
+  """Every results.md#anchor in the README, a doc or a results README names a section."""
+  anchors = {report.anchor(title) for title, _ in report.SECTIONS}
+  docs = ['README.md'] + [os.path.join('docs', n) for n in os.listdir(os.path.join(ROOT, 'docs'))
+                          if n.endswith('.md')]
+  docs += [os.path.relpath(os.path.join(folder, 'README.md'), ROOT)
+           for folder, _, names in os.walk(os.path.join(ROOT, 'experiments', 'results'))
+           if 'README.md' in names]
+  named = {(doc, a) for doc in docs for a in re.findall(r'results\.md#([\w-]+)', read(doc))}
+  assert named
+  assert not [(doc, a) for doc, a in named if a not in anchors]
+
+
 def test_readme_table_sits_between_the_markers():
   readme = read('README.md')
   block, _ = report.headline_table()
@@ -96,6 +109,54 @@ def test_measured_cpu_timings_replace_the_placeholders(copy_root):
   assert '37.2 s cold, 21.0-22.5 s warm' in block
   assert 'Tests: 9.0 min (300 passed in 540.00s; 2 CPUs)' in block
   assert 'not measured yet' not in block
+
+
+def test_every_result_file_is_read_by_the_report_or_beside_one():
+  """Result files no section reads leave the tree (git keeps them; the ledger names the commit):
+  what stays is a cited JSON, the .md beside it, a figure the README shows or a job script."""
+  cited = set(report.cited_files())
+  kept = {p[:-len('.json')] + '.md' for p in cited} | cited
+  readme = read('README.md')
+  stray = []
+  for folder, _, names in os.walk(os.path.join(ROOT, 'experiments', 'results')):
+    for name in names:
+      path = os.path.relpath(os.path.join(folder, name), ROOT)
+      if path in kept or name.endswith('.sh') or name == 'README.md' or path in readme:
+        continue
+      stray.append(path)
+  assert not stray
+
+
+def test_the_ledger_reads_its_numbers_from_the_files(copy_root):
+  """A ledger row computed from the files follows them; a row of removed files names a commit."""
+  def fewer(payload):
+    report.summary_of(payload, 'pachs-start')['successes'] -= 100
+
+  before = report.generate(str(copy_root))['docs/results.md']
+  rewrite(copy_root, 'open_loop_pusht-obs_gate.json', fewer)
+  after = report.generate(str(copy_root))['docs/results.md']
+  row = lambda text: next(line for line in text.splitlines()
+                          if line.startswith('| Chains restart at the start, not at novel'))
+  solved = lambda line: int(re.search(r'\| (\d+)/750 solved', line).group(1))
+  assert solved(row(before)) - solved(row(after)) == 100
+  for what, result, where in report.LEDGER:
+    assert where.startswith('in this tree') or re.match(r'`[0-9a-f]{7}`: ', where), what
+
+
+def test_sources_group_files_by_device_and_revision():
+  runs = lambda revision: {'provenance': {'device': 'gpu: H100 x1', 'git_revision': revision,
+                                          'command': 'c'}}
+  lines = report.provenance_lines([('experiments/results/a.json', runs('1' * 40)),
+                                   ('experiments/results/b.json', runs('1' * 40)),
+                                   ('experiments/results/c.json', runs('2' * 40))], 'docs')
+  assert lines == [
+      '- gpu: H100 x1, revision 1111111: [`a.json`](../experiments/results/a.json), '
+      '[`b.json`](../experiments/results/b.json)',
+      '- gpu: H100 x1, revision 2222222: [`c.json`](../experiments/results/c.json)']
+  merged = {'provenance': {'merged_from': [runs('1' * 40)['provenance'],
+                                           runs('2' * 40)['provenance']]}}
+  assert report.provenance_lines([('experiments/results/m.json', merged)], 'docs') == [
+      '- gpu: H100 x1, revisions 1111111, 2222222: [`m.json`](../experiments/results/m.json)']
 
 
 def test_formats():

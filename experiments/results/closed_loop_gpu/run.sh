@@ -1,7 +1,7 @@
 # The closed loop on PushT-Obs (one GPU, Warp planners, MuJoCo C worlds unless the variant says
 # otherwise), each planner alone on the GPU, one after another: 20 instances x 5 rounds.
 # Items LAYOUT/VARIANT; variants: pachs (replan.Session, its default candidates), pachs-alone
-# (the search's path alone), pachs-k256 (K 256), parallel (the parallel rollout), and any of
+# (the search's path alone), parallel (the parallel rollout), and any of
 # them with '-planner-world' (the plans executed in the planners' own physics).
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does.
 # run as: bash experiments/results/closed_loop_gpu/run.sh detour/pachs detour/parallel ...
@@ -17,7 +17,6 @@ for item in "$@"; do
   case $V0 in
     pachs) flags+=(--planners pachs);;
     pachs-alone) flags+=(--planners pachs --candidates '');;
-    pachs-k256) flags+=(--planners pachs --pop-size 256);;
     parallel) flags+=(--planners parallel);;
     *) echo "unknown variant $V0"; continue;;
   esac

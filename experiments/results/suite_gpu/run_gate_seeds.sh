@@ -1,7 +1,6 @@
-# The default and the parallel rollout on gate with search seeds 1 and 2 (the layout where the
-# default with every cell drawn alike trailed the rollout, pooled over seven calls), one call
-# after another on one GPU with Warp physics; the first call's wall includes Warp's kernel
-# compile on a fresh machine.
+# The default and the parallel rollout on gate with search seeds 1 and 2, one call after another
+# on one GPU with Warp physics; the first call's wall includes Warp's kernel compile on a fresh
+# machine.
 # run as: bash experiments/results/suite_gpu/run_gate_seeds.sh
 source experiments/results/default_gpu_runs/common.sh
 python3 -m compileall -q -j 16 /tmp/site > /dev/null 2>&1
