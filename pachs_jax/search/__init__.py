@@ -10,9 +10,3 @@ from pachs_jax.search.result import SearchResult, StopReason
 __all__ = ['ActorCritic', 'Capacities', 'Search', 'SearchConfig', 'SearchResult', 'SearchState',
            'StopReason', 'instance_keys', 'make_search']
 
-
-def __getattr__(name):
-  if name == 'plan':
-    raise AttributeError('pachs_jax.search.plan is now pachs_jax.runtime.programs.plan (compiling, '
-                         'threads and wall-clock timing live above the search core)')
-  raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
