@@ -190,12 +190,17 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   start = time.perf_counter()
   if devices is None:
     line = progress.ProgressLine()
-    say('note: compiling (or loading from the cache) the search programs', file=sys.stderr,
-        flush=True)
+    last_s = prefetch.last_ready_s() if prefetch is not None else None
+    say('note: compiling (or loading from the cache) the search programs'
+        + (f' (ready after {last_s:.1f} s last time)' if last_s is not None else ''),
+        file=sys.stderr, flush=True)
 
     def started():
-      say(f'note: programs ready after {time.perf_counter() - start:.1f} s; searching',
-          file=sys.stderr, flush=True)
+      ready_s = time.perf_counter() - start
+      if prefetch is not None:
+        prefetch.ready_s = ready_s
+      say(f'note: programs ready after {ready_s:.1f} s; searching', file=sys.stderr,
+          flush=True)
       if guard is not None:  # once the search runs, a first signal stops it at its next
         guard.keep()         # chunk and the command keeps what it found
 

@@ -83,9 +83,12 @@ def test_prefetch_loads_what_the_command_line_used_last_time(tmp_path, monkeypat
   try:
     prefetch = compile_cache.Prefetch(index)
     prefetch.load()  # no index yet: nothing to load
+    assert prefetch.last_ready_s() is None
     np.testing.assert_allclose(
         compile_cache.compiled_program(double, (x,), 'double', prefetch=prefetch)(x), 2 * x)
+    prefetch.ready_s = 12.5  # the command's time to its search, for the next run's note
     prefetch.finish()
+    assert compile_cache.Prefetch(index).last_ready_s() == 12.5
     with open(index) as f:
       listed = f.read().split()
     assert listed == list(compiled) and parsed == []

@@ -120,23 +120,35 @@ def test_fixed_chunks_keep_their_size():
 
 # -- the progress line ---------------------------------------------------------------------------
 
-def _progress(elapsed):
+def _progress(elapsed, iterations=0, iterations_left=0):
   return programs.Progress(finished=1, instances=4, evaluations=1000, budget=4000,
-                           elapsed_s=elapsed)
+                           elapsed_s=elapsed, iterations=iterations,
+                           iterations_left=iterations_left)
 
 
 def test_progress_on_a_terminal_rewrites_one_line():
   stream = io.StringIO()
   line = progress.ProgressLine(stream, after_s=2.0, tty=True)
-  line(_progress(1.0))
+  line(_progress(1.0, 10, 90))
   assert stream.getvalue() == ''  # a short search says nothing
-  line(_progress(3.0))
-  line(_progress(4.0))
+  line(_progress(3.0, 30, 70))
+  line(_progress(4.0, 40, 60))
   line.close()
   text = stream.getvalue()
   assert text.count('\r\033[K') == 3 and '\n' not in text
-  assert text.endswith('about 12 s left\r\033[K')
+  # 0.1 s per iteration (30 iterations in 3 s) and 60 iterations left
+  assert text.endswith('at most about 6 s left\r\033[K')
   assert 'searching: 1/4 instances finished, 1,000/4,000 evaluations, 4 s' in text
+
+
+def test_the_time_left_follows_the_recent_pace():
+  pace = progress.Pace(window_s=5.0)
+  assert pace.left_s(_progress(0.5, 0, 100)) is None  # no iteration timed yet
+  assert pace.left_s(_progress(1.0, 10, 90)) == pytest.approx(90 * 0.05)
+  # the batch slows down to 1 s per iteration; older reports leave the window
+  for elapsed, done in ((7.0, 16), (13.0, 22)):
+    left = pace.left_s(_progress(elapsed, done, 100 - done))
+  assert left == pytest.approx(78 * 1.0)
 
 
 def test_progress_in_a_log_prints_a_line_now_and_then():

@@ -321,6 +321,7 @@ def _write(path: str, blob: bytes):
 
 
 COMMANDS = 'commands'  # the traces' subdirectory: per command line, the executables it used
+READY_SUFFIX = '.ready_s'  # beside a command line's index: its seconds until programs were ready
 
 
 class Prefetch:
@@ -329,11 +330,14 @@ class Prefetch:
   index: the file listing the executables the command line used last time (`command_index`).
   `load()` reads them (in a thread of the caller's, beside its imports and model load);
   `compiled_program(..., prefetch=this)` takes them from here and records what it uses;
-  `finish()` cancels what is still unread and writes the index back.
+  `finish()` cancels what is still unread and writes the index back, with `ready_s` (the
+  seconds the command took until its programs were ready, when its caller set it) beside it;
+  `last_ready_s()` reads that of the last time.
   """
 
   def __init__(self, index: str):
     self.index = index
+    self.ready_s: Optional[float] = None
     self.loading: dict = {}  # path -> Future of `_executable`'s result
     self.used: list = []  # the paths asked for now, in order
     self._lock = threading.Lock()
@@ -359,6 +363,15 @@ class Prefetch:
       for future in futures.values():
         future.cancel()
 
+  def last_ready_s(self) -> Optional[float]:
+    """The seconds this command line took until its programs were ready last time (None:
+    not recorded)."""
+    try:
+      with open(self.index + READY_SUFFIX) as f:
+        return float(f.read())
+    except (OSError, ValueError):
+      return None
+
   def take(self, path: str):
     """The loaded executable at path, waiting for one being read (None: not listed)."""
     with self._lock:
@@ -380,6 +393,8 @@ class Prefetch:
       future.cancel()
     if not write:
       return
+    if self.ready_s is not None:
+      _write(self.index + READY_SUFFIX, f'{self.ready_s:.3f}'.encode())
     listed = [path for path in dict.fromkeys(self.used) if os.path.exists(path)]
     try:
       with open(self.index) as f:

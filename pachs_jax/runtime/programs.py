@@ -140,13 +140,18 @@ def _ready(programs: dict, name, waiting: Optional[dict] = None):
 
 class Progress(NamedTuple):
   """Where a search stands after a chunk: instances finished of all, edge evaluations done
-  (finished instances counted at their full budget) of the total budget, seconds searched."""
+  (finished instances counted at their full budget) of the total budget, seconds searched;
+  iterations: the loop iterations run so far (the batch runs them in lockstep);
+  iterations_left: the most any running instance needs to spend its budget at its own pace so
+  far (evaluations per iteration; 0 when none runs)."""
 
   finished: int
   instances: int
   evaluations: int
   budget: int
   elapsed_s: float
+  iterations: int = 0
+  iterations_left: int = 0
 
 
 def _wait(future: concurrent.futures.Future, stop: Optional[Callable[[], bool]]):
@@ -280,10 +285,14 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     def on_chunk(state, elapsed_s):
       active = np.asarray(state.active)[:num_instances]
       done = np.asarray(state.evaluated)[:num_instances]
+      iterations = np.asarray(state.iterations)[:num_instances]
       budget = config.budget
+      pace = np.maximum(done / np.maximum(iterations, 1), 1.0)  # evaluations per iteration
+      left = np.where(active, np.ceil(np.maximum(budget - done, 0) / pace), 0)
       progress(Progress(int(np.sum(~active)), num_instances,
                         int(np.sum(np.where(active, np.minimum(done, budget), budget))),
-                        budget * num_instances, elapsed_s))
+                        budget * num_instances, elapsed_s, int(np.max(iterations, initial=0)),
+                        int(np.max(left, initial=0))))
 
     out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
                                timing=programs.setdefault('timing', {}), stop=stop,
