@@ -8,6 +8,7 @@ import json
 import os
 import sys
 import time
+import warnings
 
 from pachs_jax import argtypes, flags
 from pachs_jax.runtime import signals
@@ -144,6 +145,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   from pachs_jax import planner
   from pachs_jax.envs import registry
   from pachs_jax.runtime import programs, progress
+  from pachs_jax.sac import checkpoint as checkpoint_lib
 
   say = _say if jax.process_index() == 0 else lambda *a, **k: None
   on_cpu = jax.default_backend() == 'cpu'
@@ -152,9 +154,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     if after_goal != 'improve':
       raise ValueError(f'--improve-allowance applies with --after-goal improve; here the first '
                        f'goal ends the search (after_goal {after_goal!r})')
-  planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
-                             cache=not args.no_cache, layout=args.layout, prefetch=prefetch,
-                             algorithm=args.algorithm, **flags.search_overrides(args))
+  with warnings.catch_warnings():  # (its physics note is said below, as a note)
+    warnings.simplefilter('ignore', UserWarning)
+    planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
+                               cache=not args.no_cache, layout=args.layout, prefetch=prefetch,
+                               algorithm=args.algorithm, **flags.search_overrides(args))
   env, config, num_available = planning.env, planning.config, planning.num_instances
   cpu = registry.cpu_planning(env.physics)
   few = args.instances is None and on_cpu and cpu.instances != 'all' and num_available > 1
@@ -171,6 +175,8 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'{num_available} instances x {gpu.budget:,} evaluations in seconds: pip '
         'install -e .[cuda]', file=sys.stderr, flush=True)
+  if planning.physics_note is not None:
+    say(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
   if few:
     say(f'note: on this CPU (MJX physics) only instance {args.instances} of 0-'
         f'{num_available - 1} is planned; --instances 0-{num_available - 1} (or all) plans '
@@ -233,13 +239,16 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   writes = []
   if args.json:
     saved = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
-             'physics': env.physics, 'config': dataclasses.asdict(config), 'rows': rows,
+             'physics': env.physics, 'physics_settings': env.physics_settings,
+             'model': {'path': model_path,
+                       'params_sha256': checkpoint_lib.params_sha256(model_path)},
+             'config': dataclasses.asdict(config), 'rows': rows,
              'devices': 1 if devices is None else len(devices),
              'search_time_s': float(result.wall_time_s), 'interrupted': bool(interrupted)}
 
     def write_json():
       outputs.write_json(args.json, outputs.json_document(saved, result, instances,
-                                                          env.physics))
+                                                          env.physics, env.physics_settings))
       print(f'wrote the rows and each instance\'s plan to {args.json}')
     writes.append(('--json', args.json, write_json))
   if args.render:
@@ -268,8 +277,12 @@ def _loop(args: argparse.Namespace) -> int:
   num_available = envs.spec(args.task).num_instances
   instances = planner.parse_instances(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
-  planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
-                             cache=not args.no_cache, layout=args.layout)
+  with warnings.catch_warnings():  # (its physics note is said below, as a note)
+    warnings.simplefilter('ignore', UserWarning)
+    planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
+                               cache=not args.no_cache, layout=args.layout)
+  if planning.physics_note is not None:
+    print(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
   env, config = planning.env, planning.config
   worlds = episodes.Worlds(env, planning.canonical(instances))
   print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '

@@ -50,10 +50,11 @@ def write_atomically(path: str, write: Callable) -> str:
 
 
 def json_document(saved: dict, result, instances: Sequence[int],
-                  physics: Optional[str] = None) -> dict:
+                  physics: Optional[str] = None, physics_settings: Optional[dict] = None) -> dict:
   """saved (the rows and settings) with each row given its instance's plan (`saved_plans.to_json`)
-  under 'plan', made with `physics` (`base.Env.physics`); the rows keep their other keys."""
-  found = saved_plans.from_result(result, physics)
+  under 'plan', made with `physics` and `physics_settings` (`base.Env`'s); the rows keep their
+  other keys."""
+  found = saved_plans.from_result(result, physics, physics_settings)
   rows = [dict(row, plan=saved_plans.to_json(p)) for row, p in zip(saved['rows'], found)]
   return dict(saved, rows=rows)
 

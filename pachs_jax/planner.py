@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import warnings
 from typing import Callable, List, Optional, Sequence
 
 import jax
@@ -152,6 +153,8 @@ class Planner:
   cache: turn on the persistent compilation cache (`compile_cache.enable`);
   layout: pusht-obs's obstacle layout (None: the default);
   prefetch: a command line's `compile_cache.Prefetch` (None: nothing loaded ahead).
+  physics_note: a line when the model was trained on other physics settings than the env
+  simulates (`checkpoint.physics_mismatch`; also issued as a UserWarning), else None.
   """
 
   def __init__(self, task: str, checkpoint: Optional[str] = None, backend: str = 'auto',
@@ -161,6 +164,10 @@ class Planner:
       compile_cache.enable()
     self.env, self.model = load_model(task, checkpoint, backend, layout=layout)
     self.task = self.env.name if isinstance(task, envs.Env) else task
+    self.physics_note = checkpoint_lib.physics_mismatch(
+        checkpoint or checkpoint_path(self.task), self.env)
+    if self.physics_note is not None:
+      warnings.warn(self.physics_note, stacklevel=2)
     on_cpu = jax.default_backend() == 'cpu'
     c_physics = self.env.physics == 'mujoco-c'
     if isinstance(task, envs.Env):  # a user's task: registry.USER_SEARCH

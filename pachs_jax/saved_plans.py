@@ -29,6 +29,8 @@ class Plan:
     plan holds its first L transitions.
   physics: the engine that made it (`base.Env.physics`: 'mjx', 'warp', 'mujoco-c', 'jax');
     None: not recorded.
+  physics_settings: the settings of the physics model it simulated (`base.Env.physics_settings`,
+    e.g. PushT's time step and contact parameters); None: none or not recorded.
   """
 
   actions: np.ndarray
@@ -38,6 +40,7 @@ class Plan:
   ends_at_goal: bool
   truncated: bool
   physics: Optional[str] = None
+  physics_settings: Optional[Dict[str, Any]] = None
 
   @property
   def length(self) -> int:
@@ -50,9 +53,10 @@ class Plan:
     return jax.tree.map(lambda x: x[0], self.states)
 
 
-def from_result(result, physics: Optional[str] = None) -> List[Plan]:
-  """The plan of each instance of a SearchResult [I], in order; physics: the engine of the env
-  that made it (`base.Env.physics`)."""
+def from_result(result, physics: Optional[str] = None,
+                physics_settings: Optional[Dict[str, Any]] = None) -> List[Plan]:
+  """The plan of each instance of a SearchResult [I], in order; physics, physics_settings: the
+  engine and model settings of the env that made it (`base.Env.physics`, `physics_settings`)."""
   r = jax.tree.map(np.asarray, result.replace(wall_time_s=None))
   kept = r.path_actions.shape[1]
   plans = []
@@ -62,7 +66,7 @@ def from_result(result, physics: Optional[str] = None) -> List[Plan]:
         actions=r.path_actions[i, :length], cost=float(r.cost[i]), found=bool(r.found[i]),
         states=jax.tree.map(lambda x, i=i, n=length: x[i, :n + 1], r.path_nodes),
         ends_at_goal=bool(r.path_is_goal[i]), truncated=bool(r.path_truncated[i]),
-        physics=physics))
+        physics=physics, physics_settings=physics_settings))
   return plans
 
 
@@ -84,6 +88,7 @@ def to_json(plan: Plan) -> Dict[str, Any]:
   node_type. Floats keep their float32 values exactly (`from_json` restores them bit for bit)."""
   out = {'length': plan.length, 'cost': plan.cost, 'found': plan.found,
          'ends_at_goal': plan.ends_at_goal, 'truncated': plan.truncated, 'physics': plan.physics,
+         'physics_settings': plan.physics_settings,
          'action_size': int(plan.actions.shape[1]), 'actions': _floats(plan.actions)}
   if isinstance(plan.states, base.NodeState):
     out['goal'] = _floats(plan.states.goal[0])
@@ -107,6 +112,9 @@ def from_json(data: Dict[str, Any], like=None) -> Plan:
     physics = data.get('physics')
     if physics is not None and not isinstance(physics, str):
       raise TypeError(f"'physics' {physics!r}")
+    settings = data.get('physics_settings')
+    if settings is not None and not isinstance(settings, dict):
+      raise TypeError(f"'physics_settings' {settings!r}")
     if 'node_type' in data:
       if like is None:
         raise ValueError(f'a plan of {data["node_type"]} nodes needs like= (a node of its task)')
@@ -127,7 +135,8 @@ def from_json(data: Dict[str, Any], like=None) -> Plan:
     states = jax.tree_util.tree_unflatten(jax.tree.structure(like), list(fields.values()))
   else:
     states = base.NodeState(goal=np.broadcast_to(goal, (count,) + goal.shape).copy(), **fields)
-  return Plan(actions=actions, states=states, cost=cost, physics=physics, **flags)
+  return Plan(actions=actions, states=states, cost=cost, physics=physics,
+              physics_settings=settings, **flags)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,12 +155,21 @@ class Replay:
   is_goal: bool
 
 
-def make_env(task: str, physics: str, layout: Optional[str] = None) -> base.Env:
-  """The env of a task name (`envs.make`, layout for pusht-obs) simulated by `physics`, the
-  engine a plan records (`Plan.physics`), to replay it where it was made."""
+def make_env(task: str, physics: str, layout: Optional[str] = None,
+             physics_settings: Optional[Dict[str, Any]] = None) -> base.Env:
+  """The env of a task name (`envs.make`, layout for pusht-obs) simulated by `physics` with
+  `physics_settings` (PushT: `pusht.PHYSICS_FIELDS`; None: the task's), the engine and model a
+  plan records (`Plan.physics`, `Plan.physics_settings`), to replay it where it was made."""
   from pachs_jax import envs  # pylint: disable=import-outside-toplevel  (MuJoCo)
   from pachs_jax.envs import backends, pusht  # pylint: disable=import-outside-toplevel
   env = envs.make(task, layout=layout)
+  if physics_settings is not None and physics_settings != env.physics_settings:
+    unknown = sorted(set(physics_settings) - set(pusht.PHYSICS_FIELDS))
+    if unknown or not isinstance(env, pusht.PushTEnv):
+      raise ValueError(f'task {task!r} takes no physics settings '
+                       f'{", ".join(unknown or sorted(physics_settings))}')
+    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in physics_settings.items()}
+    env = pusht.PushTEnv(dataclasses.replace(env.config, **fields))
   if physics == env.physics:
     return env
   built = (backends.make_backend(env, physics)
@@ -168,7 +186,14 @@ def replay(env: base.Env, plan: Plan) -> Replay:
   if plan.physics is not None and plan.physics != env.physics:
     raise ValueError(f'this plan was made with {plan.physics} physics and env {env.name!r} '
                      f'simulates with {env.physics}, where it reaches other states: replay it '
-                     f"on saved_plans.make_env(task, {plan.physics!r}, layout)")
+                     f"on saved_plans.make_env(task, {plan.physics!r}, layout, settings)")
+  if plan.physics_settings is not None and plan.physics_settings != env.physics_settings:
+    differ = sorted(k for k in plan.physics_settings
+                    if plan.physics_settings[k] != (env.physics_settings or {}).get(k))
+    raise ValueError(f'this plan was made with other physics settings than env {env.name!r} '
+                     f'simulates ({", ".join(differ[:4])}), where it reaches other states: '
+                     'replay it on saved_plans.make_env(task, physics, layout, '
+                     'plan.physics_settings)')
   if plan.actions.ndim != 2 or plan.actions.shape[1] != env.action_size:
     raise ValueError(f'the plan\'s actions have shape {plan.actions.shape}; env {env.name!r} '
                      f'takes [L, {env.action_size}]')

@@ -9,7 +9,7 @@ import pytest
 from conftest import UniformActorCritic, trees_equal
 
 from pachs_jax import saved_plans
-from pachs_jax.envs import gridworld, point_mass
+from pachs_jax.envs import gridworld, point_mass, pusht
 from pachs_jax.runtime.programs import plan
 from pachs_jax.search import Capacities, SearchConfig, instance_keys, make_search
 
@@ -136,6 +136,39 @@ def test_a_plan_records_its_physics_and_refuses_another(grid_plans):
   # plans saved without a record replay as before
   unknown = saved_plans.from_json({k: v for k, v in saved_plans.to_json(made).items() if k != 'physics'})
   assert unknown.physics is None and saved_plans.replay(env, unknown).is_goal
+
+
+def test_a_plan_refuses_other_physics_settings_and_make_env_builds_them():
+  env = saved_plans.make_env('pusht-fixed', 'mjx')
+  start = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), 1))  # NodeState [1]
+  plan = saved_plans.Plan(actions=np.zeros((0, 7), np.float32), states=start, cost=0.0,
+                          found=False, ends_at_goal=False, truncated=False, physics='mjx',
+                          physics_settings=dict(env.physics_settings, t_damping=0.7))
+  back = saved_plans.from_json(json.loads(json.dumps(saved_plans.to_json(plan))))
+  assert back.physics_settings == plan.physics_settings
+  with pytest.raises(ValueError, match='other physics settings .*t_damping'):
+    saved_plans.replay(env, back)
+  other = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=back.physics_settings)
+  assert other.config.t_damping == 0.7 and other.physics_settings == back.physics_settings
+  faithful = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=pusht.physics_settings(
+      pusht.physics_preset('faithful')))
+  assert faithful.config.block_solimp == pusht.PHYSICS_PRESETS['faithful']['block_solimp']
+  with pytest.raises(ValueError, match="takes no physics settings t_damping"):
+    saved_plans.make_env('shelf', 'jax', physics_settings={'t_damping': 0.7})
+
+
+def test_the_shipped_models_record_their_physics_and_a_mismatch_is_said():
+  from pachs_jax import planner
+  from pachs_jax.sac import checkpoint
+  path = planner.checkpoint_path('pusht-obs')  # the PushT-Fixed model
+  default = pusht.PushTEnv(pusht.PushTConfig())
+  assert checkpoint.trained_physics(path) == {'engine': 'mjx',
+                                              'settings': default.physics_settings}
+  assert checkpoint.physics_mismatch(path, default) is None  # the same model in any engine
+  free = pusht.PushTEnv(pusht.physics_preset('faithful'))
+  note = checkpoint.physics_mismatch(path, free)
+  assert "trained on other physics than 'pusht-fixed'" in note
+  assert 'physics_dt 0.0125 -> 0.0025' in note and 'and 4 more' in note  # 8 fields differ
 
 
 def test_make_env_builds_the_engine_a_plan_names():

@@ -225,3 +225,6 @@ def test_resume_after_sigkill_has_one_row_per_epoch(tmp_path, train_env):
   assert epochs == list(range(1, len(epochs) + 1))  # each epoch once, in order
   assert len(epochs) > saved
   assert not [d for d in os.listdir(os.path.join(out, 'state')) if 'tmp' in d]
+  # the export records the physics it was trained on (the point mass: its own JAX transition)
+  assert checkpoint.trained_physics(os.path.join(out, checkpoint.MODEL_SUBDIR)) == {
+      'engine': 'jax', 'settings': None}

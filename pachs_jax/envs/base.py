@@ -119,6 +119,13 @@ class Env(abc.ABC):
   physics: str = 'jax'
 
   @property
+  def physics_settings(self) -> dict | None:
+    """The settings of the physics model its engine simulates (PushT: time step, substeps,
+    solver, T body, friction and contact parameters), as JSON values: what a model trained on
+    it and a plan made in it record. None: nothing beyond the task itself."""
+    return None
+
+  @property
   def fingerprint(self) -> str | None:
     """A string that, with the package sources, fixes everything the env's functions close
     over, so that a traced search program of it may be stored and reused across processes

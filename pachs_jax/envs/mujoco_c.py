@@ -258,6 +258,10 @@ class MujocoCEnv(base.Env):
 
   physics = 'mujoco-c'
 
+  @property
+  def physics_settings(self) -> dict:
+    return self.env.physics_settings
+
   def __getattr__(self, name):
     # Only reached for attributes this wrapper lacks (config, mj_model, node_from_pose, ...).
     if name in ('env', '_sim'):

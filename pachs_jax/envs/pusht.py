@@ -105,6 +105,10 @@ PHYSICS_PRESETS = {
                      block_solimp=(0.99, 0.999, 0.001, 0.5, 2.0)),
     'maniskill': dict(t_body='free', table_friction=3.0, physics_dt=0.01, substeps=5),
 }
+# The PushTConfig fields that make the physics model (`physics_settings`); the others make the task.
+PHYSICS_FIELDS = ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations',
+                  'table_friction', 'pusher_friction', 't_body', 't_friction_radius', 't_damping',
+                  't_yaw_damping', 'solver', 'block_solref', 'block_solimp', 'block_margin')
 T_BODIES = ('planar', 'free')
 SOLVERS = ('Newton', 'CG')
 
@@ -141,6 +145,12 @@ def check_physics(config: PushTConfig) -> None:
   if not 0 < c.success_coverage <= 1:
     raise ValueError(f'PushTConfig.success_coverage must be in (0, 1], got '
                      f'{c.success_coverage!r}')
+
+
+def physics_settings(config: PushTConfig) -> dict:
+  """The config's `PHYSICS_FIELDS` as JSON values (tuples as lists)."""
+  value = lambda v: list(v) if isinstance(v, tuple) else v
+  return {name: value(getattr(config, name)) for name in PHYSICS_FIELDS}
 
 
 def physics_preset(name: str, **fields) -> PushTConfig:
@@ -496,6 +506,10 @@ class PushTEnv(base.Env):
         [np.asarray(x, np.float32) for x in (home, panda.JOINT_LOWER, panda.JOINT_UPPER)])
 
   fingerprint = property(base.config_fingerprint)
+
+  @property
+  def physics_settings(self) -> dict:
+    return physics_settings(self.config)
 
   @property
   def action_size(self) -> int:

@@ -354,6 +354,41 @@ def _restore_params(path: str, config: ModelConfig) -> Dict[str, Any]:
   return restored
 
 
+def params_sha256(path: str) -> str:
+  """The parameter hash an export records (its metadata checked as on loading)."""
+  _, meta = _read_model_config(path)
+  return meta[HASH_KEY]
+
+
+def physics_record(env: base.Env) -> Dict[str, Any]:
+  """What an export records of the physics it was trained on: {'engine': `Env.physics`,
+  'settings': `Env.physics_settings`}."""
+  return {'engine': env.physics, 'settings': env.physics_settings}
+
+
+def trained_physics(path: str) -> Optional[Dict[str, Any]]:
+  """The `physics_record` of the env an export was trained on (None: not recorded); the
+  metadata is checked as `load_actor_critic` checks it."""
+  _, meta = _read_model_config(path)
+  record = meta.get('physics')
+  return record if isinstance(record, dict) else None
+
+
+def physics_mismatch(path: str, env: base.Env) -> Optional[str]:
+  """A line saying how env's physics model differs from the one the export at path was
+  trained on (None: the same settings, or nothing recorded). Engines that simulate the same
+  settings (MJX, Warp, MuJoCo C) are not a mismatch."""
+  record = trained_physics(path)
+  if record is None or record.get('settings') == env.physics_settings:
+    return None
+  trained, now = record.get('settings') or {}, env.physics_settings or {}
+  differ = sorted(k for k in set(trained) | set(now) if trained.get(k) != now.get(k))
+  shown = ', '.join(f'{k} {trained.get(k)!r} -> {now.get(k)!r}' for k in differ[:4])
+  more = f' and {len(differ) - 4} more' if len(differ) > 4 else ''
+  return (f'the model at {path} was trained on other physics than {env.name!r} simulates '
+          f'({shown}{more}): its actor and critic may mislead the search')
+
+
 def load_actor_critic(path: str, env: Optional[base.Env] = None,
                       task: Optional[str] = None) -> SacActorCritic:
   """Loads an exported actor-critic (or a run directory's latest export).

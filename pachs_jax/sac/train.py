@@ -420,7 +420,8 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
     checkpoint.save_actor_critic(os.path.join(run_dir, checkpoint.MODEL_SUBDIR),
                                  actor_critic_from_state(trainer, state),
                                  extra={'sac_config': config_to_dict(config), 'epoch': epoch,
-                                        'env_steps': env_steps})
+                                        'env_steps': env_steps,
+                                        'physics': checkpoint.physics_record(env)})
     timing.save_seconds = time.time() - t
 
   saved_epoch, last_save_time = epoch, time.time()
