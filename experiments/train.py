@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import time
 
 import xla_cpu
 from pachs_jax import argtypes
@@ -40,7 +41,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                  help='with --resume: start a new run when --out holds none (for job scripts '
                       'that repeat one command)')
   p.add_argument('--minutes', type=argtypes.positive_float, default=None,
-                 help='wall-time budget of this call')
+                 help='wall-time budget of the command, its start-up and compilation included')
   p.add_argument('--checkpoint-minutes', type=argtypes.positive_float, default=5.0)
   p.add_argument('--checkpoint-every', type=argtypes.integer(0), default=0,
                  help='also save every N epochs')
@@ -146,6 +147,7 @@ def _stop_outside_training(out: str):
 
 def main(argv=None) -> int:
   args = parse_args(argv)
+  args.started_at = time.time()  # --minutes counts from here: imports and compilation included
   # Cheap checks of --out first: no JAX import, nothing written yet.
   if os.path.exists(args.out) and not os.path.isdir(args.out):
     raise SystemExit(f'error: --out {args.out} is a file, not a directory')
@@ -244,7 +246,8 @@ def _main(args: argparse.Namespace) -> int:
                          start_if_missing=args.start_if_missing, max_minutes=args.minutes,
                          checkpoint_minutes=args.checkpoint_minutes,
                          checkpoint_every_epochs=args.checkpoint_every,
-                         keep_checkpoints=args.keep, reporter=reporter, handle_signals=True)
+                         keep_checkpoints=args.keep, reporter=reporter, handle_signals=True,
+                         started_at=args.started_at)
   except (train.RunDirError, checkpoint.CheckpointError) as e:
     raise SystemExit(f'error: {e}') from None
   interrupted = None if result.finished else result.interrupted

@@ -277,3 +277,15 @@ def test_evaluator_stops_at_success_or_invalid(env, trained, eval_nodes):
   np.testing.assert_array_equal(bad.success, start_goal)
   np.testing.assert_array_equal(bad.steps, jnp.where(start_goal, 0, 1))
   np.testing.assert_array_equal(bad.final_node.qpos, eval_nodes.qpos)  # invalid edge not taken
+
+
+def test_a_chunked_evaluation_equals_one_call_and_stops_between_chunks(env, trained, eval_nodes):
+  ac = trained[1].actor_critic
+  key = jax.random.PRNGKey(3)
+  whole = evaluator.make_rollout_fn(env, deterministic=False)(ac, eval_nodes, key)
+  chunked = evaluator.make_rollout_fn(env, deterministic=False, chunk_steps=7)
+  for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked(ac, eval_nodes, key))):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
+  asked = []
+  stopped = chunked(ac, eval_nodes, key, stop=lambda: asked.append(1) or len(asked) >= 2)
+  assert stopped is None and len(asked) == 2  # after the second chunk, not at the end

@@ -32,24 +32,32 @@ class RolloutResult:
   final_node: base.NodeState
 
 
-def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Optional[int] = None
-                    ) -> Callable[[SacActorCritic, base.NodeState, jax.Array], RolloutResult]:
-  """A jitted fn(actor_critic, nodes [B], key) -> RolloutResult of the (stochastic) policy."""
+def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Optional[int] = None,
+                    chunk_steps: Optional[int] = None
+                    ) -> Callable[..., Optional[RolloutResult]]:
+  """fn(actor_critic, nodes [B], key, stop=None) -> RolloutResult of the (stochastic) policy.
+
+  The rollout runs in jitted chunks of chunk_steps steps (None: all in one call), which leave
+  its result unchanged; stop (fn() -> bool) is checked after each chunk, and once it returns
+  True the rollout ends early and fn returns None.
+  """
   horizon = env.episode_length if num_steps is None else int(num_steps)
   if horizon < 1:
     raise ValueError(f'num_steps must be >= 1, got {horizon}')
+  chunk = horizon if chunk_steps is None else max(1, min(int(chunk_steps), horizon))
 
-  def rollout(actor_critic: SacActorCritic, nodes: base.NodeState, key: jax.Array
-              ) -> RolloutResult:
+  def start(actor_critic: SacActorCritic, nodes: base.NodeState):
     if actor_critic.config.action_size != env.action_size:
       raise ValueError(f'actor-critic action size {actor_critic.config.action_size} != env '
                        f'{env.name!r} action size {env.action_size}')
     success = env.is_goal(nodes)
     batch = success.shape[0]
     zeros_i = jnp.zeros((batch,), jnp.int32)
-    init = (nodes, ~success, success, jnp.zeros((batch,), bool), zeros_i,
+    return (nodes, ~success, success, jnp.zeros((batch,), bool), zeros_i,
             jnp.zeros((batch,), jnp.float32))
 
+  def advance(actor_critic: SacActorCritic, carry, step_keys: jax.Array):
+    """carry after one step per key of step_keys [S, 2]."""
     def step(carry, step_key):
       node, active, success, invalid, steps, cost = carry
       obs = env.observe(node)
@@ -67,12 +75,25 @@ def make_rollout_fn(env: base.Env, deterministic: bool = True, num_steps: Option
       active = active & out.is_valid & ~out.is_goal
       return (node, active, success, invalid, steps, cost), None
 
-    carry, _ = jax.lax.scan(step, init, jax.random.split(key, horizon))
+    return jax.lax.scan(step, carry, step_keys)[0]
+
+  start_jit, advance_jit = jax.jit(start), jax.jit(advance)
+
+  def rollout(actor_critic: SacActorCritic, nodes: base.NodeState, key: jax.Array,
+              stop: Optional[Callable[[], bool]] = None) -> Optional[RolloutResult]:
+    carry = start_jit(actor_critic, nodes)
+    keys = jax.random.split(key, horizon)
+    for first in range(0, horizon, chunk):
+      carry = advance_jit(actor_critic, carry, keys[first:first + chunk])
+      if stop is not None and first + chunk < horizon:
+        jax.block_until_ready(carry)
+        if stop():
+          return None
     node, _, success, invalid, steps, cost = carry
     return RolloutResult(success=success, invalid=invalid, steps=steps, cost=cost,
                          final_node=node)
 
-  return jax.jit(rollout)
+  return rollout
 
 
 def success_rates(env: base.Env, actor_critic: SacActorCritic, nodes: base.NodeState,

@@ -11,7 +11,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Dict, Optional, Protocol
+from typing import Any, Callable, Dict, Optional, Protocol
 
 import jax
 import numpy as np
@@ -247,21 +247,30 @@ def evaluation_env_steps(trainer: Trainer) -> int:
   return 2 * trainer.config.eval_instances * trainer.env.episode_length
 
 
+EVALUATION_CHUNK_STEPS = 10  # steps per jitted call of an evaluation rollout (stop checked between)
+
+
 def _make_evaluation(trainer: Trainer):
-  """fn(state) -> eval metrics over a fixed set of start nodes, or None when disabled."""
+  """fn(state, stop) -> eval metrics over a fixed set of start nodes ({} once stop() turns
+  True, checked every EVALUATION_CHUNK_STEPS steps), or None when disabled."""
   count = trainer.config.eval_instances
   if count == 0:
     return None
   env = evaluation_env(trainer)
   key = jax.random.fold_in(jax.random.PRNGKey(trainer.config.seed), 0x5EED)
   nodes = wait_ready(jax.jit(env.initial_nodes)(jax.random.split(key, count)))
-  det = evaluator.make_rollout_fn(env, deterministic=True)
-  sto = evaluator.make_rollout_fn(env, deterministic=False)
+  det = evaluator.make_rollout_fn(env, deterministic=True,
+                                  chunk_steps=EVALUATION_CHUNK_STEPS)
+  sto = evaluator.make_rollout_fn(env, deterministic=False,
+                                  chunk_steps=EVALUATION_CHUNK_STEPS)
 
-  def evaluate(state: TrainingState) -> Dict[str, float]:
+  def evaluate(state: TrainingState, stop: Callable[[], bool]) -> Dict[str, float]:
     ac = actor_critic_from_state(trainer, state)
-    d = wait_ready(det(ac, nodes, key))
-    s = wait_ready(sto(ac, nodes, key))
+    d = det(ac, nodes, key, stop)
+    s = sto(ac, nodes, key, stop) if d is not None else None
+    if s is None:
+      return {}
+    wait_ready((d, s))
     return {'eval_success_deterministic': float(np.mean(d.success)),
             'eval_success_stochastic': float(np.mean(s.success)),
             'eval_cost_deterministic': float(np.mean(d.cost))}
@@ -316,7 +325,7 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
           start_if_missing: bool = False, max_minutes: Optional[float] = None,
           checkpoint_minutes: float = 5.0, checkpoint_every_epochs: int = 0,
           keep_checkpoints: int = 3, reporter: Optional[Reporter] = None,
-          handle_signals: bool = False) -> TrainResult:
+          handle_signals: bool = False, started_at: Optional[float] = None) -> TrainResult:
   """Trains until total_env_steps (rounded up to whole epochs), the time budget or a signal.
 
   resume: continue from run_dir's latest checkpoint; a run_dir without one is a RunDirError
@@ -325,7 +334,9 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   max_minutes: wall-time budget of this call, evaluations included: it stops before an epoch
     that would overrun it (judged by the last epoch's time), checkpoints and returns
     (finished=False); an evaluation that would overrun it is skipped (a note says so). The first
-    epoch (with its compilation) is the unit it cannot split.
+    epoch (with its compilation) is the unit it cannot split. The budget counts from
+    started_at (a `time.time()`, e.g. when a command began, its start-up then included;
+    None: this call).
   checkpoint_minutes / checkpoint_every_epochs: save when either is due (0 disables the latter);
     the second epoch and the end of the call always save.
   handle_signals: (main thread) the first SIGINT or SIGTERM (handled at once, also while
@@ -339,7 +350,7 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
     raise ValueError(f'total_env_steps must be >= 1, got {total_env_steps}')
   if max_minutes is not None and max_minutes <= 0:
     raise ValueError(f'max_minutes must be > 0, got {max_minutes}')
-  start_time = time.time()
+  start_time = time.time() if started_at is None else started_at
   deadline = None if max_minutes is None else start_time + 60.0 * max_minutes
   check_run_dir(run_dir)
   stop = _StopSignals(handle_signals, run_dir)
@@ -401,7 +412,9 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
       note(f'epoch {epoch}: evaluation skipped (about {estimate:.0f} s, past the time budget)')
       return {}
     t = time.time()
-    result = evaluate(state)
+    result = evaluate(state, lambda: stop.requested is not None)
+    if not result:  # a signal stopped it: the epoch is saved without it
+      return {}
     first = timing.evaluation_seconds is None
     timing.evaluation_seconds = time.time() - t
     if first:
