@@ -194,22 +194,22 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
       f'budget={config.budget} '
       f'on {where}', flush=True)
   start = time.perf_counter()
+  last_s = prefetch.last_ready_s() if prefetch is not None else None
+  say('note: compiling (or loading from the cache) the search programs'
+      + (f' (ready after {last_s:.1f} s last time)' if last_s is not None else ''),
+      file=sys.stderr, flush=True)
+
+  def started():
+    ready_s = time.perf_counter() - start
+    if prefetch is not None:
+      prefetch.ready_s = ready_s
+    say(f'note: programs ready after {ready_s:.1f} s; searching', file=sys.stderr,
+        flush=True)
+    if guard is not None:  # once the search runs, a first signal stops it at its next
+      guard.keep()         # chunk and the command keeps what it found
+
   if devices is None:
     line = progress.ProgressLine()
-    last_s = prefetch.last_ready_s() if prefetch is not None else None
-    say('note: compiling (or loading from the cache) the search programs'
-        + (f' (ready after {last_s:.1f} s last time)' if last_s is not None else ''),
-        file=sys.stderr, flush=True)
-
-    def started():
-      ready_s = time.perf_counter() - start
-      if prefetch is not None:
-        prefetch.ready_s = ready_s
-      say(f'note: programs ready after {ready_s:.1f} s; searching', file=sys.stderr,
-          flush=True)
-      if guard is not None:  # once the search runs, a first signal stops it at its next
-        guard.keep()         # chunk and the command keeps what it found
-
     try:
       # one-shot (shrink=False): the whole search in the loop of the live instances' physics
       # size, no further loop to compile or load (docs/startup_and_caching.md)
@@ -218,9 +218,12 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
                              progress=line if jax.process_index() == 0 else None)
     finally:
       line.close()
-  else:
+  elif jax.process_count() == 1:  # sharded on one host: stopped at its next chunk as well
+    result = planning.plan(instances, seed=args.seed, devices=devices, started=started,
+                           stop=guard and guard.stop)
+  else:  # across hosts the search runs in one call, and a signal ends the job
     if guard is not None:
-      guard.phase = 'the sharded search (it keeps no partial results)'
+      guard.phase = 'the multi-host search (it keeps no partial results)'
     result = planning.plan(instances, seed=args.seed, devices=devices)
   total = time.perf_counter() - start
   rows = planner.result_rows(result, instances)

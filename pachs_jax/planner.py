@@ -208,8 +208,8 @@ class Planner:
     KeyboardInterrupt as usual. progress: called with a `programs.Progress` after each chunk;
     started: called once when the search begins (after compiling). shrink: as in
     `programs.plan` (False: a one-shot search, no further loop to compile).
-    devices: shard the instances over these devices (`sharding.plan_sharded`: every instance
-    to its end, no time limit, stop, progress or partial result).
+    devices: shard the instances over these devices (`sharding.plan_sharded`: no time limit
+    or progress; on one host stop and Ctrl-C work as above).
     """
     if (instances is None) == (start_nodes is None):
       raise ValueError('give either instances (canonical indices) or start_nodes')
@@ -219,14 +219,15 @@ class Planner:
     key = jax.random.PRNGKey(check_seed(seed))
     if start_nodes is None:
       start_nodes = self.canonical(instances)
-    if devices is not None:
-      if time_limit_s is not None:
-        raise ValueError('a time limit (anytime mode) is not supported with sharding: plan on '
-                         'one device, or run every instance to completion')
-      return sharding.plan_sharded(self.env, self.model, start_nodes, self.config, key,
-                                   mesh=sharding.instance_mesh(devices))
+    if devices is not None and time_limit_s is not None:
+      raise ValueError('a time limit (anytime mode) is not supported with sharding: plan on '
+                       'one device, or run every instance to completion')
     with signals.interrupt_requests() as interrupted:
       asked = interrupted if stop is None else (lambda: interrupted() or bool(stop()))
+      if devices is not None:
+        return sharding.plan_sharded(self.env, self.model, start_nodes, self.config, key,
+                                     mesh=sharding.instance_mesh(devices), stop=asked,
+                                     started=started)
       try:
         return programs.plan(self.env, self.model, start_nodes, self.config, key,
                              time_limit_s=time_limit_s, search=self.search, stop=asked,

@@ -24,7 +24,7 @@ SETUP = textwrap.dedent('''
     import jax
     import numpy as np
     from pachs_jax.envs import gridworld
-    from pachs_jax.search import SearchConfig
+    from pachs_jax.search import SearchConfig, StopReason
     OBSTACLES = np.zeros((10, 10), bool)
     OBSTACLES[3:7, 5] = True
     OBSTACLES[7, 1:5] = True
@@ -100,8 +100,28 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
       assert np.isfinite(got.wall_time_s) and got.wall_time_s > 0
       assert np.asarray(got.evaluated).sum() > 0
 
+    SEARCH = make_search(ENV, AC, CONFIG)
+
+    def stopped_after_a_chunk():
+      # in chunks, stopped after the first: the instances that finished keep their results
+      asked = []
+      got = sharding.plan_sharded(ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH,
+                                  stop=lambda: asked.append(1) or len(asked) > 1)
+      saved = np.load(sys.argv[1])
+      treedef = jax.tree.structure(got.replace(wall_time_s=None))
+      want = jax.tree.unflatten(treedef, [saved[f'pachs_{i}']
+                                          for i in range(int(saved['pachs_leaves']))])
+      stop = np.asarray(got.stop_reason)
+      kept = stop != int(StopReason.INTERRUPTED)
+      assert 0 < kept.sum() < 6 and np.all(np.asarray(want.stop_reason)[~kept] != stop[~kept])
+      for a, b in zip(jax.tree.leaves(got.replace(wall_time_s=None)), jax.tree.leaves(want)):
+        assert np.array_equal(np.asarray(a)[kept], np.asarray(b)[kept])
+
     checks = {'pachs': lambda: same('pachs', sharding.plan_sharded(
-        ENV, AC, NODES, CONFIG, key, mesh=mesh, search=make_search(ENV, AC, CONFIG)))}
+        ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH)),
+              'pachs_chunked': lambda: same('pachs', sharding.plan_sharded(
+                  ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH, stop=lambda: False)),
+              'pachs_stopped': stopped_after_a_chunk}
     for name, (shard_fn, _) in baselines().items():
       checks[name] = (lambda n, s: lambda: same(n, sharding.plan_sharded_fn(s, NODES, key,
                                                                             mesh)))(name, shard_fn)
@@ -151,7 +171,7 @@ def four_devices(compilation_cache_dir, references):
   return proc.stdout
 
 
-@pytest.mark.parametrize('name', ('pachs',) + BASELINES)
+@pytest.mark.parametrize('name', ('pachs', 'pachs_chunked', 'pachs_stopped') + BASELINES)
 def test_four_devices_equal_unsharded(four_devices, name):
   assert f'{name.upper()}_OK' in four_devices, four_devices[-4000:]
 

@@ -15,6 +15,7 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from pachs_jax.envs import base
+from pachs_jax.runtime import anytime
 from pachs_jax.runtime.programs import check_model
 from pachs_jax.search import memory, pachs
 from pachs_jax.search.checks import check_start_nodes, instance_keys
@@ -195,15 +196,67 @@ def pachs_shard_fn(search: pachs.Search) -> ShardFn:
   return run
 
 
+@functools.lru_cache(maxsize=32)
+def pachs_shard_programs(search: pachs.Search, mesh: Mesh):
+  """PACHS's jitted programs sharded over mesh, for a search in chunks: init(start_nodes [P],
+  keys [P, 2]) -> state; loop(state, iterations) -> state after at most that many more
+  iterations (every lane simulated; state donated); result(state) -> SearchResult [P] (its
+  wall_time_s [P] NaN). Cached per (search, mesh)."""
+  spec = PartitionSpec(AXIS)
+  init = jax.jit(_shard_map(lambda nodes, keys: search.init(nodes, keys), mesh, (spec, spec),
+                            spec))
+  loop = jax.jit(_shard_map(lambda state, count: search.loop(state, count, None, False), mesh,
+                            (spec, PartitionSpec()), spec), donate_argnums=0)
+
+  def result(state):
+    out = search.result(state)
+    return out.replace(wall_time_s=jnp.full(state.active.shape, jnp.nan, jnp.float32))
+
+  return init, loop, jax.jit(_shard_map(result, mesh, (spec,), spec))
+
+
+def _plan_sharded_in_chunks(search: pachs.Search, start_nodes: base.NodeState, key: jax.Array,
+                            mesh: Mesh, stop: Callable[[], bool],
+                            started: Optional[Callable[[], object]]) -> SearchResult:
+  """`plan_sharded` on one host in jitted chunks (`anytime.ChunkSizes`), `stop` checked
+  between them: once it returns True the instances still searching report INTERRUPTED with
+  their real-time answer, the finished ones keep theirs."""
+  num_instances = _num_instances(start_nodes)
+  keys = instance_keys(key, num_instances)
+  padded = -(-num_instances // mesh.devices.size) * mesh.devices.size
+  sharding = NamedSharding(mesh, PartitionSpec(AXIS))
+  start_nodes = jax.tree.map(lambda x: _put_global(x, sharding), _pad(start_nodes, padded))
+  keys = _put_global(_pad(keys, padded), sharding)
+  init_jit, loop_jit, result_jit = pachs_shard_programs(search, mesh)
+  shape = jax.eval_shape(init_jit, start_nodes, keys)
+  init = init_jit.lower(start_nodes, keys).compile()
+  loop = loop_jit.lower(shape, jax.device_put(np.int32(1))).compile()
+  result = result_jit.lower(shape).compile()
+  begin = time.perf_counter()
+  state = init(start_nodes, keys)
+  if started is not None:
+    started()
+  out = anytime.timed_result(lambda s, n: loop(s, jax.device_put(np.int32(n))), state, result,
+                             None, start=begin, stop=stop, sizes=anytime.ChunkSizes())
+  wall = time.perf_counter() - begin
+  out = jax.tree.map(lambda x: x[:num_instances], out.replace(wall_time_s=None))
+  return out.replace(wall_time_s=jnp.float32(wall))
+
+
 def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                  config: SearchConfig, key: jax.Array, mesh: Optional[Mesh] = None,
-                 search: Optional[pachs.Search] = None) -> SearchResult:
+                 search: Optional[pachs.Search] = None,
+                 stop: Optional[Callable[[], bool]] = None,
+                 started: Optional[Callable[[], object]] = None) -> SearchResult:
   """Plans from start_nodes [I] with the instances split over mesh; returns SearchResult [I].
 
   key: one PRNG key (split per instance, as in `programs.plan`) or per-instance keys [I, 2].
   mesh: a `jax.sharding.Mesh` with the single axis 'instances' (default: all `jax.devices()`).
   search: a `make_search` result to reuse; built here when None.
   Runs every instance to completion (no time limit; use `programs.plan` for anytime chunks).
+  stop (one host): the search runs in chunks and stop() is checked between them; once True,
+  the instances still searching report INTERRUPTED with their real-time answer. started:
+  called once the programs are compiled and the chunks begin (one host with stop only).
   See `plan_sharded_fn` for padding, the result across hosts and wall_time_s.
   """
   mesh = check_mesh(mesh)
@@ -217,4 +270,6 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
                                       capacities=search.capacities), search,
                     start_nodes, -(-num_instances // mesh.devices.size),
                     device=mesh.local_devices[0])
+  if stop is not None and jax.process_count() == 1:
+    return _plan_sharded_in_chunks(search, start_nodes, key, mesh, stop, started)
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)
