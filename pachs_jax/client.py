@@ -4,6 +4,7 @@ only (no JAX)."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import uuid
 from typing import Optional, Sequence
@@ -76,8 +77,9 @@ class Client:
     self.url = url
     self.session = session or uuid.uuid4().hex
     self.timeout_s = timeout_s
-    self._connection = connect(url, max_size=wire.MAX_MESSAGE_BYTES, compression=None,
-                               open_timeout=timeout_s)
+    self._open = contextlib.ExitStack()  # the connection, entered as its context
+    self._connection = self._open.enter_context(connect(
+        url, max_size=wire.MAX_MESSAGE_BYTES, compression=None, open_timeout=timeout_s))
     self._next_id = 0
     if task is None:
       tasks = list(self.health()['tasks'])
@@ -131,7 +133,7 @@ class Client:
                            'session': self.session})['forgot'])
 
   def close(self) -> None:
-    self._connection.close()
+    self._open.close()
 
   def __enter__(self) -> 'Client':
     return self

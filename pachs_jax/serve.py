@@ -40,8 +40,8 @@ class ServeConfig:
   max_sessions: client sessions kept (the least recently used are forgotten beyond it).
   buckets: the padded batch sizes, powers of two whose largest holds max_batch (None: one
     bucket of max_batch's power of two on an accelerator, where padded lanes cost little; every
-    power of two up to it on a CPU, where they cost their physics). Each bucket is compiled and
-    warmed at start-up, so a warm server compiles nothing.
+    power of two up to it on a CPU, where they cost their physics). Each bucket, and each
+    episode count up to max_batch, is warmed at start-up, so a warm server compiles nothing.
   warm_time_s: the time limit of each warm-up query (s).
   """
 
@@ -179,12 +179,15 @@ class Server:
       began = time.perf_counter()
       if hasattr(task.planner, 'canonical'):
         task.planner.canonical([0])  # the canonical instances, generated once
-      for bucket in self.buckets:
-        keys = jax.random.split(jax.random.PRNGKey(0), bucket)
-        nodes = jax.jit(task.session.env.initial_nodes)(keys)
-        states = {k: np.asarray(getattr(nodes, k)) for k in task.fields}
-        executed = np.zeros(bucket, np.int64)
-        self._answer(task, [(states, None, None, executed)], keys, self.config.warm_time_s,
+      keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
+      nodes = jax.jit(task.session.env.initial_nodes)(keys)
+      # each bucket's programs, then each episode count's small ones (padding, slicing)
+      counts = list(self.buckets) + [n for n in range(1, self.config.max_batch + 1)
+                                     if n not in self.buckets]
+      for num in counts:
+        states = {k: np.asarray(getattr(nodes, k))[:num] for k in task.fields}
+        bucket = next(b for b in self.buckets if b >= num)
+        self._answer(task, [(states, None, None, None)], keys[:num], self.config.warm_time_s,
                      bucket)
       task.warm = True
       say(f'{task.name}: warm ({len(self.buckets)} batch size(s) '
