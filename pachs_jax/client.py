@@ -35,6 +35,9 @@ class Answer:
   `replan.AnswerKind` codes (`kind_names`). reaches_goal: [E] bool. cost: [E] float32.
   evaluated: [E] edge evaluations of the search. batch: the search call it was planned in
   (requests, episodes, bucket). queued_s, search_s: the server's time before and in the search.
+  search: the search's [E] path_length, found, stop_reason, expanded, generated, invalid,
+  iterations. remainder: the last answer's remainder followed from the states, [E] steps and
+  reaches_goal. follow_s: the server's time following the candidates.
   """
 
   actions: np.ndarray
@@ -46,6 +49,9 @@ class Answer:
   batch: dict
   queued_s: float
   search_s: float
+  search: dict = dataclasses.field(default_factory=dict)
+  remainder: dict = dataclasses.field(default_factory=dict)
+  follow_s: float = 0.0
 
   @property
   def kind_names(self):
@@ -106,14 +112,19 @@ class Client:
 
   def plan(self, states=None, instances: Optional[Sequence[int]] = None, executed=None,
            seed: int = 0, time_limit_s: Optional[float] = None, reset: bool = False,
-           task: Optional[str] = None) -> Answer:
+           task: Optional[str] = None, keys=None) -> Answer:
     """The `Answer` [E] from states (a NodeState [E] or a map of its fields) or the task's
     canonical instances; executed: [E] actions of the last answer executed since
     (`DIVERGED` where an episode did something else; None drops the last answer); seed,
-    time_limit_s as in `Session.plan`; reset: forget the last answer first (new episodes).
+    time_limit_s as in `Session.plan` (keys: per-episode PRNG keys [E, 2] instead of seed);
+    reset: forget the last answer first (new episodes).
     ServerError with the server's reason for a refused request."""
     message = {'type': 'plan', 'task': task or self.task, 'session': self.session,
-               'seed': int(seed), 'reset': bool(reset)}
+               'reset': bool(reset)}
+    if keys is None:
+      message['seed'] = int(seed)
+    else:
+      message['keys'] = np.asarray(keys, np.uint32)
     if states is not None:
       message['states'] = node_fields(states)
     if instances is not None:
@@ -125,7 +136,8 @@ class Client:
     r = self._ask(message)
     return Answer(actions=r['actions'], length=r['length'], kind=r['kind'],
                   reaches_goal=r['reaches_goal'], cost=r['cost'], evaluated=r['evaluated'],
-                  batch=r['batch'], queued_s=r['queued_s'], search_s=r['search_s'])
+                  batch=r['batch'], queued_s=r['queued_s'], search_s=r['search_s'],
+                  search=r['search'], remainder=r['remainder'], follow_s=r['follow_s'])
 
   def reset(self, task: Optional[str] = None) -> bool:
     """Forgets the session's last answer on the server; whether it had one."""

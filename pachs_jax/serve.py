@@ -28,6 +28,10 @@ DIVERGED = replan.DIVERGED
 
 REQUEST_TYPES = ('plan', 'health', 'reset')
 
+# the `SearchResult` fields [E] an answer carries in its 'search' map
+SEARCH_FIELDS = ('path_length', 'found', 'stop_reason', 'expanded', 'generated', 'invalid',
+                 'iterations')
+
 
 @dataclasses.dataclass(frozen=True)
 class ServeConfig:
@@ -130,6 +134,7 @@ class Request:
   time_limit_s: Optional[float]
   reset: bool
   id: object = None
+  keys: Optional[np.ndarray] = None  # [E, 2] uint32 per-episode PRNG keys (None: from seed)
   alive: Callable[[], bool] = lambda: True
   deliver: Callable[[dict, Callable[[], None]], None] = None
   arrived: float = 0.0
@@ -229,7 +234,7 @@ class Server:
   def check(self, message: dict, default_session: str) -> Request:
     """The checked `Request` of a plan message; RequestError (one line) for anything wrong."""
     known = {'type', 'id', 'task', 'session', 'states', 'instances', 'executed', 'seed',
-             'time_limit_s', 'budget', 'reset'}
+             'keys', 'time_limit_s', 'budget', 'reset'}
     unknown = sorted(set(message) - known)
     if unknown:
       raise RequestError(f'unknown request field {unknown[0]!r}; valid: {", ".join(sorted(known))}')
@@ -271,8 +276,14 @@ class Server:
         raise RequestError(f'executed must hold {num} integer counts >= 0 (or DIVERGED), got '
                            f'shape {executed.shape} dtype {executed.dtype}')
       executed = np.minimum(executed.astype(np.int64), DIVERGED)
+    keys = message.get('keys')
+    if keys is not None:
+      if 'seed' in message:
+        raise RequestError('give either seed or keys')
+      if not isinstance(keys, np.ndarray) or keys.shape != (num, 2) or keys.dtype != np.uint32:
+        raise RequestError(f'keys must be a uint32 array [{num}, 2] (one PRNG key an episode)')
     return Request(name, sid, states, executed, int(seed),
-                   None if limit is None else float(limit), reset, message.get('id'))
+                   None if limit is None else float(limit), reset, message.get('id'), keys=keys)
 
   def _states(self, task: Task, message: dict) -> Dict[str, np.ndarray]:
     """The request's start states as NodeState fields [E, ...] in the task's dtypes."""
@@ -442,7 +453,8 @@ class Server:
       parts.append((r.states, last_actions, last_length, r.executed))
     # per-episode keys as `Session.plan` splits one request's seed: answers do not depend on
     # the batch a request was planned in
-    keys = np.concatenate([np.asarray(jax.random.split(jax.random.PRNGKey(r.seed), r.episodes))
+    keys = np.concatenate([r.keys if r.keys is not None else
+                           np.asarray(jax.random.split(jax.random.PRNGKey(r.seed), r.episodes))
                            for r in requests])
     limits = [r.time_limit_s for r in requests if r.time_limit_s is not None]
     began = time.perf_counter()
@@ -460,6 +472,9 @@ class Server:
                   'actions': actions, 'length': length, 'kind': answer['kind'][rows],
                   'reaches_goal': answer['reaches_goal'][rows], 'cost': answer['cost'][rows],
                   'evaluated': answer['evaluated'][rows],
+                  'search': {k: v[rows] for k, v in answer['search'].items()},
+                  'remainder': {k: v[rows] for k, v in answer['remainder'].items()},
+                  'follow_s': answer['follow_s'],
                   'batch': {'requests': len(requests), 'episodes': num, 'bucket': bucket},
                   'queued_s': began - r.arrived, 'search_s': search_s}
       out.append((response, functools.partial(self._keep, (r.task, r.session), actions, length)))
@@ -487,7 +502,11 @@ class Server:
     answer = session.answer(states, actions[:num], length[:num], keys, time_limit_s, bucket)
     return {'actions': np.asarray(answer.actions), 'length': np.asarray(answer.length),
             'kind': np.asarray(answer.kind), 'reaches_goal': np.asarray(answer.reaches_goal),
-            'cost': np.asarray(answer.cost), 'evaluated': np.asarray(answer.search.evaluated)}
+            'cost': np.asarray(answer.cost), 'evaluated': np.asarray(answer.search.evaluated),
+            'search': {k: np.asarray(getattr(answer.search, k)) for k in SEARCH_FIELDS},
+            'remainder': {'steps': np.asarray(session.followed['remainder'].steps),
+                          'reaches_goal': np.asarray(session.followed['remainder'].reached_goal)},
+            'follow_s': float(session.timing['follow_s'])}
 
   # -- the websocket -------------------------------------------------------------------------
 

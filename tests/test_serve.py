@@ -97,6 +97,10 @@ def test_an_answer_through_the_server_is_the_librarys_and_keeps_the_session(serv
   with client.Client(server.url) as asking:
     first = asking.plan(states, seed=7)
     _same(first, want[0])
+    np.testing.assert_array_equal(first.search['path_length'], want[0].search.path_length)
+    # per-episode keys instead of a seed: the same keys, the same answer
+    keyed = asking.plan(states, keys=jax.random.split(jax.random.PRNGKey(7), 2), reset=True)
+    _same(keyed, want[0])
     # the next query starts from the session's last answer: its remainder after 3 actions
     _same(asking.plan(states, executed=[3, client.DIVERGED], seed=8), want[1])
     assert first.batch == {'requests': 1, 'episodes': 2, 'bucket': MAX_BATCH}
