@@ -92,6 +92,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
   parallel: steps in chunks, then its best rollout; pachs: real-time mode
   (`--realtime-answer`); mppi: warm-started from the policy, then from its previous plan shifted
   by the executed actions."""
+  if name == 'pachs' and args.server:
+    return served_query(task, args, num)
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = planner.default_config(task, algorithm, budget=args.budget,
@@ -169,6 +171,48 @@ def make_query(name: str, task: str, env, model, args, num: int):
               np.asarray(out.found), {})
     return query, config
   raise ValueError(f'unknown planner {name!r}')
+
+
+def served_query(task: str, args, num: int):
+  """make_query's PACHS query through `pachs serve` at args.server: the episodes go out in
+  requests of at most the server's max batch, each its own client and session, asked at once
+  (the server gathers them), each with the episodes' own keys."""
+  import concurrent.futures  # pylint: disable=import-outside-toplevel
+  from pachs_jax import client  # pylint: disable=import-outside-toplevel
+  with client.Client(args.server, task) as asking:
+    health = asking.health()
+  served = health['tasks'][task]
+  if served['budget'] != args.budget:
+    raise SystemExit(f'closed_loop.py: --budget {args.budget} differs from the server\'s '
+                     f'{served["budget"]} for {task}')
+  size = health['max_batch']
+  parts = [slice(i, min(i + size, num)) for i in range(0, num, size)]
+  clients = [client.Client(args.server, task) for _ in parts]
+  pool = concurrent.futures.ThreadPoolExecutor(len(parts))
+  asked = [0]
+
+  def query(nodes, keys, executed):
+    fields = client.node_fields(nodes)
+    ask = lambda c, rows: c.plan({k: v[rows] for k, v in fields.items()},
+                                 executed=np.asarray(executed)[rows], keys=np.asarray(keys)[rows],
+                                 time_limit_s=args.query_time, reset=asked[0] == 0)
+    answers = list(pool.map(ask, clients, parts))
+    asked[0] += 1
+    join = lambda get: np.concatenate([get(a) for a in answers])
+    return (join(lambda a: a.actions), join(lambda a: a.length), join(lambda a: a.evaluated),
+            join(lambda a: a.reaches_goal),
+            {'kind': join(lambda a: a.kind),
+             'search_length': join(lambda a: a.search['path_length']),
+             'generated': join(lambda a: a.search['generated']),
+             'invalid': join(lambda a: a.search['invalid']),
+             'iterations': join(lambda a: a.search['iterations']),
+             'stop': join(lambda a: a.search['stop_reason']),
+             'search_s': max(a.search_s for a in answers),
+             'follow_s': max(a.follow_s for a in answers),
+             'remainder_steps': join(lambda a: a.remainder['steps']),
+             'remainder_goal': join(lambda a: a.remainder['reaches_goal'])})
+  return query, (f'served by {args.server} ({health["backend"]}, budget {served["budget"]}, '
+                 f'max batch {size}, buckets {health["buckets"]})')
 
 
 def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
@@ -335,6 +379,9 @@ def main():
                       "policy's rollout); '' the search's path alone")
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
+  parser.add_argument('--server', default=None,
+                      help="plan 'pachs' through a running `pachs serve` at this URL (its task, "
+                      'budget and settings; docs/serving.md)')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
   parser.add_argument('--world', default='mujoco-c', choices=WORLDS,

@@ -328,6 +328,28 @@ def _loop(args: argparse.Namespace) -> int:
   return _write_outputs('pachs loop', writes)
 
 
+def _serve(args: argparse.Namespace) -> int:
+  """`pachs serve`: loads and warms the tasks' planners, then answers planning requests over a
+  websocket until SIGTERM or SIGINT (docs/serving.md)."""
+  from pachs_jax import planner, serve  # start-up path: lazy (JAX)
+  config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
+                             max_queue=args.max_queue, max_time_limit_s=args.max_time_limit)
+  tasks = list(dict.fromkeys(args.task or ['pusht-obs']))
+  if args.layout is not None and 'pusht-obs' not in tasks:
+    raise ValueError(f'--layout applies to --task pusht-obs, not {", ".join(tasks)}')
+  planners = {}
+  for task in tasks:
+    _say(f'pachs serve: loading {task}', file=sys.stderr)
+    planners[task] = planner.Planner(task, backend=args.backend, budget=args.budget,
+                                     cache=not args.no_cache,
+                                     layout=args.layout if task == 'pusht-obs' else None)
+  server = serve.Server(planners, config)
+  server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr))
+  return serve.serve_forever(server, args.host, args.port, lambda url: _say(
+      f'pachs serve: ready on {url} ({", ".join(tasks)}; batches of up to {args.max_batch} '
+      f'episodes gathered for {args.window_ms:g} ms)'))
+
+
 def main(argv=None) -> int:
   """Parses argv (None: sys.argv) and runs `pachs demo` or `pachs plan`; returns the exit code.
 
@@ -341,7 +363,8 @@ def main(argv=None) -> int:
   # seconds on a large GPU; docs/startup_and_caching.md); read when JAX starts its backend
   os.environ.setdefault('XLA_PYTHON_CLIENT_PREALLOCATE', 'false')
   skip_glfw_probe(os.environ)
-  command = f'pachs {words[0]}' if words[:1] in (['plan'], ['demo'], ['loop']) else 'pachs'
+  command = (f'pachs {words[0]}' if words[:1] in (['plan'], ['demo'], ['loop'], ['serve'])
+             else 'pachs')
   with signals.SignalGuard(command) as guard:
     try:
       return _main_prefetching(words, guard)
@@ -513,8 +536,36 @@ def _main(words, prefetch=None, guard=None) -> int:
   loop.add_argument('--no-cache', action='store_true',
                     help='no persistent compilation cache')
   loop.set_defaults(func=_loop)
+  served = sub.add_parser('serve', help='a resident planner: answer planning requests over a '
+                          'websocket, batching clients together (docs/serving.md)')
+  served.add_argument('--task', action='append', default=None,
+                      choices=_TaskChoices(envs.TASKS), metavar='TASK',
+                      help='a task to serve (repeatable; default pusht-obs)')
+  served.add_argument('--layout', default=None, choices=layouts.NAMES,
+                      help=f'pusht-obs\'s obstacle layout (default: {layouts.DEFAULT})')
+  served.add_argument('--backend', default='auto', choices=registry.BACKENDS,
+                      help='physics of PushT edges (auto: MuJoCo C when JAX has no accelerator)')
+  served.add_argument('--budget', type=argtypes.positive_int, default=None,
+                      help="edge evaluations per episode and request (default: the task's, as "
+                      'pachs plan)')
+  served.add_argument('--host', default='127.0.0.1',
+                      help='the address to listen on (default 127.0.0.1: this machine only)')
+  served.add_argument('--port', type=int, default=8000, help='the port (0: any free one)')
+  served.add_argument('--window-ms', type=argtypes.positive_float, default=5.0,
+                      help='how long requests are gathered into one search (default 5 ms)')
+  served.add_argument('--max-batch', type=argtypes.positive_int, default=16,
+                      help='the most episodes in one search call and request (default 16)')
+  served.add_argument('--max-queue', type=argtypes.positive_int, default=64,
+                      help='requests waiting before one more is answered busy (default 64)')
+  served.add_argument('--max-time-limit', type=argtypes.positive_float, default=60.0,
+                      help='the largest time_limit_s a request may ask (default 60 s)')
+  served.add_argument('--no-cache', action='store_true',
+                      help='no persistent compilation cache')
+  served.set_defaults(func=_serve)
   args = parser.parse_args(words)
-  num_instances = envs.spec(args.task).num_instances
+  if args.command == 'serve' and not 0 <= args.port < 65536:
+    served.error(f'--port must be in 0..65535, got {args.port}')
+  num_instances = envs.spec(args.task if args.command != 'serve' else 'pusht-obs').num_instances
   if args.command == 'demo' and not 0 <= args.instance < num_instances:
     demo.error(f'--instance must be in 0..{num_instances - 1}, got {args.instance}')
   if args.command in ('plan', 'loop') and args.layout is not None and args.task != 'pusht-obs':

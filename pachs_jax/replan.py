@@ -246,17 +246,37 @@ class Session:
       if done.shape != (num,) or np.any(done < 0):
         raise ValueError(f'executed must hold {num} counts >= 0, got {executed!r}')
       actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
-    # the remainder and the policy's rollout in one batch [2E]
-    use_policy = np.repeat(np.array([False, 'policy' in self.candidates]), num)
-    both = jax.tree.map(lambda x: jnp.concatenate([x, x]), states)
-    args = (both, jnp.concatenate([actions, actions]),
-            jnp.concatenate([length, jnp.zeros_like(length)]), jnp.asarray(use_policy))
-    if num not in self._compiled:  # compiled before the query's clock, as the search is
-      self._compiled[num] = self._follow.lower(*args).compile()
+    self.last = self.answer(states, actions, length, key, time_limit_s)
+    return self.last
+
+  def answer(self, states: base.NodeState, actions: jax.Array, length: jax.Array,
+             key: jax.Array = None, time_limit_s: Optional[float] = None,
+             bucket: Optional[int] = None) -> Answer:
+    """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
+    [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
+    that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
+    `plan`. bucket: a power of two >= E that the follow and the search are padded to (one
+    compiled program for every E up to it; None: E's own bucket)."""
+    num = jax.tree.leaves(states)[0].shape[0]
+    key = jax.random.PRNGKey(0) if key is None else key
+    horizon = self.horizon
+    rows = num if bucket is None else bucket
+    if rows < num:
+      raise ValueError(f'bucket {bucket} holds fewer than the {num} episodes')
+    pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], rows - num, axis=0)]) \
+        if rows > num else x
+    # the remainder and the policy's rollout in one batch [2 rows]
+    use_policy = np.repeat(np.array([False, 'policy' in self.candidates]), rows)
+    both = jax.tree.map(lambda x: jnp.concatenate([pad(x), pad(x)]), states)
+    args = (both, jnp.concatenate([pad(actions), pad(actions)]),
+            jnp.concatenate([pad(length), jnp.zeros((rows,), jnp.int32)]),
+            jnp.asarray(use_policy))
+    if rows not in self._compiled:  # compiled before the query's clock, as the search is
+      self._compiled[rows] = self._follow.lower(*args).compile()
     began = time.perf_counter()
-    followed = jax.block_until_ready(self._compiled[num](*args))
+    followed = jax.block_until_ready(self._compiled[rows](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
-    policy = jax.tree.map(lambda x: x[num:], followed)
+    policy = jax.tree.map(lambda x: x[rows:rows + num], followed)
     self.followed = {'remainder': last, 'policy': policy}
     self.timing['follow_s'] = time.perf_counter() - began
     left = None
@@ -265,9 +285,15 @@ class Session:
                  - self.timing.get('choose_s', 0.0), 1e-3)
     result = programs.plan(self.env, self.actor_critic, states, self.config, key,
                            time_limit_s=left, chunk_iterations=self.chunk_iterations,
-                           search=self.search)
+                           search=self.search, min_bucket=bucket)
     choosing = time.perf_counter()
-    answer = jax.block_until_ready(self._choose(result, last, policy, horizon))
+    if rows > num:  # the choice in the padded batch too (its rows after num dropped)
+      grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)
+      answer = self._choose(jax.tree.map(grow, result), jax.tree.map(grow, last),
+                            jax.tree.map(grow, policy), horizon)
+      answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
+    else:
+      answer = self._choose(result, last, policy, horizon)
+    answer = jax.block_until_ready(answer)
     self.timing['choose_s'] = time.perf_counter() - choosing
-    self.last = answer
     return answer

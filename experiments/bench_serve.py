@@ -1,0 +1,164 @@
+"""Request-to-answer latency and answers per second of `pachs serve`: one client asking alone,
+then C clients at once (threads, each its own connection and session), each request one
+canonical instance; then one request of many instances. The server runs as `pachs serve` in a
+subprocess (or at --url); each answer carries the server's search time, so the overhead of the
+transport and the gathering window is latency - search time.
+
+GPU (the issue's settings):
+  python experiments/bench_serve.py --task pusht-obs --budget 10000 --clients 1,16 \\
+      --requests 20 --max-batch 16 --big 30 --out experiments/results/serve_gpu
+CPU (small):
+  python experiments/bench_serve.py --budget 512 --clients 1,4 --requests 4 --max-batch 4 \\
+      --big 4 --out experiments/results/serve_cpu
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import common  # pylint: disable=wrong-import-position
+
+from pachs_jax import argtypes, client  # pylint: disable=wrong-import-position
+
+
+def start_server(args) -> tuple:
+  """(process, url) of `pachs serve` with the benchmark's settings, once it says it is ready."""
+  command = [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', args.task, '--port', '0',
+             '--max-batch', str(max(args.max_batch, args.big)), '--window-ms', str(args.window_ms),
+             '--backend', args.backend]
+  if args.budget:
+    command += ['--budget', str(args.budget)]
+  began = time.perf_counter()
+  process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+  line = process.stdout.readline()
+  found = re.search(r'ws://\S+', line)
+  if not found:
+    process.kill()
+    raise SystemExit(f'bench_serve: the server did not start: {line!r}')
+  return process, found.group(0), time.perf_counter() - began
+
+
+def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) -> dict:
+  """Each of `clients` threads asks `requests` one-instance requests in turn; latencies (s),
+  server search times, batch sizes and the aggregate answers per second."""
+  connections = [client.Client(url, task) for _ in range(clients)]
+  latency = [[] for _ in range(clients)]
+  search = [[] for _ in range(clients)]
+  batch = [[] for _ in range(clients)]
+  go = threading.Barrier(clients + 1)
+
+  def ask(c):
+    go.wait()
+    for r in range(requests):
+      began = time.perf_counter()
+      answer = connections[c].plan(instances=[(c + r) % 30], seed=r, time_limit_s=time_limit_s,
+                                   reset=True)
+      latency[c].append(time.perf_counter() - began)
+      search[c].append(answer.search_s)
+      batch[c].append(answer.batch['requests'])
+  threads = [threading.Thread(target=ask, args=(c,)) for c in range(clients)]
+  for t in threads:
+    t.start()
+  go.wait()
+  began = time.perf_counter()
+  for t in threads:
+    t.join()
+  wall = time.perf_counter() - began
+  for c in connections:
+    c.close()
+  lat, srch = np.concatenate(latency), np.concatenate(search)
+  return {'clients': clients, 'requests_each': requests, 'answers': int(lat.size),
+          'wall_s': wall, 'answers_per_s': lat.size / wall,
+          'latency_median_s': float(np.median(lat)), 'latency_p90_s': float(np.quantile(lat, 0.9)),
+          'search_median_s': float(np.median(srch)),
+          'overhead_median_s': float(np.median(lat - srch)),
+          'mean_requests_per_batch': float(np.mean(np.concatenate(batch)))}
+
+
+def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> dict:
+  """One request of `instances` canonical instances, `repeats` times: latency and search."""
+  rows = []
+  with client.Client(url, task) as asking:
+    for r in range(repeats):
+      began = time.perf_counter()
+      answer = asking.plan(instances=list(range(instances)), seed=r, time_limit_s=time_limit_s,
+                           reset=True)
+      rows.append((time.perf_counter() - began, answer.search_s))
+  lat, srch = np.array(rows).T
+  return {'instances': instances, 'repeats': repeats, 'latency_median_s': float(np.median(lat)),
+          'search_median_s': float(np.median(srch)),
+          'overhead_median_s': float(np.median(lat - srch))}
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--backend', default='auto')
+  parser.add_argument('--budget', type=argtypes.positive_int, default=None)
+  parser.add_argument('--clients', default='1,16', help='client counts, comma-separated')
+  parser.add_argument('--requests', type=argtypes.positive_int, default=20,
+                      help='requests per client')
+  parser.add_argument('--max-batch', type=argtypes.positive_int, default=16)
+  parser.add_argument('--window-ms', type=argtypes.positive_float, default=5.0)
+  parser.add_argument('--time-limit', type=argtypes.positive_float, default=None)
+  parser.add_argument('--big', type=int, default=30,
+                      help='instances of the one many-instance request (0: none)')
+  parser.add_argument('--url', default=None, help='a running server (default: start one)')
+  parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
+  args = parser.parse_args()
+  process, start_s = None, None
+  url = args.url
+  if url is None:
+    process, url, start_s = start_server(args)
+  try:
+    counts = [int(c) for c in args.clients.split(',')]
+    runs = [run_clients(url, args.task, c, args.requests, args.time_limit) for c in counts]
+    alone = next((r for r in runs if r['clients'] == 1), None)
+    for r in runs:
+      r['speedup_vs_alone'] = alone and r['answers_per_s'] / alone['answers_per_s']
+    big = run_big(url, args.task, args.big, args.time_limit, 3) if args.big else None
+    with client.Client(url, args.task) as asking:
+      health = asking.health()
+  finally:
+    if process is not None:
+      process.send_signal(signal.SIGTERM)
+      code = process.wait(60)
+  document = {'provenance': common.provenance(), 'settings': vars(args),
+              'server': {'start_to_ready_s': start_s, 'exit_code': code if process else None,
+                         'backend': health['backend'], 'buckets': health['buckets'],
+                         'budget': health['tasks'][args.task]['budget'],
+                         'physics': health['tasks'][args.task]['physics'],
+                         'counters': health['counters']},
+              'clients': runs, 'big_request': big}
+  os.makedirs(args.out, exist_ok=True)
+  common.write_json(os.path.join(args.out, 'bench_serve.json'), document)
+  columns = ['clients', 'answers', 'answers_per_s', 'speedup_vs_alone', 'latency_median_s',
+             'latency_p90_s', 'search_median_s', 'overhead_median_s', 'mean_requests_per_batch']
+  lines = [f'# pachs serve: latency and answers per second ({args.task})', '',
+           f'Device: {document["provenance"]["device"]}; physics '
+           f'{document["server"]["physics"]}; budget {document["server"]["budget"]} evaluations '
+           f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.',
+           f'Command: `{document["provenance"]["command"]}` at '
+           f'{document["provenance"]["git_revision"]}.', '',
+           common.markdown_table(runs, columns), '']
+  if big:
+    lines += [f'One request of {big["instances"]} instances (median of {big["repeats"]}): '
+              f'latency {big["latency_median_s"]:.3f} s, search {big["search_median_s"]:.3f} s, '
+              f'overhead {big["overhead_median_s"]:.3f} s.', '']
+  with open(os.path.join(args.out, 'bench_serve.md'), 'w') as f:
+    f.write('\n'.join(lines))
+  print('\n'.join(lines))
+
+
+if __name__ == '__main__':
+  main()

@@ -1,0 +1,662 @@
+"""A resident planner: `pachs serve` keeps tasks' planners warm and answers planning requests
+over a websocket (msgpack with NumPy arrays, `wire`), planning the requests that arrive together
+in one search call on the instance axis and keeping each client's last answer between its
+requests (docs/serving.md)."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import dataclasses
+import functools
+import math
+import queue
+import signal
+import threading
+import time
+import uuid
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pachs_jax import replan, wire
+
+# a request's `executed` for an episode that did something else than its last answer
+DIVERGED = replan.DIVERGED
+
+REQUEST_TYPES = ('plan', 'health', 'reset')
+
+# the `SearchResult` fields [E] an answer carries in its 'search' map
+SEARCH_FIELDS = ('path_length', 'found', 'stop_reason', 'expanded', 'generated', 'invalid',
+                 'iterations')
+
+
+@dataclasses.dataclass(frozen=True)
+class ServeConfig:
+  """How the server gathers, bounds and keeps requests.
+
+  window_s: after a request arrives, how long (s) the server waits for others to plan with it.
+  max_batch: the most episodes in one search call (and in one request).
+  max_queue: the most requests waiting or being planned; one more is answered busy at once.
+  max_time_limit_s: the largest time_limit_s a request may ask.
+  max_sessions: client sessions kept (the least recently used are forgotten beyond it).
+  buckets: the padded batch sizes, powers of two whose largest holds max_batch (None: one
+    bucket of max_batch's power of two on an accelerator, where padded lanes cost little; every
+    power of two up to it on a CPU, where they cost their physics). Each bucket, and each
+    episode count up to max_batch, is warmed at start-up, so a warm server compiles nothing.
+  warm_time_s: the time limit of each warm-up query (s).
+  """
+
+  window_s: float = 0.005
+  max_batch: int = 16
+  max_queue: int = 64
+  max_time_limit_s: float = 60.0
+  max_sessions: int = 4096
+  buckets: Optional[Tuple[int, ...]] = None
+  warm_time_s: float = 0.05
+
+  def __post_init__(self):
+    for name in ('max_batch', 'max_queue', 'max_sessions'):
+      value = getattr(self, name)
+      if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f'{name} must be a positive int, got {value!r}')
+    for name in ('window_s', 'max_time_limit_s', 'warm_time_s'):
+      value = getattr(self, name)
+      if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (
+          name != 'window_s' and value == 0):
+        raise ValueError(f'{name} must be a finite number of seconds '
+                         f'{">= 0" if name == "window_s" else "> 0"}, got {value!r}')
+    if self.buckets is not None:
+      sizes = tuple(self.buckets)
+      if (not sizes or any(isinstance(b, bool) or not isinstance(b, int) or b < 1
+                           or b & (b - 1) for b in sizes) or max(sizes) < self.max_batch):
+        raise ValueError(f'buckets must be powers of two, the largest >= max_batch '
+                         f'{self.max_batch}, got {self.buckets!r}')
+
+  def bucket_sizes(self, on_cpu: bool) -> Tuple[int, ...]:
+    """The padded batch sizes, ascending."""
+    if self.buckets is not None:
+      return tuple(sorted(set(self.buckets)))
+    top = 1 << (self.max_batch - 1).bit_length()
+    return tuple(1 << k for k in range(top.bit_length())) if on_cpu else (top,)
+
+
+class RequestError(ValueError):
+  """A request the server refuses (one line, sent back as the answer's error)."""
+
+
+class Busy(RequestError):
+  """The server's queue is full."""
+
+
+def one_line(err: BaseException) -> str:
+  """err's message on one line."""
+  return ' '.join(str(err).split()) or type(err).__name__
+
+
+@dataclasses.dataclass
+class Task:
+  """A loaded task: its planner (a `planner.Planner`, or any object with env, model, config and
+  search, and canonical(indices) for instance requests), its replanning session and what a
+  request's states must look like."""
+
+  name: str
+  planner: object
+  session: replan.Session
+  fields: Dict[str, Tuple[Tuple[int, ...], np.dtype]]  # NodeState field -> (trailing shape, dtype)
+  warm: bool = False
+  remainder: Callable = None
+
+  @property
+  def budget(self) -> int:
+    return int(self.session.config.max_evaluations)
+
+  def describe(self) -> dict:
+    env = self.session.env
+    return {'warm': self.warm, 'budget': self.budget, 'horizon': int(self.session.horizon),
+            'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
+            'node_fields': {k: {'shape': list(s), 'dtype': d.name}
+                            for k, (s, d) in self.fields.items()},
+            'instances': hasattr(self.planner, 'canonical')}
+
+
+@dataclasses.dataclass
+class Request:
+  """A checked plan request: states [E] as NumPy fields, executed [E] or None."""
+
+  task: str
+  session: str
+  states: Dict[str, np.ndarray]
+  executed: Optional[np.ndarray]
+  seed: int
+  time_limit_s: Optional[float]
+  reset: bool
+  id: object = None
+  keys: Optional[np.ndarray] = None  # [E, 2] uint32 per-episode PRNG keys (None: from seed)
+  alive: Callable[[], bool] = lambda: True
+  deliver: Callable[[dict, Callable[[], None]], None] = None
+  arrived: float = 0.0
+
+  @property
+  def episodes(self) -> int:
+    return int(next(iter(self.states.values())).shape[0])
+
+
+class Server:
+  """Loaded tasks, their warm programs, the client sessions and the planning thread.
+
+  planners: task name -> a `planner.Planner` (or an object with env, model, config, search and
+    optionally canonical(indices)). config: a `ServeConfig`.
+  """
+
+  def __init__(self, planners: Mapping[str, object], config: ServeConfig = ServeConfig()):
+    if not planners:
+      raise ValueError('a server needs at least one task')
+    self.config = config
+    self.on_cpu = jax.default_backend() == 'cpu'
+    self.buckets = config.bucket_sizes(self.on_cpu)
+    self.tasks: Dict[str, Task] = {}
+    for name, planner in planners.items():
+      session = replan.Session(planner.env, planner.model, planner.config,
+                               getattr(planner, 'search', None))
+      spec = planner.env.node_spec
+      fields = {f.name: (tuple(getattr(spec, f.name).shape), np.dtype(getattr(spec, f.name).dtype))
+                for f in dataclasses.fields(spec)}
+      self.tasks[name] = Task(name, planner, session, fields, remainder=jax.jit(replan.remainder))
+    self.counters = collections.Counter()
+    self._sessions: 'collections.OrderedDict[Tuple[str, str], Tuple[np.ndarray, np.ndarray]]' = \
+        collections.OrderedDict()
+    self._in_flight = set()
+    self._lock = threading.Lock()
+    self._inbox: 'queue.Queue[Optional[Request]]' = queue.Queue()
+    self._waiting = 0
+    self._thread: Optional[threading.Thread] = None
+    self.draining = False
+
+  # -- start-up ------------------------------------------------------------------------------
+
+  def warm(self, say: Callable[[str], None] = lambda text: None) -> None:
+    """Compiles and runs one warm-up query per task and bucket (a time-limited search from the
+    env's initial states): afterwards no request compiles."""
+    for task in self.tasks.values():
+      began = time.perf_counter()
+      if hasattr(task.planner, 'canonical'):
+        task.planner.canonical([0])  # the canonical instances, generated once
+      keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
+      nodes = jax.jit(task.session.env.initial_nodes)(keys)
+      # each bucket's programs, then each episode count's small ones (padding, slicing)
+      counts = list(self.buckets) + [n for n in range(1, self.config.max_batch + 1)
+                                     if n not in self.buckets]
+      for num in counts:
+        states = {k: np.asarray(getattr(nodes, k))[:num] for k in task.fields}
+        bucket = next(b for b in self.buckets if b >= num)
+        self._answer(task, [(states, None, None, None)], keys[:num], self.config.warm_time_s,
+                     bucket)
+      task.warm = True
+      say(f'{task.name}: warm ({len(self.buckets)} batch size(s) '
+          f'{",".join(map(str, self.buckets))}) in {time.perf_counter() - began:.1f} s')
+
+  def start(self) -> None:
+    """Starts the planning thread."""
+    if self._thread is None:
+      self._thread = threading.Thread(target=self._plan_forever, name='pachs-serve-planner',
+                                      daemon=True)
+      self._thread.start()
+
+  def stop(self) -> None:
+    """Plans what is queued, then ends the planning thread."""
+    if self._thread is not None:
+      self._inbox.put(None)
+      self._thread.join()
+      self._thread = None
+
+  @property
+  def idle(self) -> bool:
+    """No request waits or is being planned."""
+    return self._waiting == 0
+
+  # -- requests ------------------------------------------------------------------------------
+
+  def health(self) -> dict:
+    """What is loaded and warm, the bounds, and the counters (requests, batches, searches,
+    episodes planned, errors, busy answers)."""
+    return {'ok': True, 'ready': all(t.warm for t in self.tasks.values()),
+            'draining': self.draining,
+            'tasks': {name: t.describe() for name, t in self.tasks.items()},
+            'backend': jax.default_backend(), 'buckets': list(self.buckets),
+            'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
+            'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
+            'queued': self._waiting, 'sessions': len(self._sessions),
+            'counters': dict(self.counters)}
+
+  def check(self, message: dict, default_session: str) -> Request:
+    """The checked `Request` of a plan message; RequestError (one line) for anything wrong."""
+    known = {'type', 'id', 'task', 'session', 'states', 'instances', 'executed', 'seed',
+             'keys', 'time_limit_s', 'budget', 'reset'}
+    unknown = sorted(set(message) - known)
+    if unknown:
+      raise RequestError(f'unknown request field {unknown[0]!r}; valid: {", ".join(sorted(known))}')
+    name = message.get('task')
+    if name not in self.tasks:
+      raise RequestError(f'task {name!r} is not loaded here; loaded: {", ".join(self.tasks)}')
+    task = self.tasks[name]
+    sid = message.get('session', default_session)
+    if not isinstance(sid, str) or not 0 < len(sid) <= 200:
+      raise RequestError(f'session must be a string of 1 to 200 characters, got {sid!r}')
+    budget = message.get('budget')
+    if budget is not None and budget != task.budget:
+      raise RequestError(f'budget {budget!r}: this server plans {name} at {task.budget} '
+                         'evaluations per episode (compiled in); leave budget out or give that')
+    limit = message.get('time_limit_s')
+    if limit is not None:
+      if isinstance(limit, bool) or not isinstance(limit, (int, float)) or not (
+          math.isfinite(limit) and limit > 0):
+        raise RequestError(f'time_limit_s must be a number of seconds > 0 or None, got {limit!r}')
+      if limit > self.config.max_time_limit_s:
+        raise RequestError(f'time_limit_s {limit} exceeds the server\'s '
+                           f'{self.config.max_time_limit_s} s (--max-time-limit)')
+    seed = message.get('seed', 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not -2**63 <= seed < 2**63:
+      raise RequestError(f'seed must be a 64-bit integer, got {seed!r}')
+    reset = message.get('reset', False)
+    if not isinstance(reset, bool):
+      raise RequestError(f'reset must be true or false, got {reset!r}')
+    states = self._states(task, message)
+    num = next(iter(states.values())).shape[0]
+    executed = message.get('executed')
+    if executed is not None:
+      try:
+        executed = np.asarray(executed)
+      except Exception:  # pylint: disable=broad-except
+        raise RequestError('executed must be a list of counts') from None
+      if (executed.shape != (num,) or executed.dtype == bool
+          or not np.issubdtype(executed.dtype, np.integer) or np.any(executed < 0)):
+        raise RequestError(f'executed must hold {num} integer counts >= 0 (or DIVERGED), got '
+                           f'shape {executed.shape} dtype {executed.dtype}')
+      executed = np.minimum(executed.astype(np.int64), DIVERGED)
+    keys = message.get('keys')
+    if keys is not None:
+      if 'seed' in message:
+        raise RequestError('give either seed or keys')
+      if not isinstance(keys, np.ndarray) or keys.shape != (num, 2) or keys.dtype != np.uint32:
+        raise RequestError(f'keys must be a uint32 array [{num}, 2] (one PRNG key an episode)')
+    return Request(name, sid, states, executed, int(seed),
+                   None if limit is None else float(limit), reset, message.get('id'), keys=keys)
+
+  def _states(self, task: Task, message: dict) -> Dict[str, np.ndarray]:
+    """The request's start states as NodeState fields [E, ...] in the task's dtypes."""
+    states, instances = message.get('states'), message.get('instances')
+    if (states is None) == (instances is None):
+      raise RequestError('give either states (NodeState fields) or instances (canonical '
+                         'indices)')
+    limit = self.config.max_batch
+    if instances is not None:
+      if not hasattr(task.planner, 'canonical'):
+        raise RequestError(f'task {task.name} has no canonical instances: send states')
+      if isinstance(instances, list) and len(instances) > limit:
+        raise RequestError(f'{len(instances)} episodes exceed the server\'s {limit} per request '
+                           '(--max-batch)')
+      try:
+        nodes = task.planner.canonical(instances)
+      except ValueError as err:
+        raise RequestError(one_line(err)) from None
+      return {k: np.asarray(getattr(nodes, k)) for k in task.fields}
+    if not isinstance(states, dict) or set(states) != set(task.fields):
+      got = sorted(states) if isinstance(states, dict) else type(states).__name__
+      raise RequestError(f'states must map the NodeState fields {", ".join(task.fields)}, '
+                         f'got {got}')
+    out, num = {}, None
+    for field, (shape, dtype) in task.fields.items():
+      x = states[field]
+      if not isinstance(x, np.ndarray):
+        raise RequestError(f'states.{field} must be an array, got {type(x).__name__}')
+      if x.ndim != len(shape) + 1 or tuple(x.shape[1:]) != shape:
+        raise RequestError(f'states.{field} has shape {list(x.shape)}; {task.name} takes '
+                           f'[E{"".join(", " + str(n) for n in shape)}]')
+      num = x.shape[0] if num is None else num
+      if x.shape[0] != num:
+        raise RequestError(f'states.{field} holds {x.shape[0]} episodes, the others {num}')
+      floating = np.issubdtype(dtype, np.floating)
+      allowed = (np.float32, np.float64) if floating else (np.int32, np.int64)
+      if x.dtype not in allowed:
+        raise RequestError(f'states.{field} has dtype {x.dtype}; {task.name} takes '
+                           f'{" or ".join(np.dtype(a).name for a in allowed)}')
+      if floating and not np.all(np.isfinite(x)):
+        raise RequestError(f'states.{field} holds NaN or infinite values')
+      if floating and np.any(np.abs(x) > np.finfo(dtype).max):
+        raise RequestError(f'states.{field} holds values beyond {dtype.name}')
+      out[field] = x.astype(dtype)
+    if not 1 <= num <= limit:
+      raise RequestError(f'a request plans 1 to {limit} episodes (--max-batch), got {num}')
+    return out
+
+  def submit(self, request: Request) -> None:
+    """Queues a checked request (its `deliver` called from the planning thread); Busy at once
+    when max_queue requests wait, RequestError while draining or for a session with a request
+    already in flight."""
+    with self._lock:
+      if self.draining:
+        raise RequestError('the server is shutting down')
+      if self._waiting >= self.config.max_queue:
+        self.counters['busy'] += 1
+        raise Busy(f'busy: {self._waiting} requests queued (--max-queue '
+                   f'{self.config.max_queue}); ask again later')
+      key = (request.task, request.session)
+      if key in self._in_flight:
+        raise RequestError(f'session {request.session!r} has a request in flight; a session '
+                           'asks one at a time')
+      self._in_flight.add(key)
+      self._waiting += 1
+      self.counters['requests'] += 1
+    request.arrived = time.perf_counter()
+    self._inbox.put(request)
+
+  def release(self, request: Request) -> None:
+    """The request is answered (or its client gone): its session may ask again."""
+    with self._lock:
+      self._in_flight.discard((request.task, request.session))
+
+  def forget(self, task: str, session: str) -> bool:
+    """Drops a session's last answer; whether there was one."""
+    with self._lock:
+      return self._sessions.pop((task, session), None) is not None
+
+  def _keep(self, key, actions: np.ndarray, length: np.ndarray) -> None:
+    with self._lock:
+      self._sessions[key] = (actions, length)
+      self._sessions.move_to_end(key)
+      while len(self._sessions) > self.config.max_sessions:
+        self._sessions.popitem(last=False)
+
+  # -- the planning thread -------------------------------------------------------------------
+
+  def _plan_forever(self) -> None:
+    pending: List[Request] = []
+    stopping = False
+    while not (stopping and not pending):
+      if not pending:
+        item = self._inbox.get()
+        if item is None:
+          break
+        pending.append(item)
+      # gather: the first request's task, until the window closes or a batch is full
+      deadline = time.perf_counter() + self.config.window_s
+      while not stopping:
+        same = sum(r.episodes for r in pending if r.task == pending[0].task)
+        left = deadline - time.perf_counter()
+        if same >= self.config.max_batch or left <= 0:
+          break
+        try:
+          item = self._inbox.get(timeout=left)
+        except queue.Empty:
+          break
+        if item is None:
+          stopping = True
+        else:
+          pending.append(item)
+      batch, rest, size = [], [], 0
+      for r in pending:
+        if r.task == pending[0].task and size + r.episodes <= self.config.max_batch:
+          batch.append(r)
+          size += r.episodes
+        else:
+          rest.append(r)
+      pending = rest
+      self._plan_batch(batch)
+
+  def _finish(self, request: Request, response: dict, commit=lambda: None) -> None:
+    with self._lock:
+      self._waiting -= 1
+    try:
+      request.deliver(response, commit)
+    except Exception:  # pylint: disable=broad-except  (a client gone: nothing else to do)
+      pass
+
+  def _plan_batch(self, batch: List[Request]) -> None:
+    """Plans the live requests of one task in one search call; each gets its answer."""
+    live = [r for r in batch if r.alive()]
+    for r in batch:
+      if r not in live:
+        self.counters['dropped'] += 1
+        self._finish(r, {'ok': False, 'id': r.id, 'error': 'client gone'})
+    if not live:
+      return
+    try:
+      responses = self._plan_requests(live)
+    except Exception as err:  # pylint: disable=broad-except
+      if len(live) == 1:
+        self.counters['errors'] += 1
+        self._finish(live[0], {'ok': False, 'id': live[0].id, 'error': one_line(err)})
+        return
+      for r in live:  # one bad request must not fail the others: each alone
+        self._plan_batch([r])
+      return
+    for r, (response, commit) in zip(live, responses):
+      self._finish(r, response, commit)
+
+  def _plan_requests(self, requests: List[Request]):
+    task = self.tasks[requests[0].task]
+    num = sum(r.episodes for r in requests)
+    bucket = next(b for b in self.buckets if b >= num)
+    parts = []
+    for r in requests:
+      with self._lock:
+        if r.reset:
+          self._sessions.pop((r.task, r.session), None)
+        kept = self._sessions.get((r.task, r.session))
+      if kept is not None and kept[1].shape[0] != r.episodes:
+        raise RequestError(f'session {r.session!r} plans {kept[1].shape[0]} episodes, got '
+                           f'{r.episodes} (reset=True starts new episodes)')
+      last_actions, last_length = (None, None) if kept is None else kept
+      parts.append((r.states, last_actions, last_length, r.executed))
+    # per-episode keys as `Session.plan` splits one request's seed: answers do not depend on
+    # the batch a request was planned in
+    keys = np.concatenate([r.keys if r.keys is not None else
+                           np.asarray(jax.random.split(jax.random.PRNGKey(r.seed), r.episodes))
+                           for r in requests])
+    limits = [r.time_limit_s for r in requests if r.time_limit_s is not None]
+    began = time.perf_counter()
+    answer = self._answer(task, parts, keys, min(limits) if limits else None, bucket)
+    search_s = time.perf_counter() - began
+    self.counters['batches'] += 1
+    self.counters['searches'] += 1
+    self.counters['episodes'] += num
+    out, row = [], 0
+    for r in requests:
+      rows = slice(row, row + r.episodes)
+      row += r.episodes
+      actions, length = answer['actions'][rows], answer['length'][rows]
+      response = {'ok': True, 'id': r.id, 'task': r.task, 'session': r.session,
+                  'actions': actions, 'length': length, 'kind': answer['kind'][rows],
+                  'reaches_goal': answer['reaches_goal'][rows], 'cost': answer['cost'][rows],
+                  'evaluated': answer['evaluated'][rows],
+                  'search': {k: v[rows] for k, v in answer['search'].items()},
+                  'remainder': {k: v[rows] for k, v in answer['remainder'].items()},
+                  'follow_s': answer['follow_s'],
+                  'batch': {'requests': len(requests), 'episodes': num, 'bucket': bucket},
+                  'queued_s': began - r.arrived, 'search_s': search_s}
+      out.append((response, functools.partial(self._keep, (r.task, r.session), actions, length)))
+    return out
+
+  def _answer(self, task: Task, parts, keys, time_limit_s, bucket) -> Dict[str, np.ndarray]:
+    """The answer fields (NumPy) of the episodes of parts, each (states, last actions, last
+    length, executed) with last None for none, planned together in a batch padded to bucket."""
+    session, horizon = task.session, task.session.horizon
+    num = sum(next(iter(p[0].values())).shape[0] for p in parts)
+    last_actions = np.zeros((bucket, horizon, session.env.action_size), np.float32)
+    last_length = np.zeros(bucket, np.int32)
+    executed = np.full(bucket, DIVERGED, np.int32)
+    row = 0
+    for states, actions, length, done in parts:
+      n = next(iter(states.values())).shape[0]
+      if actions is not None and done is not None:
+        last_actions[row:row + n], last_length[row:row + n] = actions, length
+        executed[row:row + n] = done
+      row += n
+    actions, length = task.remainder(jnp.asarray(last_actions), jnp.asarray(last_length),
+                                     jnp.asarray(executed))
+    fields = {k: np.concatenate([p[0][k] for p in parts]) for k in task.fields}
+    states = type(session.env.node_spec)(**{k: jnp.asarray(v) for k, v in fields.items()})
+    answer = session.answer(states, actions[:num], length[:num], keys, time_limit_s, bucket)
+    return {'actions': np.asarray(answer.actions), 'length': np.asarray(answer.length),
+            'kind': np.asarray(answer.kind), 'reaches_goal': np.asarray(answer.reaches_goal),
+            'cost': np.asarray(answer.cost), 'evaluated': np.asarray(answer.search.evaluated),
+            'search': {k: np.asarray(getattr(answer.search, k)) for k in SEARCH_FIELDS},
+            'remainder': {'steps': np.asarray(session.followed['remainder'].steps),
+                          'reaches_goal': np.asarray(session.followed['remainder'].reached_goal)},
+            'follow_s': float(session.timing['follow_s'])}
+
+  # -- the websocket -------------------------------------------------------------------------
+
+  async def handle(self, connection) -> None:
+    """Answers one client's messages in turn (websockets connection handler)."""
+    from websockets.exceptions import ConnectionClosed  # pylint: disable=import-outside-toplevel
+    from websockets.protocol import State  # pylint: disable=import-outside-toplevel
+    loop = asyncio.get_running_loop()
+    default_session = uuid.uuid4().hex
+    try:
+      async for data in connection:
+        message_id = None
+        try:
+          message = wire.unpack(data)
+          message_id = message.get('id')
+          kind = message.get('type', 'plan')
+          if kind not in REQUEST_TYPES:
+            raise RequestError(f'unknown request type {kind!r}; valid: {", ".join(REQUEST_TYPES)}')
+          if kind == 'health':
+            await connection.send(wire.pack(dict(self.health(), id=message_id)))
+            continue
+          if kind == 'reset':
+            task, sid = message.get('task'), message.get('session', default_session)
+            if task not in self.tasks:
+              raise RequestError(f'task {task!r} is not loaded here; loaded: '
+                                 f'{", ".join(self.tasks)}')
+            forgot = self.forget(task, sid)
+            await connection.send(wire.pack({'ok': True, 'id': message_id, 'forgot': forgot}))
+            continue
+          request = self.check(message, default_session)
+        except (RequestError, wire.WireError) as err:
+          if not isinstance(err, Busy):
+            self.counters['errors'] += 1
+          await connection.send(wire.pack({'ok': False, 'id': message_id,
+                                           'error': one_line(err),
+                                           'busy': isinstance(err, Busy)}))
+          continue
+        future = loop.create_future()
+
+        def deliver(response, commit, future=future):
+          loop.call_soon_threadsafe(_resolve, future, (response, commit))
+        request.deliver = deliver
+        request.alive = lambda: connection.state is State.OPEN
+        try:
+          self.submit(request)
+        except RequestError as err:
+          if not isinstance(err, Busy):
+            self.counters['errors'] += 1
+          await connection.send(wire.pack({'ok': False, 'id': message_id,
+                                           'error': one_line(err),
+                                           'busy': isinstance(err, Busy)}))
+          continue
+        try:
+          response, commit = await future
+          await connection.send(wire.pack(response))
+          if response.get('ok'):
+            commit()  # kept once delivered: a client that never got it replans from scratch
+            self.counters['answered'] += 1
+        finally:
+          self.release(request)
+    except ConnectionClosed:
+      pass
+
+  async def serve_until(self, host: str, port: int, stopped: asyncio.Event,
+                        ready: Callable[[str], None] = lambda url: None) -> None:
+    """Serves on host:port until `stopped` is set, then answers what is queued and closes."""
+    from websockets.asyncio.server import serve  # pylint: disable=import-outside-toplevel
+    self.start()
+    async with serve(self.handle, host, port, max_size=wire.MAX_MESSAGE_BYTES,
+                     compression=None) as server:
+      bound = server.sockets[0].getsockname()
+      ready(f'ws://{_host_text(bound[0])}:{bound[1]}')
+      await stopped.wait()
+      with self._lock:
+        self.draining = True
+      while not self.idle:  # the requests in flight get their answers
+        await asyncio.sleep(0.01)
+      await asyncio.sleep(0.05)  # their sends leave before the connections close
+      server.close()
+      await server.wait_closed()
+    await asyncio.get_running_loop().run_in_executor(None, self.stop)
+
+
+def _resolve(future: asyncio.Future, value) -> None:
+  if not future.done():
+    future.set_result(value)
+
+
+def _host_text(host: str) -> str:
+  return f'[{host}]' if ':' in host else host
+
+
+def serve_forever(server: Server, host: str = '127.0.0.1', port: int = 8000,
+                  ready: Callable[[str], None] = lambda url: None) -> int:
+  """Serves in this (main) thread until SIGTERM or SIGINT, then finishes the requests in flight
+  and returns 0."""
+  async def main():
+    stopped = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+      loop.add_signal_handler(signum, stopped.set)
+    try:
+      await server.serve_until(host, port, stopped, ready)
+    finally:
+      for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.remove_signal_handler(signum)
+  asyncio.run(main())
+  return 0
+
+
+class Running:
+  """A server serving in a thread of this process (tests, notebooks): `url`, and `stop()`,
+  which answers what is queued and ends it; a context manager."""
+
+  def __init__(self, server: Server, host: str = '127.0.0.1', port: int = 0):
+    self.server = server
+    self.url: Optional[str] = None
+    self._ready = threading.Event()
+    self._error: Optional[BaseException] = None
+    self._loop: Optional[asyncio.AbstractEventLoop] = None
+    self._stopped: Optional[asyncio.Event] = None
+    self._thread = threading.Thread(target=self._run, args=(host, port), daemon=True,
+                                    name='pachs-serve')
+    self._thread.start()
+    self._ready.wait()
+    if self._error is not None:
+      raise self._error
+
+  def _run(self, host, port) -> None:
+    async def main():
+      self._loop = asyncio.get_running_loop()
+      self._stopped = asyncio.Event()
+
+      def ready(url):
+        self.url = url
+        self._ready.set()
+      await self.server.serve_until(host, port, self._stopped, ready)
+    try:
+      asyncio.run(main())
+    except BaseException as err:  # pylint: disable=broad-except
+      self._error = err
+      self._ready.set()
+
+  def stop(self) -> None:
+    if self._loop is not None and self._thread.is_alive():
+      self._loop.call_soon_threadsafe(self._stopped.set)
+      self._thread.join()
+
+  def __enter__(self) -> 'Running':
+    return self
+
+  def __exit__(self, *exc) -> None:
+    self.stop()
