@@ -666,6 +666,28 @@ def playground(src: Sources) -> str:
             rows)])
 
 
+def serving(src: Sources) -> str:
+  """`pachs serve`: answers per second and latency of one client alone and of several at once."""
+  data = src.load('serve_cpu/bench_serve.json')
+  settings, server, big = data['settings'], data['server'], data['big_request']
+  rows = [[str(c['clients']), num(c['answers_per_s']), f'{num(c["speedup_vs_alone"], 2)}x',
+           num(c['latency_median_s']), num(c['search_median_s']), num(c['overhead_median_s']),
+           num(c['mean_requests_per_batch'], 2)] for c in data['clients']]
+  return '\n\n'.join([
+      f'A resident server ([serving.md](serving.md)) on {settings["task"]} with '
+      f'{server["physics"]} physics, {settings["budget"]:,} evaluations per request, batches '
+      f'of at most {settings["max_batch"]} episodes ({settings["window_ms"]:g} ms gathering '
+      f'window); each client sends {settings["requests"]} requests of one episode. Start to '
+      f'ready: {num(server["start_to_ready_s"], 1)} s. One request of {big["instances"]} '
+      f'instances: {num(big["latency_median_s"])} s, of which the search '
+      f'{num(big["search_median_s"])} s.',
+      table(['clients', 'answers/s', 'vs alone', 'latency (s)', 'search (s)', 'overhead (s)',
+             'requests per batch'], rows),
+      'On a CPU the physics cost grows with the batch, so batching gains little; batching '
+      'pays where a physics call costs about the same from one world to thousands (a GPU: '
+      '`experiments/bench_serve.py`, not measured yet).'])
+
+
 SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Open loop: PushT-Obs layouts', suite),
     ('Open loop: other instances and held-out layouts', other_sets),
@@ -676,6 +698,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('Speed and start-up', speed),
     ('Physics engines: MuJoCo Warp, MJX and MuJoCo C', engines),
     ('MuJoCo Playground', playground),
+    ('Serving: a resident planner', serving),
     ('PushT physics: agreement and penetration', physics),
     ('Measured and not kept', ledger),
 )

@@ -15,7 +15,7 @@ import signal
 import threading
 import time
 import uuid
-from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Mapping, Optional, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -111,7 +111,7 @@ class Task:
 
   @property
   def budget(self) -> int:
-    return int(self.session.config.max_evaluations)
+    return int(self.session.config.budget)
 
   def describe(self) -> dict:
     env = self.session.env

@@ -10,7 +10,8 @@ import sys
 import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parent.parent / 'pachs_jax'
-TOP = ('planner', 'replan', 'episodes', 'saved_plans', 'cli', 'demo', 'outputs')
+TOP = ('planner', 'replan', 'episodes', 'saved_plans', 'cli', 'demo', 'outputs', 'serve',
+       'client', 'wire')
 # each layer and the pachs_jax modules it must not import (a prefix matches its submodules); the
 # trainer writes its files through the run-time machinery's atomic files
 FORBIDDEN = {

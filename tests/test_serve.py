@@ -18,7 +18,8 @@ import pytest
 from conftest import UniformActorCritic
 from websockets.sync.client import connect
 
-from pachs_jax import cli, client, programs, replan, serve, wire
+from pachs_jax import cli, client, replan, serve, wire
+from pachs_jax.runtime import programs
 from pachs_jax.envs.point_mass import PointMassEnv
 from pachs_jax.search import SearchConfig, pachs
 
@@ -47,7 +48,7 @@ class PointMassPlanner:
 @pytest.fixture(scope='module')
 def planner():
   env, model = PointMassEnv(), TowardGoal(2)
-  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, max_evaluations=64)
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=64)
   return PointMassPlanner(env, model, config,
                           programs.Programs(pachs.make_search(env, model, config)))
 
