@@ -124,15 +124,15 @@ def conform_start_nodes(start_nodes: base.NodeState, env: base.Env) -> base.Node
   return start_nodes.replace(**changes) if changes else start_nodes
 
 
-# The largest magnitude a start state's positions, velocities, controls and goal may have
-# (m, rad, m/s, rad/s): far beyond any task's workspace; larger values are no physical state.
-START_STATE_LIMIT = 1e6
-_BOUNDED_FIELDS = ('qpos', 'qvel', 'ctrl', 'goal')
+# The largest magnitude a start state's positions, controls and goal (m, rad) and velocities
+# (m/s, rad/s) may have: far beyond any task's workspace and any robot's speed; larger values
+# are no physical state (velocities of 1e5 and more overflow MuJoCo's accelerations).
+START_STATE_LIMITS = {'qpos': 1e6, 'ctrl': 1e6, 'goal': 1e6, 'qvel': 1e3}
 
 
 def check_finite_start_nodes(start_nodes: base.NodeState) -> None:
   """ValueError naming the instances whose start state or goal holds a NaN or inf, or whose
-  qpos, qvel, ctrl or goal exceed `START_STATE_LIMIT` in magnitude (host-side; does nothing
+  qpos, qvel, ctrl or goal exceed `START_STATE_LIMITS` in magnitude (host-side; does nothing
   for traced or non-addressable arrays, e.g. under jit)."""
   fields = [(f.name, getattr(start_nodes, f.name)) for f in dataclasses.fields(start_nodes)]
   if any(isinstance(x, jax.core.Tracer) or not getattr(x, 'is_fully_addressable', True)
@@ -154,14 +154,15 @@ def check_finite_start_nodes(start_nodes: base.NodeState) -> None:
                      'states and goals')
   for name, x in fields:
     x = np.asarray(x)
-    if name not in _BOUNDED_FIELDS or not np.issubdtype(x.dtype, np.number):
+    if name not in START_STATE_LIMITS or not np.issubdtype(x.dtype, np.number):
       continue
-    over = (np.abs(x.reshape(x.shape[0], -1)) > START_STATE_LIMIT).any(axis=1)
+    limit = START_STATE_LIMITS[name]
+    over = (np.abs(x.reshape(x.shape[0], -1)) > limit).any(axis=1)
     if over.any():
       index = np.flatnonzero(over).tolist()
       raise ValueError(f'start_nodes.{name} of instance{"s" * (len(index) > 1)} '
-                       f'{_list(index)} exceeds {START_STATE_LIMIT:.0e} in magnitude: no '
-                       'physical start state (positions in m or rad, velocities per second)')
+                       f'{_list(index)} exceeds {limit:.0e} in magnitude: no physical start '
+                       'state (positions in m or rad, velocities per second)')
 
 
 def _list(index, most: int = 10) -> str:
