@@ -236,8 +236,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
         f'(all instances in one call, compile excluded); {total:.1f} s with compilation')
   interrupted = sum(r['stop'] == 'interrupted' for r in rows)
   if interrupted:
+    improving = sum(r['stop'] == 'interrupted' and r['found'] for r in rows)
+    detail = (f'; {improving} had found a goal and answer with the cheapest one, their '
+              'improvement cut short' if improving else '')
     print(f'interrupted: {interrupted} of {len(rows)} instances stopped early (stop '
-          '\'interrupted\', each with the path to its best state so far)', flush=True)
+          f'\'interrupted\', each with the path to its best state so far{detail})', flush=True)
   # the JSON first (a failed drawing loses no result), each output on its own
   writes = []
   if args.json:
