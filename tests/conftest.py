@@ -34,8 +34,45 @@ LONGEST_FILES = (
     'test_coverage.py', 'test_mppi.py')
 
 
+# The slow tier (`python -m pytest -m slow`, run by .ci/run after the default tier): whole files
+# ('name.py') or tests ('name.py::test', all its parameters) of end-to-end commands in
+# subprocesses, signals, several devices and long equivalence checks. Each measured at 12 s or
+# more from an empty compilation cache on 2 cores; the default tier keeps every other test.
+SLOW = (
+    'test_playground.py', 'test_sharding.py', 'test_plan_signals.py',
+    'test_train_files.py::test_signals_are_handled_while_an_epoch_runs',
+    'test_train_files.py::test_resume_after_sigkill_has_one_row_per_epoch',
+    'test_pusht.py::test_bad_actions_and_states',
+    'test_pusht.py::test_step_is_restore_and_evaluate_bit_for_bit',
+    'test_pusht.py::test_restored_node_continues_a_carried_simulation_exactly',
+    'test_segment.py::test_segments_with_compaction_equal_without',
+    'test_baselines.py::test_epase_finds_a_goal_on_the_shelf',
+    'test_layouts.py::test_mujoco_c_and_mjx_see_the_same_blocks',
+    'test_compact.py::test_pachs_with_compaction_equals_without',
+    'test_protocol.py::test_doc_task_trains_and_plans_end_to_end',
+    'test_serve.py::test_sigterm_answers_the_request_in_flight_and_exits_0',
+    'test_programs.py::test_compile_first_compiles_every_reachable_loop_before_the_search',
+    'test_plan.py::test_sharded_plan_runs_end_to_end',
+    'test_plan_outputs.py::test_short_pusht_plan_finds_paths_that_replay_and_writes_them',
+    'test_episodes.py::test_pachs_loop_runs_episodes_and_writes_rows_and_a_video',
+)
+
+
+def is_slow(nodeid: str) -> bool:
+  """Whether a test ('tests/name.py::test[param]') is in the slow tier (`SLOW`)."""
+  path, _, name = nodeid.partition('::')
+  file = os.path.basename(path)
+  test = name.split('[')[0]
+  return any(entry == file or entry == f'{file}::{test}' for entry in SLOW)
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
 def pytest_collection_modifyitems(items):
-  """The files of LONGEST_FILES first, in its order; each file's tests keep their order."""
+  """Marks the slow tier (`SLOW`); runs the files of LONGEST_FILES first, in its order, each
+  file's tests in their order."""
+  for item in items:
+    if is_slow(item.nodeid):
+      item.add_marker(pytest.mark.slow)
   rank = {name: i for i, name in enumerate(LONGEST_FILES)}
   items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
