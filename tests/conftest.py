@@ -37,11 +37,24 @@ LONGEST_FILES = (
 # The slow tier (`python -m pytest -m slow`, run by .ci/run after the default tier): whole files
 # ('name.py') or tests ('name.py::test', all its parameters) of end-to-end commands in
 # subprocesses, signals, several devices and long equivalence checks. Each measured at 12 s or
-# more from an empty compilation cache on 2 cores; the default tier keeps every other test.
+# more from an empty compilation cache on 2 cores (8 s or more where the default tier needs the
+# room); the default tier keeps every other test.
 SLOW = (
-    'test_playground.py', 'test_sharding.py', 'test_plan_signals.py',
+    'test_playground.py', 'test_sharding.py', 'test_plan_signals.py', 'test_serve.py',
     'test_train_files.py::test_signals_are_handled_while_an_epoch_runs',
     'test_train_files.py::test_resume_after_sigkill_has_one_row_per_epoch',
+    'test_train_files.py::test_steps_below_one_epoch_are_named_before_work',
+    'test_bad_input_search.py::test_a_budget_that_cannot_fit_is_refused_naming_the_largest_that_can',
+    'test_bad_input_search.py::test_without_the_check_a_nan_critic_looks_like_an_exhausted_search',
+    'test_bad_input_search.py::test_the_json_is_written_when_drawing_fails',
+    'test_bad_input_models.py::test_sigint_saves_a_resumable_checkpoint',
+    'test_search.py::test_traced_loop_is_stored_and_reused',
+    'test_warp.py::test_restore_then_step_reproduces_the_transition',
+    'test_plan_inputs.py::test_shelf_on_a_cpu_says_that_it_plans_instance_0_only',
+    'test_mujoco_c.py::test_search_on_the_cpu_backend_stops_at_its_iteration_limit',
+    'test_mujoco_c.py::test_c_step_matches_mjx_step_along_a_push',
+    'test_xla_cpu.py::test_concurrent_batched_cholesky_on_two_cpus_finishes_with_the_setting',
+    'test_shelf.py::test_mjx_kinematics_option_agrees',
     'test_pusht.py::test_bad_actions_and_states',
     'test_pusht.py::test_step_is_restore_and_evaluate_bit_for_bit',
     'test_pusht.py::test_restored_node_continues_a_carried_simulation_exactly',
