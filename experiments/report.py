@@ -417,8 +417,9 @@ def cpu_claims(src: Sources) -> Dict[str, str]:
     out['suite'] = placeholder(suite)
   else:
     cold = ', an empty compilation cache' if 'cache empty' in suite['provenance'].get('note', '') else ''
-    out['suite'] = (f'{suite["process_wall_s"] / 60:.1f} min ({suite["summary"]}; '
-                    f'{suite["provenance"]["host_cpus"]} CPUs{cold})')
+    out['suite'] = (f'{suite["process_wall_s"] / 60:.1f} min for `{suite["command"]}`, the '
+                    f'default tier ({suite["summary"]}; {suite["provenance"]["host_cpus"]} '
+                    f'CPUs{cold})')
   return out
 
 

@@ -107,7 +107,8 @@ def test_measured_cpu_timings_replace_the_placeholders(copy_root):
        'summary': '300 passed in 540.00s', 'returncode': 0}))
   block, _ = report.headline_table(str(copy_root))
   assert '37.2 s cold, 21.0-22.5 s warm' in block
-  assert 'Tests: 9.0 min (300 passed in 540.00s; 2 CPUs)' in block
+  assert ('Tests: 9.0 min for `python -m pytest`, the default tier (300 passed in 540.00s; 2 '
+          'CPUs)') in block
   assert 'not measured yet' not in block
 
 
