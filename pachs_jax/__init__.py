@@ -1,13 +1,6 @@
-"""PACHS in JAX: a trained SAC actor-critic turned into a batched best-first planner over MuJoCo
-MJX tasks.
-
-Entry points (imported on first use, so that `import pachs_jax` stays light):
-  Planner: a task's env, model and tuned search with its compiled programs (`planner.py`).
-  Session: replanning many episodes from their new states, keeping the last answer
-    (`replan.py`; `Planner.session()`).
-  make_search, SearchConfig, SearchResult: the search core (`search/`), for your own loop.
-  envs: the tasks (`envs.make(name)`, `envs.from_playground(env)`, `envs.check_task(env)`).
-"""
+"""PACHS in JAX: a trained SAC actor-critic turned into a batched best-first planner. Its entry
+points (`Planner`, `Session`, `make_search`, `SearchConfig`, `SearchResult`, `envs`) load on
+first use, so `import pachs_jax` stays light; README.md, "The package", says where each lives."""
 
 import importlib
 

@@ -537,22 +537,14 @@ class Server:
             await connection.send(wire.pack({'ok': True, 'id': message_id, 'forgot': forgot}))
             continue
           request = self.check(message, default_session)
-        except (RequestError, wire.WireError) as err:
-          if not isinstance(err, Busy):
-            self.counters['errors'] += 1
-          await connection.send(wire.pack({'ok': False, 'id': message_id,
-                                           'error': one_line(err),
-                                           'busy': isinstance(err, Busy)}))
-          continue
-        future = loop.create_future()
+          future = loop.create_future()
 
-        def deliver(response, commit, future=future):
-          loop.call_soon_threadsafe(_resolve, future, (response, commit))
-        request.deliver = deliver
-        request.alive = lambda: connection.state is State.OPEN
-        try:
+          def deliver(response, commit, future=future):
+            loop.call_soon_threadsafe(_resolve, future, (response, commit))
+          request.deliver = deliver
+          request.alive = lambda: connection.state is State.OPEN
           self.submit(request)
-        except RequestError as err:
+        except (RequestError, wire.WireError) as err:
           if not isinstance(err, Busy):
             self.counters['errors'] += 1
           await connection.send(wire.pack({'ok': False, 'id': message_id,
