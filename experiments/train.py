@@ -49,9 +49,19 @@ def parse_args(argv=None) -> argparse.Namespace:
   p.add_argument('--progress', choices=('bar', 'lines', 'none'), default=None,
                  help='default: bar on a terminal, else lines')
   p.add_argument('--no-tensorboard', action='store_true')
-  p.add_argument('--physics', choices=('auto', 'mjx', 'mujoco-c'), default='auto',
-                 help="PushT physics: 'auto' is MuJoCo C when JAX runs on the CPU (much faster "
-                      "there), else MJX")
+  p.add_argument('--physics', choices=('auto', 'mjx', 'warp', 'mujoco-c'), default='auto',
+                 help="PushT physics engine: 'auto' is MuJoCo C when JAX runs on the CPU (much "
+                      "faster there), else Warp where installed (the 'cuda' extra), else MJX")
+  p.add_argument('--physics-preset', default=None,
+                 help="PushT only: a named physics model (pachs_jax.envs.pusht.PHYSICS_PRESETS; "
+                      "default: the task's)")
+  p.add_argument('--learner-from', default=None,
+                 help='start a new run from a learner file (--learner-out of an earlier run: '
+                      'networks, optimisers, temperature, normaliser, counters), its replay '
+                      'buffer refilled by its policy')
+  p.add_argument('--learner-out', default=None,
+                 help='also write the learner (no replay buffer, no env states) to this .npz '
+                      'file at every save: a run that moves between machines')
   p.add_argument('--nondeterministic', action='store_true',
                  help='allow non-deterministic GPU ops and autotuning (faster, not resumable '
                       'bit for bit)')
@@ -106,8 +116,11 @@ def overrides(args: argparse.Namespace) -> dict:
   return out
 
 
-def make_env(task: str):
-  """The task's environment; 'point-mass' is built here, others come from pachs_jax.envs.make."""
+def make_env(task: str, physics_preset: str | None = None):
+  """The task's environment; 'point-mass' is built here, others come from pachs_jax.envs.make
+  (PushT with `physics_preset`, a name of `pusht.PHYSICS_PRESETS`, when given)."""
+  if physics_preset is not None and not task.startswith('pusht'):
+    raise SystemExit(f'error: --physics-preset applies to the PushT tasks, not {task!r}')
   if task == 'point-mass':
     from pachs_jax.envs import point_mass
     return point_mass.PointMassEnv()
@@ -116,7 +129,7 @@ def make_env(task: str):
   if make is None:
     raise SystemExit(f'unknown task {task!r}: pachs_jax.envs.make is not available')
   try:
-    return make(task)
+    return make(task, physics=physics_preset) if physics_preset else make(task)
   except ImportError as e:
     raise SystemExit(f'error: {e}') from None
   except ValueError as e:
@@ -151,6 +164,11 @@ def main(argv=None) -> int:
   # Cheap checks of --out first: no JAX import, nothing written yet.
   if os.path.exists(args.out) and not os.path.isdir(args.out):
     raise SystemExit(f'error: --out {args.out} is a file, not a directory')
+  if args.learner_from is not None and not os.path.isfile(args.learner_from):
+    raise SystemExit(f'error: --learner-from {args.learner_from} is not a file')
+  if args.learner_out is not None and not os.path.isdir(
+      os.path.dirname(os.path.abspath(args.learner_out))):
+    raise SystemExit(f'error: --learner-out {args.learner_out}: its directory does not exist')
   if args.resume and not args.start_if_missing and not _holds_run(args.out):
     raise SystemExit(f'error: --resume: {args.out} holds no training run (no checkpoint in '
                      f'{os.path.join(args.out, "state")}); drop --resume to start one, or add '
@@ -176,19 +194,20 @@ def _main(args: argparse.Namespace) -> int:
   xla_cpu.configure(os.environ)  # before JAX starts: batched LAPACK calls cannot deadlock
 
   import jax  # pylint: disable=import-outside-toplevel
-  from pachs_jax.sac import checkpoint, presets, train  # pylint: disable=import-outside-toplevel
+  from pachs_jax.sac import (  # pylint: disable=import-outside-toplevel
+      checkpoint, learner_file, presets, train)
   from pachs_jax.sac.config import (  # pylint: disable=import-outside-toplevel
       SACConfig, config_from_dict, config_to_dict)
   from pachs_jax.sac.reporting import RunReporter  # pylint: disable=import-outside-toplevel
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
-  from pachs_jax.envs import backends, mujoco_c  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import backends  # pylint: disable=import-outside-toplevel
 
   try:
     train.check_run_dir(args.out)  # every output path writable, before any work
     meta = train.read_run_config(args.out)
   except (train.RunDirError, checkpoint.CheckpointError) as e:
     raise SystemExit(f'error: {e}') from None
-  env = make_env(args.task)
+  env = make_env(args.task, args.physics_preset)
   changes = overrides(args)
   if meta is None and args.resume and not args.start_if_missing:
     raise SystemExit(f'error: --resume: {args.out} holds no complete training checkpoint; drop '
@@ -223,7 +242,7 @@ def _main(args: argparse.Namespace) -> int:
     env = backends.make_backend(env, args.physics)
   except ValueError as e:
     raise SystemExit(f'error: --physics: {e}') from None
-  physics = 'MuJoCo C' if isinstance(env, mujoco_c.MujocoCEnv) else 'JAX'
+  physics = {'mujoco-c': 'MuJoCo C', 'warp': 'MuJoCo Warp', 'mjx': 'MJX'}.get(env.physics, 'JAX')
   print(f'task {env.name}: obs {env.observation_size}, action {env.action_size}, episode '
         f'{env.episode_length}; device {jax.devices()[0]}; physics {physics}; '
         f'config {json.dumps(config_to_dict(config))}',
@@ -247,8 +266,9 @@ def _main(args: argparse.Namespace) -> int:
                          checkpoint_minutes=args.checkpoint_minutes,
                          checkpoint_every_epochs=args.checkpoint_every,
                          keep_checkpoints=args.keep, reporter=reporter, handle_signals=True,
-                         started_at=args.started_at)
-  except (train.RunDirError, checkpoint.CheckpointError) as e:
+                         started_at=args.started_at, learner_from=args.learner_from,
+                         learner_out=args.learner_out)
+  except (train.RunDirError, checkpoint.CheckpointError, learner_file.LearnerFileError) as e:
     raise SystemExit(f'error: {e}') from None
   interrupted = None if result.finished else result.interrupted
   status = {'task': env.name, 'finished': result.finished, 'epoch': result.epoch,

@@ -16,7 +16,7 @@ import pytest
 from conftest import trees_equal
 
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
-from pachs_jax.sac import checkpoint, evaluator, presets, train
+from pachs_jax.sac import checkpoint, evaluator, learner_file, presets, train
 from pachs_jax.sac.trainer import make_trainer
 
 TOTAL_STEPS = 4000  # env steps of the shared training run (10 epochs of 400 after prefill)
@@ -66,6 +66,21 @@ def test_point_mass_transition(env):
   assert env.observation_size == 4 and env.action_size == 2
   state = env.step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(2))
   assert float(state.reward) <= 0.0
+
+
+def test_a_batch_step_is_the_single_step_vmapped(env):
+  """`step_batch` (one `evaluate` call, how the trainer steps Warp and MuJoCo C) equals the
+  vmapped single-environment `step`, done flags and truncation included."""
+  states = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(3), 64))
+  states = states.replace(pipeline_state=states.pipeline_state.replace(
+      t=jnp.arange(64, dtype=states.pipeline_state.t.dtype) % (env.episode_length + 1)))
+  actions = jax.random.uniform(jax.random.PRNGKey(4), (64, 2), minval=-2.0, maxval=2.0)
+  actions = actions.at[0, 0].set(jnp.nan)
+  batched = env.step_batch(states, actions)
+  assert trees_equal(batched, jax.vmap(env.step)(states, actions))
+  assert float(batched.done[0]) == 1.0 and 0 < float(jnp.sum(batched.info['truncation'])) < 64
+  with pytest.raises(ValueError, match=r'actions must have shape \[B, 2\]'):
+    env.step_batch(states, actions[:, :1])
 
 
 # ------------------------------------------------------------------------- learning ----
@@ -201,6 +216,54 @@ def test_resume_is_bit_exact(trainer, trained, tmp_path):
   assert second.finished
   assert trees_equal(second.state.policy_params, uninterrupted.state.policy_params)
   assert trees_equal(second.state, uninterrupted.state)
+
+
+def test_a_learner_file_continues_a_run_with_a_buffer_its_policy_refills(trainer, trained,
+                                                                         tmp_path):
+  """A run moved through its learner file (no buffer, no env states) keeps its networks,
+  optimisers, normaliser and counters, refills the buffer with its policy and runs on."""
+  path = str(tmp_path / 'learner.npz')
+  half = train.train(trainer, str(tmp_path / 'first'), TOTAL_STEPS // 2, learner_out=path)
+  template = jax.eval_shape(trainer.init)
+  tree, meta = learner_file.load(path, template)
+  assert trees_equal(tree, learner_file.learner(half.state))
+  assert meta['epoch'] == half.epoch and meta['task'] == 'point-mass'
+  refilled = trainer.refill(tree)
+  kept = [f for f in learner_file.LEARNER_FIELDS if f not in ('key', 'normalizer')]
+  for field in kept:
+    assert trees_equal(getattr(refilled, field), getattr(half.state, field)), field
+  assert int(refilled.buffer_state.insert_position) == trainer.prefill_env_steps
+  # the refill's observations entered the normaliser, as every collected step's do
+  assert int(refilled.normalizer.count) > int(half.state.normalizer.count)
+  moved = train.train(trainer, str(tmp_path / 'moved'), TOTAL_STEPS, learner_from=path)
+  assert moved.finished and moved.start_epoch == half.epoch
+  assert int(moved.state.gradient_steps) == int(trained[1].state.gradient_steps)
+
+
+def test_learner_file_errors(env, trainer, trained, tmp_path):
+  _, result = trained
+  path = str(tmp_path / 'learner.npz')
+  learner_file.save(path, result.state, {'task': 'point-mass'})
+  template = jax.eval_shape(trainer.init)
+  with pytest.raises(learner_file.LearnerFileError, match='does not exist'):
+    learner_file.load(str(tmp_path / 'none.npz'), template)
+  with open(path, 'rb') as f:
+    data = f.read()
+  truncated = str(tmp_path / 'truncated.npz')
+  with open(truncated, 'wb') as f:
+    f.write(data[:len(data) // 2])
+  with pytest.raises(learner_file.LearnerFileError, match='not a complete learner file'):
+    learner_file.load(truncated, template)
+  wider = make_trainer(env, dataclasses.replace(trainer.config, actor_hidden=(48, 32)))
+  with pytest.raises(learner_file.LearnerFileError, match='another task or network size'):
+    learner_file.load(path, jax.eval_shape(wider.init))
+  with np.load(path) as stored:
+    arrays = {k: stored[k] for k in stored.files}
+  arrays['leaf0003'] = arrays['leaf0003'] + 1
+  damaged = str(tmp_path / 'damaged.npz')
+  np.savez(damaged, **arrays)
+  with pytest.raises(learner_file.LearnerFileError, match='do not match their hash'):
+    learner_file.load(damaged, template)
 
 
 def test_restored_state_compiles_like_the_live_one(trainer, trained):

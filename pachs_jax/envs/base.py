@@ -184,17 +184,28 @@ class Env(abc.ABC):
   def step(self, state: State, action: jax.Array) -> State:
     """One control step; reward = -cost, done on success, invalid edge or time limit."""
     check_actions(action, self.action_size, batched=False)
-    out = self.transition(state.pipeline_state, action)
-    node = out.next_node
-    success = out.is_goal.astype(jnp.float32)
-    invalid = 1.0 - out.is_valid.astype(jnp.float32)
-    time_up = (node.t >= self.episode_length).astype(jnp.float32)
-    done = jnp.maximum(jnp.maximum(success, invalid), time_up)
-    # A truncation is a time limit without a terminal event (bootstrapping continues).
-    truncation = time_up * (1.0 - jnp.maximum(success, invalid))
-    metrics = {'success': success, 'cost': out.cost}
-    info = dict(state.info, truncation=truncation)
-    return State(node, self.observation(node), -out.cost, done, metrics, info)
+    return _stepped(self, state, self.transition(state.pipeline_state, action))
+
+  def step_batch(self, states: State, actions: jax.Array) -> State:
+    """`step` of B environments, states [B] and actions [B, action_size], whose physics is one
+    `evaluate` call (one Warp or MuJoCo C call for the batch, not B of them)."""
+    check_actions(actions, self.action_size, batched=True)
+    outcomes = self.evaluate(states.pipeline_state, actions)
+    return jax.vmap(lambda s, o: _stepped(self, s, o))(states, outcomes)
+
+
+def _stepped(env: Env, state: State, out: EdgeOutcome) -> State:
+  """The State after `state`'s edge with outcome `out` (one environment, no batch axis)."""
+  node = out.next_node
+  success = out.is_goal.astype(jnp.float32)
+  invalid = 1.0 - out.is_valid.astype(jnp.float32)
+  time_up = (node.t >= env.episode_length).astype(jnp.float32)
+  done = jnp.maximum(jnp.maximum(success, invalid), time_up)
+  # A truncation is a time limit without a terminal event (bootstrapping continues).
+  truncation = time_up * (1.0 - jnp.maximum(success, invalid))
+  metrics = {'success': success, 'cost': out.cost}
+  info = dict(state.info, truncation=truncation)
+  return State(node, env.observation(node), -out.cost, done, metrics, info)
 
 
 def check_actions(actions: jax.Array, action_size: int, batched: bool) -> None:

@@ -24,7 +24,8 @@ class TaskSpec:
   original_search: those of the original algorithm ('original' in `ALGORITHMS`: one-step
     edges, as published; None: search_defaults with edge_steps 1).
   cpu_overrides: SearchConfig field values that replace either at the CPU budget of `pachs plan`.
-  options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`).
+  options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`; PushT:
+    'physics', a name of `pusht.PHYSICS_PRESETS`).
   """
 
   name: str
@@ -44,9 +45,11 @@ class TaskSpec:
 
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
-  def build(**options) -> base.Env:
+  def build(physics: str | None = None, **options) -> base.Env:
     from pachs_jax.envs import pusht  # lazy: a task's physics loads when it is made
-    return pusht.PushTEnv(pusht.PushTConfig(variant=variant, **options))
+    if physics is None:
+      return pusht.PushTEnv(pusht.PushTConfig(variant=variant, **options))
+    return pusht.PushTEnv(pusht.physics_preset(physics, variant=variant, **options))
   return build
 
 
@@ -79,13 +82,15 @@ _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal
                   improve_allowance=3.0)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
-    TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH),
-    TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _PUSHT, _SEARCH),
+    TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,
+             options=('physics',)),
+    TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _PUSHT, _SEARCH,
+             options=('physics',)),
     TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30, _PUSHT_OBS,
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout',)),
+             options=('layout', 'physics')),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}

@@ -19,6 +19,7 @@ import numpy as np
 from pachs_jax.envs import backends, mujoco_c
 from pachs_jax.sac import checkpoint
 from pachs_jax.sac import evaluator
+from pachs_jax.sac import learner_file
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
 from pachs_jax.sac.config import SACConfig, config_from_dict, config_to_dict
 from pachs_jax.sac.trainer import Trainer, TrainingState, make_trainer
@@ -325,7 +326,8 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
           start_if_missing: bool = False, max_minutes: Optional[float] = None,
           checkpoint_minutes: float = 5.0, checkpoint_every_epochs: int = 0,
           keep_checkpoints: int = 3, reporter: Optional[Reporter] = None,
-          handle_signals: bool = False, started_at: Optional[float] = None) -> TrainResult:
+          handle_signals: bool = False, started_at: Optional[float] = None,
+          learner_from: Optional[str] = None, learner_out: Optional[str] = None) -> TrainResult:
   """Trains until total_env_steps (rounded up to whole epochs), the time budget or a signal.
 
   resume: continue from run_dir's latest checkpoint; a run_dir without one is a RunDirError
@@ -344,7 +346,13 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
     it saves that epoch like the time budget does and returns (finished=False,
     interrupted='SIGINT'/'SIGTERM'); a second signal ends the process at once (os._exit with
     128 + signal number, one line on stderr), without saving.
-  Damaged checkpoints raise checkpoint.CheckpointError; both errors are ValueErrors.
+  learner_from: a new run (run_dir without checkpoints) continues the learner of this
+    `learner_file` (its epoch and counters), with fresh environments and a replay buffer
+    refilled by its policy; ignored when run_dir holds a checkpoint to resume.
+  learner_out: every save also writes the learner to this file (a run that moves between
+    machines through files of a few MB).
+  Damaged checkpoints raise checkpoint.CheckpointError, bad learner files
+  learner_file.LearnerFileError; all three errors are ValueErrors.
   """
   if total_env_steps < 1:
     raise ValueError(f'total_env_steps must be >= 1, got {total_env_steps}')
@@ -357,13 +365,14 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   with stop:
     return _train(trainer, run_dir, total_env_steps, resume, start_if_missing, start_time,
                   deadline, checkpoint_minutes, checkpoint_every_epochs, keep_checkpoints,
-                  reporter, stop)
+                  reporter, stop, learner_from, learner_out)
 
 
 def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
            start_if_missing: bool, start_time: float, deadline: Optional[float],
            checkpoint_minutes: float, checkpoint_every_epochs: int, keep_checkpoints: int,
-           reporter: Optional[Reporter], stop: _StopSignals) -> TrainResult:
+           reporter: Optional[Reporter], stop: _StopSignals, learner_from: Optional[str],
+           learner_out: Optional[str]) -> TrainResult:
   env, config = trainer.env, trainer.config
   ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, STATE_SUBDIR),
                                          keep=keep_checkpoints)
@@ -382,6 +391,13 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
       _check_meta(trainer, ckpts.read_meta(latest), os.path.join(run_dir, STATE_SUBDIR))
       state = ckpts.restore(latest, jax.eval_shape(trainer.init))
       epoch = latest
+    elif learner_from is not None:
+      tree, meta = learner_file.load(learner_from, jax.eval_shape(trainer.init))
+      _check_meta(trainer, dict(meta, format=TRAINING_FORMAT), learner_from)
+      init_start = time.time()
+      state = wait_ready(trainer.refill(tree))
+      init_seconds = time.time() - init_start
+      epoch = int(meta['epoch'])
     else:
       init_start = time.time()
       state = wait_ready(trainer.init())
@@ -395,7 +411,8 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
   reporter_ = reporter
   note = getattr(reporter_, 'note', None) or (lambda line: None)
   if latest is None and trainer.prefill_env_steps:
-    note(f'prefill: {trainer.prefill_env_steps} random env steps in {init_seconds:.1f} s '
+    how = 'policy' if learner_from is not None else 'random'
+    note(f'prefill: {trainer.prefill_env_steps} {how} env steps in {init_seconds:.1f} s '
          '(compilation included)')
   evaluate = _make_evaluation(trainer)
   if reporter_ is not None:
@@ -430,6 +447,8 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
             'sac_config': config_to_dict(config), 'epoch': epoch, 'env_steps': env_steps}
     t = time.time()
     ckpts.save(epoch, state, meta)
+    if learner_out is not None:
+      learner_file.save(learner_out, state, dict(meta, physics=checkpoint.physics_record(env)))
     checkpoint.save_actor_critic(os.path.join(run_dir, checkpoint.MODEL_SUBDIR),
                                  actor_critic_from_state(trainer, state),
                                  extra={'sac_config': config_to_dict(config), 'epoch': epoch,

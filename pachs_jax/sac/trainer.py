@@ -57,6 +57,8 @@ class Trainer:
 
   init() -> TrainingState: fresh parameters and environments, the replay buffer prefilled with
     uniform random actions (deterministic given config.seed).
+  refill(learner) -> TrainingState: a run continued from a learner (`learner_file.LEARNER_FIELDS`
+    by name): fresh environments, the replay buffer prefilled by the learner's own policy.
   epoch(state) -> (state, metrics): config.steps_per_epoch training steps, each one vmapped env
     step of config.num_envs environments followed by config.grad_updates_per_step updates.
   """
@@ -65,6 +67,7 @@ class Trainer:
   config: SACConfig
   networks: sac_networks.SACNetworks
   init: Callable[[], TrainingState]
+  refill: Callable[[Dict[str, Any]], TrainingState]
   epoch: Callable[[TrainingState], Tuple[TrainingState, Metrics]]
   prefill_env_steps: int
   env_steps_per_epoch: int
@@ -133,7 +136,7 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
       max_replay_size=config.replay_capacity, dummy_data_sample=dummy,
       sample_batch_size=config.batch_size * config.grad_updates_per_step)
   v_reset = jax.vmap(env.reset)
-  v_step = jax.vmap(env.step)
+  v_step = env.step_batch  # the physics of all envs in one call (Warp, MuJoCo C)
   num_prefill_steps = -(-config.min_replay_size // num_envs)
 
   def collect(ts: TrainingState, key: jax.Array, random_actions: bool
@@ -212,14 +215,19 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
     out['buffer_size'] = buffer.size(ts.buffer_state)
     return _strong_types(ts.replace(epoch=ts.epoch + 1)), out
 
-  def init() -> TrainingState:
-    key = jax.random.PRNGKey(config.seed)
-    k_policy, k_q, k_env, k_buffer, k_prefill, k_run, k_t = jax.random.split(key, 7)
+  def fresh_envs(k_env: jax.Array, k_t: jax.Array) -> base.State:
+    """[num_envs] new episodes (with desync_episodes, at random time steps)."""
     env_state = v_reset(jax.random.split(k_env, num_envs))
     if config.desync_episodes:
       t0 = jax.random.randint(k_t, (num_envs,), 0, env.episode_length, jnp.int32)
       node = env_state.pipeline_state
       env_state = env_state.replace(pipeline_state=node.replace(t=t0.astype(node.t.dtype)))
+    return env_state
+
+  def init() -> TrainingState:
+    key = jax.random.PRNGKey(config.seed)
+    k_policy, k_q, k_env, k_buffer, k_prefill, k_run, k_t = jax.random.split(key, 7)
+    env_state = fresh_envs(k_env, k_t)
     policy_params = nets.policy_init(k_policy)
     q_params = nets.q_init(k_q)
     log_alpha = jnp.log(jnp.asarray(config.init_alpha, jnp.float32))
@@ -241,7 +249,22 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
       ts, _ = jax.lax.scan(prefill, ts, jax.random.split(k_prefill, num_prefill_steps))
     return _strong_types(ts)
 
+  def refill(learner: Dict[str, Any]) -> TrainingState:
+    k_run, k_env, k_buffer, k_fill, k_t = jax.random.split(learner['key'], 5)
+    ts = TrainingState(**dict(learner, key=k_run), env_state=fresh_envs(k_env, k_t),
+                       episode_return=jnp.zeros((num_envs,), jnp.float32),
+                       buffer_state=buffer.init(k_buffer))
+
+    def fill(carry, step_key):
+      carry, _ = collect(carry, step_key, random_actions=False)
+      return carry, None
+
+    if num_prefill_steps > 0:
+      ts, _ = jax.lax.scan(fill, ts, jax.random.split(k_fill, num_prefill_steps))
+    return _strong_types(ts)
+
   return Trainer(env=env, config=config, networks=nets, init=jax.jit(init),
+                 refill=jax.jit(refill),
                  epoch=jax.jit(epoch, donate_argnums=0),
                  prefill_env_steps=num_prefill_steps * num_envs,
                  env_steps_per_epoch=num_envs * config.steps_per_epoch)
