@@ -60,6 +60,10 @@ class SACConfig:
   seed: PRNG seed of the whole run, in [0, 2**32) (jax.random.PRNGKey keeps 32 bits of it
     without x64, so larger seeds would repeat smaller ones).
   eval_instances: start nodes of the periodic single-rollout evaluation (0 disables it).
+  failure_cost: subtracted from the reward of a step that ends its episode in failure (an
+    invalid edge: a tipped T, the T off the table). Where rewards are negative costs, ending an
+    episode must cost more than any continuation (>= the largest step cost / (1 - discount)),
+    or the policy learns to fail early.
   """
 
   num_envs: int = 128
@@ -84,6 +88,7 @@ class SACConfig:
   desync_episodes: bool = True
   seed: int = 0
   eval_instances: int = 128
+  failure_cost: float = 0.0
 
   def __post_init__(self):
     object.__setattr__(self, 'actor_hidden', tuple(int(h) for h in self.actor_hidden))
@@ -98,6 +103,9 @@ class SACConfig:
       raise ValueError(f'SACConfig.discount must be in [0, 1], got {self.discount}')
     if not 0.0 < self.tau <= 1.0:
       raise ValueError(f'SACConfig.tau must be in (0, 1], got {self.tau}')
+    if not (self.failure_cost >= 0 and self.failure_cost < float('inf')):
+      raise ValueError(f'SACConfig.failure_cost must be a finite number >= 0, got '
+                       f'{self.failure_cost}')
     if self.min_replay_size < 0 or self.max_grad_norm < 0 or self.eval_instances < 0:
       raise ValueError('SACConfig.min_replay_size, max_grad_norm and eval_instances must be '
                        f'>= 0, got {self.min_replay_size}, {self.max_grad_norm}, '

@@ -152,7 +152,9 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
     stepped = v_step(state, actions)
     done = stepped.done
     terminal = done * (1.0 - stepped.info['truncation'])
-    transitions = sac_losses.Transition(observation=obs, action=actions, reward=stepped.reward,
+    failure = terminal * (1.0 - stepped.metrics['success'])
+    reward = stepped.reward - config.failure_cost * failure
+    transitions = sac_losses.Transition(observation=obs, action=actions, reward=reward,
                                         discount=1.0 - terminal,
                                         next_observation=stepped.obs)
     fresh = v_reset(jax.random.split(k_reset, num_envs))
