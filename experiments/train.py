@@ -59,6 +59,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                  help='start a new run from a learner file (--learner-out of an earlier run: '
                       'networks, optimisers, temperature, normaliser, counters), its replay '
                       'buffer refilled by its policy')
+  p.add_argument('--init-from', default=None,
+                 help='a new run fine-tunes this exported model (a model directory, e.g. '
+                      "pachs_jax/checkpoints/pusht-fixed; same task and network sizes)")
   p.add_argument('--learner-out', default=None,
                  help='also write the learner (no replay buffer, no env states) to this .npz '
                       'file at every save: a run that moves between machines')
@@ -248,6 +251,12 @@ def _main(args: argparse.Namespace) -> int:
         f'config {json.dumps(config_to_dict(config))}',
         flush=True)
   trainer = make_trainer(env, config)
+  init_from = None
+  if args.init_from is not None:
+    try:
+      init_from = checkpoint.load_actor_critic(args.init_from, task=env.name)
+    except checkpoint.CheckpointError as e:
+      raise SystemExit(f'error: --init-from: {e}') from None
   one_epoch = trainer.env_steps(1)
   updates = config.steps_per_epoch * config.grad_updates_per_step
   print(f'an epoch: {trainer.env_steps_per_epoch} env steps ({config.num_envs} envs x '
@@ -267,7 +276,7 @@ def _main(args: argparse.Namespace) -> int:
                          checkpoint_every_epochs=args.checkpoint_every,
                          keep_checkpoints=args.keep, reporter=reporter, handle_signals=True,
                          started_at=args.started_at, learner_from=args.learner_from,
-                         learner_out=args.learner_out)
+                         learner_out=args.learner_out, init_from=init_from)
   except (train.RunDirError, checkpoint.CheckpointError, learner_file.LearnerFileError) as e:
     raise SystemExit(f'error: {e}') from None
   interrupted = None if result.finished else result.interrupted

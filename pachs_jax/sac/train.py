@@ -22,7 +22,7 @@ from pachs_jax.sac import evaluator
 from pachs_jax.sac import learner_file
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
 from pachs_jax.sac.config import SACConfig, config_from_dict, config_to_dict
-from pachs_jax.sac.trainer import Trainer, TrainingState, make_trainer
+from pachs_jax.sac.trainer import Trainer, TrainingState, from_model, make_trainer
 
 __all__ = ['SACConfig', 'Trainer', 'TrainingState', 'make_trainer', 'train', 'TrainResult',
            'actor_critic_from_state', 'read_run_config', 'check_run_dir', 'RunDirError',
@@ -73,15 +73,20 @@ class TrainResult:
   interrupted: Optional[str] = None
 
 
+def model_config(trainer: Trainer) -> ModelConfig:
+  """The ModelConfig of the actor-critics a trainer exports."""
+  env, config = trainer.env, trainer.config
+  return ModelConfig(task=env.name, observation_size=env.observation_size,
+                     action_size=env.action_size, actor_hidden=config.actor_hidden,
+                     critic_hidden=config.critic_hidden, activation=config.activation,
+                     normalize_observations=config.normalize_observations,
+                     discount=config.discount, reward_scaling=config.reward_scaling,
+                     episode_length=env.episode_length)
+
+
 def actor_critic_from_state(trainer: Trainer, state: TrainingState) -> SacActorCritic:
   """The actor-critic (actor, twin critic, observation statistics) of a training state."""
-  env, config = trainer.env, trainer.config
-  model = ModelConfig(task=env.name, observation_size=env.observation_size,
-                      action_size=env.action_size, actor_hidden=config.actor_hidden,
-                      critic_hidden=config.critic_hidden, activation=config.activation,
-                      normalize_observations=config.normalize_observations,
-                      discount=config.discount, reward_scaling=config.reward_scaling,
-                      episode_length=env.episode_length)
+  model = model_config(trainer)
   normalizer = {'mean': state.normalizer.mean, 'std': state.normalizer.std}
   params = ActorCriticParams(normalizer=normalizer, policy=state.policy_params,
                              q=state.q_params)
@@ -213,6 +218,20 @@ def _check_meta(trainer: Trainer, meta: Dict[str, Any], where: str) -> None:
                       'resume with the stored config (see read_run_config)')
 
 
+FINE_TUNE_OBSERVATIONS = 1e6  # weight of a fine-tuned model's observation statistics
+
+
+def _check_model(trainer: Trainer, model: SacActorCritic) -> None:
+  """RunDirError, one line, unless `model` has the trainer's task and network sizes."""
+  want = model_config(trainer)
+  have = model.config
+  for name in ('task', 'observation_size', 'action_size', 'actor_hidden', 'critic_hidden',
+               'activation', 'normalize_observations'):
+    if getattr(have, name) != getattr(want, name):
+      raise RunDirError(f'the model to fine-tune has {name} {getattr(have, name)!r}, this run '
+                        f'{getattr(want, name)!r}')
+
+
 def _host_metrics(metrics: Dict[str, Any]) -> Dict[str, float]:
   m = {k: float(v) for k, v in jax.device_get(metrics).items()}
   episodes = m.get('episodes', 0.0)
@@ -327,7 +346,8 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
           checkpoint_minutes: float = 5.0, checkpoint_every_epochs: int = 0,
           keep_checkpoints: int = 3, reporter: Optional[Reporter] = None,
           handle_signals: bool = False, started_at: Optional[float] = None,
-          learner_from: Optional[str] = None, learner_out: Optional[str] = None) -> TrainResult:
+          learner_from: Optional[str] = None, learner_out: Optional[str] = None,
+          init_from: Optional[SacActorCritic] = None) -> TrainResult:
   """Trains until total_env_steps (rounded up to whole epochs), the time budget or a signal.
 
   resume: continue from run_dir's latest checkpoint; a run_dir without one is a RunDirError
@@ -349,6 +369,9 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   learner_from: a new run (run_dir without checkpoints) continues the learner of this
     `learner_file` (its epoch and counters), with fresh environments and a replay buffer
     refilled by its policy; ignored when run_dir holds a checkpoint to resume.
+  init_from: a new run (no checkpoint, no learner_from) fine-tunes this actor-critic (same
+    task and network sizes): its actor, critics and observation statistics replace the fresh
+    ones after the random prefill (`trainer.from_model`).
   learner_out: every save also writes the learner to this file (a run that moves between
     machines through files of a few MB).
   Damaged checkpoints raise checkpoint.CheckpointError, bad learner files
@@ -365,14 +388,14 @@ def train(trainer: Trainer, run_dir: str, total_env_steps: int, *, resume: bool 
   with stop:
     return _train(trainer, run_dir, total_env_steps, resume, start_if_missing, start_time,
                   deadline, checkpoint_minutes, checkpoint_every_epochs, keep_checkpoints,
-                  reporter, stop, learner_from, learner_out)
+                  reporter, stop, learner_from, learner_out, init_from)
 
 
 def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
            start_if_missing: bool, start_time: float, deadline: Optional[float],
            checkpoint_minutes: float, checkpoint_every_epochs: int, keep_checkpoints: int,
            reporter: Optional[Reporter], stop: _StopSignals, learner_from: Optional[str],
-           learner_out: Optional[str]) -> TrainResult:
+           learner_out: Optional[str], init_from: Optional[SacActorCritic]) -> TrainResult:
   env, config = trainer.env, trainer.config
   ckpts = checkpoint.TrainingCheckpoints(os.path.join(run_dir, STATE_SUBDIR),
                                          keep=keep_checkpoints)
@@ -401,6 +424,9 @@ def _train(trainer: Trainer, run_dir: str, total_env_steps: int, resume: bool,
     else:
       init_start = time.time()
       state = wait_ready(trainer.init())
+      if init_from is not None:
+        _check_model(trainer, init_from)
+        state = from_model(state, init_from.params, FINE_TUNE_OBSERVATIONS)
       init_seconds = time.time() - init_start
       epoch = 0
   except BaseException:

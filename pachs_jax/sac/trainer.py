@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from brax.training import replay_buffers
+from brax.training import types as brax_types
 from brax.training.acme import running_statistics
 from flax import struct
 
@@ -102,6 +103,22 @@ def _check_env(env: base.Env) -> None:
   if stepped.obs.shape != (env.observation_size,):
     raise ValueError(f'env {env.name!r}: obs shape {stepped.obs.shape} != '
                      f'({env.observation_size},)')
+
+
+def from_model(state: TrainingState, params: Any, observations: float) -> TrainingState:
+  """`state` (a fresh run's) fine-tuning an exported actor-critic: its actor, critics (also as
+  the target critics) and observation statistics, weighted as `observations` observations.
+
+  params: `actor_critic.ActorCriticParams` of the same network sizes.
+  """
+  mean, std = (jnp.asarray(params.normalizer[k], jnp.float32) for k in ('mean', 'std'))
+  count = brax_types.UInt64(hi=0, lo=int(observations))
+  normalizer = state.normalizer.replace(count=count, mean=mean, std=std,
+                                        summed_variance=jnp.square(std) * float(observations))
+  copy = lambda tree: jax.tree.map(lambda x: jnp.array(x, copy=True), tree)  # own buffers:
+  # the epoch donates its state, and a buffer may be donated only once
+  return _strong_types(state.replace(policy_params=copy(params.policy), q_params=copy(params.q),
+                                     target_q_params=copy(params.q), normalizer=normalizer))
 
 
 def _make_optimizer(learning_rate: float, max_grad_norm: float) -> optax.GradientTransformation:

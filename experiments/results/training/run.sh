@@ -1,28 +1,22 @@
 #!/usr/bin/env bash
-# Train (or continue) a PushT model on the faithful physics with MuJoCo Warp for at most MINUTES
-# of one GPU command, then pack what a later command or session continues from into $OUT:
-#   OUT=dir bash experiments/results/training/run.sh pusht-fixed 6.3 [bench]
-# A run directory left in /tmp by an earlier command on the same machine is resumed; else a
-# learner file in experiments/results/training/<task>_learner.npz (a run moved from another
-# machine) starts it, its replay buffer refilled by its policy; else it starts from scratch.
-# With 'bench', the training throughput of Warp against MJX-JAX at 4,096 envs follows.
+# Train (or continue) a PushT model on the default (faithful) physics with MuJoCo Warp for at
+# most MINUTES of one GPU command, and pack what a later command or session continues from:
+#   OUT=dir bash experiments/results/training/run.sh NAME TASK MINUTES [train.py flags...]
+# The run directory /tmp/NAME left by an earlier command on the same machine is resumed; else
+# a learner file experiments/results/training/NAME_learner.npz (a run moved from another
+# machine) starts it, its replay buffer refilled by its policy; else it starts anew.
 set -u
-task=$1; minutes=$2; out=${OUT:?}
+name=$1; task=$2; minutes=$3; shift 3; out=${OUT:?}
 here=experiments/results/training
 from=()
-if [ ! -d "/tmp/$task/state" ] && [ -f "$here/${task}_learner.npz" ]; then
-  from=(--learner-from "$here/${task}_learner.npz")
+if [ ! -d "/tmp/$name/state" ] && [ -f "$here/${name}_learner.npz" ]; then
+  from=(--learner-from "$here/${name}_learner.npz")
 fi
-python3 experiments/train.py --task "$task" --physics warp --physics-preset faithful \
-  --steps 60000000 --minutes "$minutes" --out "/tmp/$task" --resume --start-if-missing \
-  --learner-out "/tmp/${task}_learner.npz" "${from[@]}" --progress lines --no-tensorboard \
-  > "$out/train_$task.log" 2>&1
-echo "train exit $?"
-tar czf "$out/$task.tgz" -C /tmp "$task/model" "$task/metrics.csv" "$task/status.json" \
-  "${task}_learner.npz"
-if [ "${3:-}" = bench ]; then
-  timeout 200 python3 experiments/bench_training.py --preset faithful --num-envs 4096 \
-    --epochs 2 --physics-steps 10 --out "$out/bench_training.json" > "$out/bench.log" 2>&1
-  echo "bench exit $?"
-fi
-tail -3 "$out/train_$task.log"
+python3 experiments/train.py --task "$task" --physics warp --steps 60000000 \
+  --minutes "$minutes" --out "/tmp/$name" --resume --start-if-missing \
+  --learner-out "/tmp/${name}_learner.npz" "${from[@]}" --progress lines --no-tensorboard "$@" \
+  > "$out/train_$name.log" 2>&1
+echo "$name: train exit $?"
+tar czf "$out/$name.tgz" -C /tmp "$name/model" "$name/metrics.csv" "$name/status.json" \
+  "${name}_learner.npz"
+tail -2 "$out/train_$name.log"
