@@ -36,9 +36,16 @@ def test_free_env_reads_the_same_pose_cost_and_observation():
   assert node_f.qpos.shape == (14,) and node_f.qvel.shape == (13,)
   np.testing.assert_allclose(pusht.t_pose(node_f.qpos), pose, atol=1e-6)
   np.testing.assert_allclose(free.observation(node_f), planar.observation(node_p), atol=1e-5)
-  tip = planar.tip_position(node_p)[:2]
+  # the tip 6 cm from the T's centre in the plane: at the T's half height both costs agree; 5 cm
+  # higher, only the free T's reach term (3D, as ManiSkill's reward) counts the height
+  tip = np.array([pose[0] + 0.06, pose[1], pusht.T_HALF_HEIGHT])
   assert float(free._cost(node_f, tip)) == pytest.approx(float(planar._cost(node_p, tip)),
                                                         abs=1e-6)
+  high = tip + np.array([0.0, 0.0, 0.05])
+  assert float(planar._cost(node_p, high)) == pytest.approx(float(planar._cost(node_p, tip)))
+  extra = free.config.w_reach * (np.hypot(0.06, 0.05) - 0.05 - 0.01)
+  assert float(free._cost(node_f, high)) == pytest.approx(float(free._cost(node_f, tip)) + extra,
+                                                         abs=1e-5)
   at_goal = free.node_from_pose(goal, goal)
   assert bool(free.goal_reached(at_goal)) and not bool(free.goal_reached(node_f))
 

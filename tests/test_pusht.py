@@ -50,6 +50,17 @@ def test_unknown_task_lists_valid_names():
     envs.make('pusht')
 
 
+def test_a_pusht_task_takes_a_named_physics():
+  free = envs.make('pusht-obs', layout='wall', physics='faithful')
+  want = pusht.physics_preset('faithful', variant='obs', layout='wall')
+  assert free.config == want and free.config.t_body == 'free' and free.mj_model.nq == 14
+  assert envs.make('pusht-fixed').config == pusht.PushTConfig()  # no physics: the default
+  with pytest.raises(ValueError, match="unknown physics preset 'stiff'; valid: "):
+    envs.make('pusht-rand', physics='stiff')
+  with pytest.raises(ValueError, match="task 'shelf' has no option physics"):
+    envs.make('shelf', physics='faithful')
+
+
 def test_end_effector_matches_dh_in_mujoco_c_and_mjx(env):
   rng = np.random.default_rng(0)
   qs = rng.uniform(panda.JOINT_LOWER, panda.JOINT_UPPER, size=(16, 7))

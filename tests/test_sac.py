@@ -17,7 +17,7 @@ from conftest import trees_equal
 
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.sac import checkpoint, evaluator, learner_file, presets, train
-from pachs_jax.sac.trainer import make_trainer
+from pachs_jax.sac.trainer import from_model, make_trainer
 
 TOTAL_STEPS = 4000  # env steps of the shared training run (10 epochs of 400 after prefill)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -307,12 +307,49 @@ def test_cli_refuses_conflicts(trained):
       'critic_learning_rate': 1e-3, 'alpha_learning_rate': 1e-3}
 
 
-# ------------------------------------------------------------------------ evaluator ----
-
 class _AlwaysInvalid(PointMassEnv):
   def transition(self, node, action):
     out = super().transition(node, action)
     return out.replace(is_valid=jnp.zeros((), bool), is_goal=jnp.zeros((), bool))
+
+
+def test_a_failed_episode_end_is_charged_the_failure_cost(trainer):
+  """Every edge fails: each stored transition is terminal, its reward the env's minus
+  failure_cost (else ending early is the cheapest episode where rewards are negative costs)."""
+  small = dataclasses.replace(trainer.config, min_replay_size=64, failure_cost=0.0)
+  plain = make_trainer(_AlwaysInvalid(), small).init()
+  charged = make_trainer(_AlwaysInvalid(), dataclasses.replace(small, failure_cost=7.0)).init()
+  n = int(plain.buffer_state.insert_position)
+  assert n == 64
+  # a stored row: observation (4), action (2), reward, discount, next observation (4)
+  reward = lambda ts: np.asarray(ts.buffer_state.data)[:n, 6]
+  discount = np.asarray(charged.buffer_state.data)[:n, 7]
+  np.testing.assert_allclose(reward(charged), reward(plain) - 7.0, atol=1e-5)
+  assert np.all(discount == 0.0) and np.all(reward(plain) < 0.0)
+  with pytest.raises(ValueError, match='failure_cost must be a finite number >= 0'):
+    dataclasses.replace(small, failure_cost=-1.0)
+
+
+def test_fine_tuning_starts_from_the_model(env, trainer, trained, tmp_path):
+  """A fine-tuning run starts from the model's actor, critics (also as targets) and observation
+  statistics, and runs its epochs; a model of other sizes is refused in one line."""
+  model = trained[1].actor_critic
+  tuned = from_model(trainer.init(), model.params, 1e6)
+  assert trees_equal(tuned.policy_params, model.params.policy)
+  assert trees_equal(tuned.q_params, model.params.q)
+  assert trees_equal(tuned.target_q_params, model.params.q)
+  np.testing.assert_allclose(tuned.normalizer.mean, model.params.normalizer['mean'])
+  np.testing.assert_allclose(tuned.normalizer.std, model.params.normalizer['std'])
+  stepped, _ = trainer.epoch(tuned)  # donates its state: the copies are its own buffers
+  assert int(stepped.epoch) == 1
+  run = train.train(trainer, str(tmp_path / 'tuned'), 1, init_from=model)
+  assert run.finished and run.epoch == 1
+  wider = make_trainer(env, dataclasses.replace(trainer.config, actor_hidden=(48, 32)))
+  with pytest.raises(train.RunDirError, match=r'actor_hidden \(32, 32\), this run \(48, 32\)'):
+    train.train(wider, str(tmp_path / 'wider'), 1, init_from=model)
+
+
+# ------------------------------------------------------------------------ evaluator ----
 
 
 def test_evaluator_stops_at_success_or_invalid(env, trained, eval_nodes):

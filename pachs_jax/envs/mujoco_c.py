@@ -352,7 +352,7 @@ class MujocoCEnv(base.Env):
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)
     next_node = next_node.replace(t=node.t + 1)
-    tip = self.tip_position(next_node)[:2]
+    tip = self.tip_position(next_node)
     cost = jnp.where(finite, env._cost(next_node, tip), env._invalid_cost())
     return base.EdgeOutcome(next_node, cost, env.goal_reached(next_node) & is_valid, is_valid)
 

@@ -59,19 +59,19 @@ class PushTConfig:
   variant: str = 'fixed'
   layout: str | None = None
   episode_length: int = 100
-  physics_dt: float = 0.0025
-  substeps: int = 20
-  solver_iterations: int = 20
-  ls_iterations: int = 20
-  table_friction: float = 1.65
+  physics_dt: float = 0.0125
+  substeps: int = 4
+  solver_iterations: int = 4
+  ls_iterations: int = 8
+  table_friction: float = 0.5
   pusher_friction: float = 0.8
-  t_body: str = 'free'
+  t_body: str = 'planar'
   t_friction_radius: float = 0.05
   t_damping: float = 0.5
   t_yaw_damping: float = 0.01
   solver: str = 'Newton'
-  block_solref: tuple | None = (0.005, 1.0)
-  block_solimp: tuple | None = (0.99, 0.999, 0.001, 0.5, 2.0)
+  block_solref: tuple | None = None
+  block_solimp: tuple | None = None
   block_margin: float = 0.0
   w_angle: float = 1.0
   w_position: float = 3.0
@@ -96,18 +96,16 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
 
 
 # Named physics settings (PushTConfig fields; experiments/results/physics/ has the measurements).
-# 'faithful', the default: ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff blocks;
-# its T-table friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's default
-# material (0.3); 2.5 ms x 20 steps and 20 solver iterations hold the stiff contacts.
-# 'maniskill': the free T at ManiSkill's own 10 ms x 5 physics (cheaper, softer blocks, worse
-# planner-world agreement). 'planar': the planar T of the models shipped before (slide and hinge
-# joints with friction loss, no gravity, soft blocks).
+# 'faithful': ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff blocks; its T-table
+# friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's default material
+# (0.3); 2.5 ms x 20 steps and 20 solver iterations hold the stiff contacts. 'maniskill': that T
+# at ManiSkill's own 10 ms x 5 physics (cheaper, softer blocks, worse planner-world agreement).
+# The default (the PushTConfig defaults) is the planar T the shipped models were trained on.
 PHYSICS_PRESETS = {
-    'faithful': {},
-    'maniskill': dict(physics_dt=0.01, substeps=5, solver_iterations=4, ls_iterations=8,
-                      block_solref=None, block_solimp=None),
-    'planar': dict(t_body='planar', table_friction=0.5, physics_dt=0.0125, substeps=4,
-                   solver_iterations=4, ls_iterations=8, block_solref=None, block_solimp=None),
+    'faithful': dict(t_body='free', table_friction=1.65, physics_dt=0.0025, substeps=20,
+                     solver_iterations=20, ls_iterations=20, block_solref=(0.005, 1.0),
+                     block_solimp=(0.99, 0.999, 0.001, 0.5, 2.0)),
+    'maniskill': dict(t_body='free', table_friction=1.65, physics_dt=0.01, substeps=5),
 }
 # The PushTConfig fields that make the physics model (`physics_settings`); the others make the task.
 PHYSICS_FIELDS = ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations',
@@ -471,7 +469,7 @@ class PushTEnv(base.Env):
   Action: [-1, 1]^7 scaled by ARM_ACTION_SCALE to a joint-position target offset from the
   current joint angles, held for `substeps` physics steps. Cost per step (= -reward):
   w_angle * |yaw error| / pi + w_position * position error (m) + w_reach * distance of the tip
-  from the T's centre beyond 5 cm (m). Success: `coverage.coverage` >= `success_coverage`.
+  from the T's centre beyond 5 cm (m; in the plane for the planar T, in 3D for the free T). Success: `coverage.coverage` >= `success_coverage`.
   """
 
   goal_size = 3
@@ -636,12 +634,9 @@ class PushTEnv(base.Env):
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)
     next_node = next_node.replace(t=node.t + 1)
-    tip = self._tip_xy(data)
+    tip = data.site_xpos[self._tip_site]
     cost = jnp.where(finite, self._cost(next_node, tip), self._invalid_cost())
     return base.EdgeOutcome(next_node, cost, self.goal_reached(next_node) & is_valid, is_valid)
-
-  def _tip_xy(self, data: mjx.Data) -> jax.Array:
-    return data.site_xpos[self._tip_site, :2]
 
   def tip_position(self, node: base.NodeState) -> jax.Array:
     """[3] world position of the stick tip (m) of one node, by forward kinematics of the arm's
@@ -649,12 +644,19 @@ class PushTEnv(base.Env):
     xpos, xmat = self._tip_chain.bodies(node.qpos)
     return self._tip_chain.site(xpos, xmat, self._tip_site)
 
-  def _cost(self, node: base.NodeState, tip_xy: jax.Array) -> jax.Array:
+  def _cost(self, node: base.NodeState, tip: jax.Array) -> jax.Array:
+    """The step cost of node (no batch axis) with the stick tip at tip [3] (m)."""
     c = self.config
     pose, goal = t_pose(node.qpos), node.goal
     angle = jnp.abs(_wrap_angle(pose[2] - goal[2])) / jnp.pi
     position = jnp.linalg.norm(pose[:2] - goal[:2])
-    reach = jnp.maximum(jnp.linalg.norm(tip_xy - pose[:2]) - 0.05, 0.0)
+    # The tip's distance from the T's centre: in the plane for the planar T; in 3D for the free
+    # T (as ManiSkill's PushT reward), which keeps the tip down at the T's half height, where a
+    # push slides the T instead of tipping it over its top edge.
+    offset = tip[:2] - pose[:2]
+    if self.config.t_body == 'free':
+      offset = jnp.append(offset, tip[2] - node.qpos[9])
+    reach = jnp.maximum(jnp.linalg.norm(offset) - 0.05, 0.0)
     return c.w_angle * angle + c.w_position * position + c.w_reach * reach
 
   def _invalid_cost(self) -> jax.Array:

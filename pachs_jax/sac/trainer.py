@@ -111,12 +111,12 @@ def from_model(state: TrainingState, params: Any, observations: float) -> Traini
 
   params: `actor_critic.ActorCriticParams` of the same network sizes.
   """
-  mean, std = (jnp.asarray(params.normalizer[k], jnp.float32) for k in ('mean', 'std'))
-  count = brax_types.UInt64(hi=0, lo=int(observations))
-  normalizer = state.normalizer.replace(count=count, mean=mean, std=std,
-                                        summed_variance=jnp.square(std) * float(observations))
-  copy = lambda tree: jax.tree.map(lambda x: jnp.array(x, copy=True), tree)  # own buffers:
-  # the epoch donates its state, and a buffer may be donated only once
+  # own buffers: the epoch donates its state, which must not delete the model's arrays
+  copy = lambda tree: jax.tree.map(lambda x: jnp.array(x, jnp.float32, copy=True), tree)
+  mean, std = copy(params.normalizer['mean']), copy(params.normalizer['std'])
+  normalizer = state.normalizer.replace(
+      count=brax_types.UInt64(hi=0, lo=int(observations)), mean=mean, std=std,
+      summed_variance=jnp.square(std) * float(observations))
   return _strong_types(state.replace(policy_params=copy(params.policy), q_params=copy(params.q),
                                      target_q_params=copy(params.q), normalizer=normalizer))
 
