@@ -50,7 +50,7 @@ def write(args: argparse.Namespace, config, rows: list) -> dict:
   if 'warp' in by and 'mjx' in by:
     ratio = {k: by['warp'][k] / by['mjx'][k]
              for k in ('physics_env_steps_per_s', 'training_env_steps_per_s')}
-  payload = {**common.provenance(), 'task': args.task, 'preset': args.preset,
+  payload = {'provenance': common.provenance(), 'task': args.task, 'preset': args.preset,
              'sac_config': dataclasses.asdict(config), 'rows': rows, 'warp_over_mjx': ratio}
   common.write_json(args.out, payload)
   columns = ['engine', 'num_envs', 'physics_env_steps_per_s', 'training_env_steps_per_s',

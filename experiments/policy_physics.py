@@ -1,0 +1,75 @@
+"""How a PushT policy pushes under each physics preset: its deterministic rollouts in MuJoCo C
+on canonical instances, counting successes, episodes ended by a tipped T or another invalid
+edge, and the stick tip's height (median over steps with the tip within 10 cm of the T).
+
+  python experiments/policy_physics.py --presets planar,faithful --instances 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import jax
+import numpy as np
+
+import common
+from pachs_jax import argtypes, planner
+from pachs_jax.envs import backends, pusht
+
+
+def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
+  """The summary row of the policy of `model_dir` on `preset` (MuJoCo C, deterministic)."""
+  config = (pusht.PushTConfig(variant=task.split('-')[1]) if preset == 'planar'
+            else pusht.physics_preset(preset, variant=task.split('-')[1]))
+  env = backends.make_backend(pusht.PushTEnv(config), 'mujoco-c')
+  _, model = planner.load_model(task, path=model_dir)
+  nodes = env.canonical_instances(instances)
+  alive = np.ones(instances, bool)
+  success = np.zeros(instances, bool)
+  tipped = np.zeros(instances, bool)
+  heights = []
+  for _ in range(env.episode_length):
+    out = env.evaluate(nodes, model.deterministic_action(env.observe(nodes)))
+    valid, goal = np.asarray(out.is_valid), np.asarray(out.is_goal)
+    tilt = np.asarray(pusht.t_tilt(out.next_node.qpos))
+    success |= alive & goal
+    tipped |= alive & ~valid & (tilt >= pusht.MAX_T_TILT)
+    tip = np.asarray(jax.vmap(env.tip_position)(out.next_node))
+    near = alive & valid & (np.linalg.norm(
+        tip[:, :2] - np.asarray(pusht.t_pose(out.next_node.qpos))[:, :2], axis=1) < 0.1)
+    heights.extend(tip[near, 2].tolist())
+    alive &= valid & ~goal
+    nodes = out.next_node
+  return {'task': task, 'preset': preset, 'instances': instances,
+          'success': int(success.sum()), 'tipped': int(tipped.sum()),
+          'other_invalid': int((~alive & ~success & ~tipped).sum()),
+          'tip_height_near_t_median_m': float(np.median(heights)) if heights else None,
+          't_top_m': 2 * pusht.T_HALF_HEIGHT}
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
+  parser.add_argument('--presets', default='planar,faithful')
+  parser.add_argument('--instances', type=argtypes.positive_int, default=16)
+  parser.add_argument('--model', default=None, help='model directory (default: the shipped)')
+  common.add_common_args(parser, out='experiments/results/training/policy_physics.json')
+  args = parser.parse_args()
+  presets = [p for p in args.presets.split(',') if p]
+  bad = sorted(set(presets) - set(pusht.PHYSICS_PRESETS) - {'planar'})
+  if not presets or bad:
+    parser.error(f'--presets: names of planar, {", ".join(pusht.PHYSICS_PRESETS)}; got {bad}')
+  common.check_out(parser, args.out)
+  rows = []
+  for preset in presets:
+    rows.append(rollouts(args.task, preset, args.instances, args.model))
+    print(rows[-1], flush=True)
+  common.write_json(args.out, {'provenance': common.provenance(),
+                               'model': args.model or 'shipped', 'rows': rows})
+  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
+    f.write(common.markdown_table(rows, list(rows[0])) + '\n')
+
+
+if __name__ == '__main__':
+  main()
