@@ -243,6 +243,16 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
       env_state = env_state.replace(pipeline_state=node.replace(t=t0.astype(node.t.dtype)))
     return env_state
 
+  def prefill(ts: TrainingState, key: jax.Array, random_actions: bool) -> TrainingState:
+    """ts after min_replay_size env steps into its buffer (uniform random or policy actions)."""
+    def step(carry, step_key):
+      carry, _ = collect(carry, step_key, random_actions=random_actions)
+      return carry, None
+
+    if num_prefill_steps > 0:
+      ts, _ = jax.lax.scan(step, ts, jax.random.split(key, num_prefill_steps))
+    return ts
+
   def init() -> TrainingState:
     key = jax.random.PRNGKey(config.seed)
     k_policy, k_q, k_env, k_buffer, k_prefill, k_run, k_t = jax.random.split(key, 7)
@@ -260,13 +270,7 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
         buffer_state=buffer.init(k_buffer), key=k_run,
         epoch=jnp.zeros((), jnp.int32), gradient_steps=jnp.zeros((), jnp.int32))
 
-    def prefill(carry, step_key):
-      carry, _ = collect(carry, step_key, random_actions=True)
-      return carry, None
-
-    if num_prefill_steps > 0:
-      ts, _ = jax.lax.scan(prefill, ts, jax.random.split(k_prefill, num_prefill_steps))
-    return _strong_types(ts)
+    return _strong_types(prefill(ts, k_prefill, random_actions=True))
 
   def refill(learner: Dict[str, Any]) -> TrainingState:
     k_run, k_env, k_buffer, k_fill, k_t = jax.random.split(learner['key'], 5)
@@ -274,13 +278,7 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
                        episode_return=jnp.zeros((num_envs,), jnp.float32),
                        buffer_state=buffer.init(k_buffer))
 
-    def fill(carry, step_key):
-      carry, _ = collect(carry, step_key, random_actions=False)
-      return carry, None
-
-    if num_prefill_steps > 0:
-      ts, _ = jax.lax.scan(fill, ts, jax.random.split(k_fill, num_prefill_steps))
-    return _strong_types(ts)
+    return _strong_types(prefill(ts, k_fill, random_actions=False))
 
   return Trainer(env=env, config=config, networks=nets, init=jax.jit(init),
                  refill=jax.jit(refill),
