@@ -35,7 +35,7 @@ def start_server(args) -> tuple:
   """(process, url) of `pachs serve` with the benchmark's settings, once it says it is ready."""
   command = [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', args.task, '--port', '0',
              '--max-batch', str(max(args.max_batch, args.big)), '--window-ms', str(args.window_ms),
-             '--backend', args.backend]
+             '--backend', args.backend, '--devices', str(args.devices)]
   if args.budget:
     command += ['--budget', str(args.budget)]
   began = time.perf_counter()
@@ -113,6 +113,8 @@ def main() -> None:
   parser.add_argument('--time-limit', type=argtypes.positive_float, default=None)
   parser.add_argument('--big', type=int, default=30,
                       help='instances of the one many-instance request (0: none)')
+  parser.add_argument('--devices', type=argtypes.positive_int, default=1,
+                      help="the started server's devices (pachs serve --devices)")
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()

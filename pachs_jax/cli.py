@@ -336,7 +336,8 @@ def _serve(args: argparse.Namespace) -> int:
   websocket until SIGTERM or SIGINT (docs/serving.md)."""
   from pachs_jax import planner, serve  # start-up path: lazy (JAX)
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
-                             max_queue=args.max_queue, max_time_limit_s=args.max_time_limit)
+                             max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
+                             devices=args.devices)
   tasks = list(dict.fromkeys(args.task or ['pusht-obs']))
   if args.layout is not None and 'pusht-obs' not in tasks:
     raise ValueError(f'--layout applies to --task pusht-obs, not {", ".join(tasks)}')
@@ -562,6 +563,8 @@ def _main(words, prefetch=None, guard=None) -> int:
                       help='requests waiting before one more is answered busy (default 64)')
   served.add_argument('--max-time-limit', type=argtypes.positive_float, default=60.0,
                       help='the largest time_limit_s a request may ask (default 60 s)')
+  served.add_argument('--devices', type=argtypes.positive_int, default=1,
+                      help="the host's first N devices share each batch's search (default 1)")
   served.add_argument('--no-cache', action='store_true',
                       help='no persistent compilation cache')
   served.set_defaults(func=_serve)

@@ -14,7 +14,7 @@ import numpy as np
 from flax import struct
 
 from pachs_jax import trees
-from pachs_jax.runtime import programs
+from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import base
 from pachs_jax.search.result import SearchResult
 
@@ -184,6 +184,8 @@ class Session:
     env's episode length).
   candidates: which of `CANDIDATES` compete with the search's path ('remainder', 'policy').
   chunk_iterations: as in `programs.plan`.
+  mesh: a `jax.sharding.Mesh` over which the search splits the episodes
+    (`sharding.ShardedSearch`; None: one device, `programs.plan` with its lane compaction).
   """
 
   env: base.Env
@@ -193,6 +195,7 @@ class Session:
   horizon: Optional[int] = None
   candidates: Sequence[str] = CANDIDATES
   chunk_iterations: Optional[int] = None
+  mesh: Optional[object] = None
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -215,6 +218,8 @@ class Session:
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
     self._compiled = {}  # episodes -> the compiled follow
+    self._sharded = (None if self.mesh is None
+                     else sharding.ShardedSearch(self.search.search, self.mesh))
     self.last: Optional[Answer] = None
     self.followed = {}  # the last query's candidates: 'remainder', 'policy' -> Followed [E]
 
@@ -283,9 +288,15 @@ class Session:
     if time_limit_s is not None:
       left = max(time_limit_s - (time.perf_counter() - began)
                  - self.timing.get('choose_s', 0.0), 1e-3)
-    result = programs.plan(self.env, self.actor_critic, states, self.config, key,
-                           time_limit_s=left, chunk_iterations=self.chunk_iterations,
-                           search=self.search, min_bucket=bucket)
+    if self._sharded is not None:
+      result = self._sharded.plan(states, key, time_limit_s=left, min_bucket=bucket)
+      # on the default device, as one device's search leaves it: the follow and the choice
+      # are compiled for one device
+      result = jax.device_put(result, jax.devices()[0])
+    else:
+      result = programs.plan(self.env, self.actor_critic, states, self.config, key,
+                             time_limit_s=left, chunk_iterations=self.chunk_iterations,
+                             search=self.search, min_bucket=bucket)
     choosing = time.perf_counter()
     if rows > num:  # the choice in the padded batch too (its rows after num dropped)
       grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)

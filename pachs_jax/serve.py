@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pachs_jax import replan, wire
+from pachs_jax.runtime import sharding
 
 # a request's `executed` for an episode that did something else than its last answer
 DIVERGED = replan.DIVERGED
@@ -47,6 +48,8 @@ class ServeConfig:
     power of two up to it on a CPU, where they cost their physics). Each bucket, and each
     episode count up to max_batch, is warmed at start-up, so a warm server compiles nothing.
   warm_time_s: the time limit of each warm-up query (s).
+  devices: the first this many of `jax.devices()` share each batch's search, its episodes split
+    over them (`sharding.ShardedSearch`; 1: one device, with lane compaction).
   """
 
   window_s: float = 0.005
@@ -56,9 +59,10 @@ class ServeConfig:
   max_sessions: int = 4096
   buckets: Optional[Tuple[int, ...]] = None
   warm_time_s: float = 0.05
+  devices: int = 1
 
   def __post_init__(self):
-    for name in ('max_batch', 'max_queue', 'max_sessions'):
+    for name in ('max_batch', 'max_queue', 'max_sessions', 'devices'):
       value = getattr(self, name)
       if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f'{name} must be a positive int, got {value!r}')
@@ -158,9 +162,14 @@ class Server:
     self.on_cpu = jax.default_backend() == 'cpu'
     self.buckets = config.bucket_sizes(self.on_cpu)
     self.tasks: Dict[str, Task] = {}
+    if config.devices > jax.device_count():
+      raise ValueError(f'devices {config.devices}: this host has {jax.device_count()} '
+                       f'{jax.default_backend()} device(s)')
+    self.mesh = (None if config.devices == 1
+                 else sharding.instance_mesh(jax.devices()[:config.devices]))
     for name, planner in planners.items():
       session = replan.Session(planner.env, planner.model, planner.config,
-                               getattr(planner, 'search', None))
+                               getattr(planner, 'search', None), mesh=self.mesh)
       spec = planner.env.node_spec
       fields = {f.name: (tuple(getattr(spec, f.name).shape), np.dtype(getattr(spec, f.name).dtype))
                 for f in dataclasses.fields(spec)}
@@ -225,7 +234,8 @@ class Server:
     return {'ok': True, 'ready': all(t.warm for t in self.tasks.values()),
             'draining': self.draining,
             'tasks': {name: t.describe() for name, t in self.tasks.items()},
-            'backend': jax.default_backend(), 'buckets': list(self.buckets),
+            'backend': jax.default_backend(), 'devices': self.config.devices,
+            'buckets': list(self.buckets),
             'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
             'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
             'queued': self._waiting, 'sessions': len(self._sessions),

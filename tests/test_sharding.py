@@ -117,11 +117,45 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
       for a, b in zip(jax.tree.leaves(got.replace(wall_time_s=None)), jax.tree.leaves(want)):
         assert np.array_equal(np.asarray(a)[kept], np.asarray(b)[kept])
 
+    def session_over_the_mesh():
+      # a replanning session (and a server) whose search splits its episodes over the devices
+      # answers as the one-device session does
+      import types
+      from pachs_jax import replan, serve
+      from pachs_jax.runtime import programs
+      policy = GreedyActor(ENV)
+      plain = replan.Session(ENV, policy, CONFIG, programs.Programs(SEARCH))
+      split = replan.Session(ENV, policy, CONFIG, programs.Programs(SEARCH), mesh=mesh)
+      fields = ('actions', 'length', 'kind', 'cost', 'reaches_goal')
+      want = plain.plan(NODES, key=key)
+      got = split.plan(NODES, key=key)
+      for name in fields:
+        assert np.array_equal(np.asarray(getattr(want, name)), np.asarray(getattr(got, name))), name
+      later = split.plan(NODES, executed=np.full(6, 2), key=key, time_limit_s=5.0)
+      assert later.actions.shape[0] == 6 and np.all(np.asarray(later.length) >= 0)
+      task = types.SimpleNamespace(env=ENV, model=policy, config=CONFIG,
+                                   search=programs.Programs(SEARCH))
+      try:
+        serve.Server({'grid': task}, serve.ServeConfig(devices=8))
+        raise AssertionError('8 devices on a host of 4 were taken')
+      except ValueError as err:
+        assert 'this host has 4 cpu device(s)' in str(err), err
+      server = serve.Server({'grid': task}, serve.ServeConfig(devices=2, max_batch=8,
+                                                              buckets=(8,)))
+      assert server.health()['devices'] == 2
+      states = {k: np.asarray(getattr(NODES, k)) for k in server.tasks['grid'].fields}
+      keys = np.asarray(jax.random.split(key, 6))
+      answer = server._answer(server.tasks['grid'], [(states, None, None, None)], keys, None, 8)
+      reference = plain.answer(NODES, jax.numpy.zeros((6, plain.horizon, 2)),
+                               jax.numpy.zeros(6, jax.numpy.int32), keys, None, 8)
+      for name in fields:
+        assert np.array_equal(answer[name], np.asarray(getattr(reference, name))), name
+
     checks = {'pachs': lambda: same('pachs', sharding.plan_sharded(
         ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH)),
               'pachs_chunked': lambda: same('pachs', sharding.plan_sharded(
                   ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH, stop=lambda: False)),
-              'pachs_stopped': stopped_after_a_chunk}
+              'pachs_stopped': stopped_after_a_chunk, 'session': session_over_the_mesh}
     for name, (shard_fn, _) in baselines().items():
       checks[name] = (lambda n, s: lambda: same(n, sharding.plan_sharded_fn(s, NODES, key,
                                                                             mesh)))(name, shard_fn)
@@ -171,7 +205,8 @@ def four_devices(compilation_cache_dir, references):
   return proc.stdout
 
 
-@pytest.mark.parametrize('name', ('pachs', 'pachs_chunked', 'pachs_stopped') + BASELINES)
+@pytest.mark.parametrize('name', ('pachs', 'pachs_chunked', 'pachs_stopped', 'session')
+                         + BASELINES)
 def test_four_devices_equal_unsharded(four_devices, name):
   assert f'{name.upper()}_OK' in four_devices, four_devices[-4000:]
 

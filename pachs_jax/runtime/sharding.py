@@ -215,32 +215,55 @@ def pachs_shard_programs(search: pachs.Search, mesh: Mesh):
   return init, loop, jax.jit(_shard_map(result, mesh, (spec,), spec))
 
 
-def _plan_sharded_in_chunks(search: pachs.Search, start_nodes: base.NodeState, key: jax.Array,
-                            mesh: Mesh, stop: Callable[[], bool],
-                            started: Optional[Callable[[], object]]) -> SearchResult:
-  """`plan_sharded` on one host in jitted chunks (`anytime.ChunkSizes`), `stop` checked
-  between them: once it returns True the instances still searching report INTERRUPTED with
-  their real-time answer, the finished ones keep theirs."""
-  num_instances = _num_instances(start_nodes)
-  keys = instance_keys(key, num_instances)
-  padded = -(-num_instances // mesh.devices.size) * mesh.devices.size
-  sharding = NamedSharding(mesh, PartitionSpec(AXIS))
-  start_nodes = jax.tree.map(lambda x: _put_global(x, sharding), _pad(start_nodes, padded))
-  keys = _put_global(_pad(keys, padded), sharding)
-  init_jit, loop_jit, result_jit = pachs_shard_programs(search, mesh)
-  shape = jax.eval_shape(init_jit, start_nodes, keys)
-  init = init_jit.lower(start_nodes, keys).compile()
-  loop = loop_jit.lower(shape, jax.device_put(np.int32(1))).compile()
-  result = result_jit.lower(shape).compile()
-  begin = time.perf_counter()
-  state = init(start_nodes, keys)
-  if started is not None:
-    started()
-  out = anytime.timed_result(lambda s, n: loop(s, jax.device_put(np.int32(n))), state, result,
-                             None, start=begin, stop=stop, sizes=anytime.ChunkSizes())
-  wall = time.perf_counter() - begin
-  out = jax.tree.map(lambda x: x[:num_instances], out.replace(wall_time_s=None))
-  return out.replace(wall_time_s=jnp.float32(wall))
+class ShardedSearch:
+  """PACHS over a mesh's devices for repeated calls (a server's queries): each padded instance
+  count's programs are compiled on first use and kept.
+
+  search: a `make_search` result; mesh: as in `plan_sharded` (one host).
+  """
+
+  def __init__(self, search: pachs.Search, mesh: Optional[Mesh] = None):
+    self.search, self.mesh = search, check_mesh(mesh)
+    self._compiled = {}  # padded instances -> (init, loop, result)
+    self.timing = {}  # the last result's time, held in reserve under a time limit
+
+  def padded(self, num_instances: int, min_bucket: Optional[int] = None) -> int:
+    """The instance count a call of num_instances runs: at least min_bucket, a multiple of the
+    device count."""
+    devices = self.mesh.devices.size
+    return -(-max(num_instances, min_bucket or 0) // devices) * devices
+
+  def plan(self, start_nodes: base.NodeState, key: jax.Array,
+           time_limit_s: Optional[float] = None, stop: Optional[Callable[[], bool]] = None,
+           started: Optional[Callable[[], object]] = None,
+           min_bucket: Optional[int] = None) -> SearchResult:
+    """SearchResult [I] from start_nodes [I] in jitted chunks (`anytime.ChunkSizes`); wall_time_s
+    leaves compiling out. time_limit_s: the instances still searching when it would pass report
+    TIME_LIMIT; stop: checked between chunks (INTERRUPTED); started: called as the chunks
+    begin; key: one PRNG key or per-instance keys [I, 2]."""
+    num_instances = _num_instances(start_nodes)
+    keys = instance_keys(key, num_instances)
+    padded = self.padded(num_instances, min_bucket)
+    sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
+    start_nodes = jax.tree.map(lambda x: _put_global(x, sharding), _pad(start_nodes, padded))
+    keys = _put_global(_pad(keys, padded), sharding)
+    if padded not in self._compiled:
+      init_jit, loop_jit, result_jit = pachs_shard_programs(self.search, self.mesh)
+      shape = jax.eval_shape(init_jit, start_nodes, keys)
+      self._compiled[padded] = (init_jit.lower(start_nodes, keys).compile(),
+                                loop_jit.lower(shape, jax.device_put(np.int32(1))).compile(),
+                                result_jit.lower(shape).compile())
+    init, loop, result = self._compiled[padded]
+    begin = time.perf_counter()
+    state = init(start_nodes, keys)
+    if started is not None:
+      started()
+    out = anytime.timed_result(lambda s, n: loop(s, jax.device_put(np.int32(n))), state, result,
+                               time_limit_s, start=begin, timing=self.timing, stop=stop,
+                               sizes=anytime.ChunkSizes())
+    wall = time.perf_counter() - begin
+    out = jax.tree.map(lambda x: x[:num_instances], out.replace(wall_time_s=None))
+    return out.replace(wall_time_s=jnp.float32(wall))
 
 
 def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
@@ -271,5 +294,5 @@ def plan_sharded(env: base.Env, actor_critic: ActorCritic, start_nodes: base.Nod
                     start_nodes, -(-num_instances // mesh.devices.size),
                     device=mesh.local_devices[0])
   if stop is not None and jax.process_count() == 1:
-    return _plan_sharded_in_chunks(search, start_nodes, key, mesh, stop, started)
+    return ShardedSearch(search, mesh).plan(start_nodes, key, stop=stop, started=started)
   return plan_sharded_fn(pachs_shard_fn(search), start_nodes, key, mesh)
