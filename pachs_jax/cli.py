@@ -338,6 +338,10 @@ def _serve(args: argparse.Namespace) -> int:
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
                              devices=args.devices)
+  import jax  # pylint: disable=import-outside-toplevel
+  if args.devices > jax.device_count():  # before any model loads
+    raise ValueError(f'--devices {args.devices}: this host has {jax.device_count()} '
+                     f'{jax.default_backend()} device(s)')
   tasks = list(dict.fromkeys(args.task or ['pusht-obs']))
   if args.layout is not None and 'pusht-obs' not in tasks:
     raise ValueError(f'--layout applies to --task pusht-obs, not {", ".join(tasks)}')
