@@ -19,4 +19,9 @@ python3 experiments/train.py --task "$task" --physics warp --steps 60000000 \
 echo "$name: train exit $?"
 tar czf "$out/$name.tgz" -C /tmp "$name/model" "$name/metrics.csv" "$name/status.json" \
   "${name}_learner.npz"
+# a device command brings back files of at most 16 MiB (PushT-Rand's learner is about 25 MB):
+# join the parts with cat NAME.tgz.part-* > NAME.tgz
+if [ "$(stat -c %s "$out/$name.tgz")" -gt 15728640 ]; then
+  split -b 15M "$out/$name.tgz" "$out/$name.tgz.part-" && rm "$out/$name.tgz"
+fi
 tail -2 "$out/train_$name.log"
