@@ -132,11 +132,17 @@ def make_env(task: str, physics_preset: str | None = None):
   if make is None:
     raise SystemExit(f'unknown task {task!r}: pachs_jax.envs.make is not available')
   try:
-    return make(task, physics=physics_preset) if physics_preset else make(task)
+    env = make(task)
   except ImportError as e:
     raise SystemExit(f'error: {e}') from None
   except ValueError as e:
     raise SystemExit(f"{e} (or 'point-mass')") from None
+  if physics_preset is None:
+    return env
+  try:
+    return make(task, physics=physics_preset)
+  except ValueError as e:
+    raise SystemExit(f'error: --physics-preset: {e}') from None
 
 
 def _holds_run(out: str) -> bool:

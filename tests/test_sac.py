@@ -303,6 +303,14 @@ def test_cli_refuses_conflicts(trained, monkeypatch):
     cli.main(args)
   with pytest.raises(SystemExit, match='seed stored 0 vs flag 3'):
     cli.main(args + ['--resume', '--seed', '3'])
+  fresh = ['--steps', '100', '--out', run_dir + '-new', '--progress', 'none']
+  with pytest.raises(SystemExit, match="--physics-preset applies to the PushT tasks, not "
+                     "'point-mass'"):
+    cli.main(['--task', 'point-mass', '--physics-preset', 'faithful'] + fresh)
+  with pytest.raises(SystemExit, match="--physics-preset: unknown physics preset 'stiff'"):
+    cli.main(['--task', 'pusht-fixed', '--physics-preset', 'stiff'] + fresh)
+  with pytest.raises(SystemExit, match='--learner-from .* is not a file'):
+    cli.main(['--task', 'point-mass', '--learner-from', run_dir + '/none.npz'] + fresh)
   assert cli.overrides(cli.parse_args(args + ['--hidden', '64,64', '--lr', '1e-3'])) == {
       'actor_hidden': (64, 64), 'critic_hidden': (64, 64), 'actor_learning_rate': 1e-3,
       'critic_learning_rate': 1e-3, 'alpha_learning_rate': 1e-3}
