@@ -83,6 +83,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   g.add_argument('--min-replay', type=int)
   g.add_argument('--init-alpha', type=float)
   g.add_argument('--eval-instances', type=int)
+  g.add_argument('--failure-cost', type=float,
+                 help="charged at an episode's failed end (SACConfig.failure_cost)")
   args = p.parse_args(argv)
   if args.start_if_missing and not args.resume:
     p.error('--start-if-missing only goes with --resume')
@@ -105,7 +107,7 @@ def overrides(args: argparse.Namespace) -> dict:
             'discount': args.discount, 'reward_scaling': args.reward_scaling,
             'replay_capacity': args.replay_capacity, 'min_replay_size': args.min_replay,
             'init_alpha': args.init_alpha, 'eval_instances': args.eval_instances,
-            'seed': args.seed}
+            'seed': args.seed, 'failure_cost': args.failure_cost}
   out.update({k: v for k, v in simple.items() if v is not None})
   if args.lr is not None:
     out.update(actor_learning_rate=args.lr, critic_learning_rate=args.lr,
