@@ -14,7 +14,6 @@ CPU (small):
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import signal
@@ -101,7 +100,7 @@ def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> 
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+  parser = argtypes.OneLineParser(description=__doc__.split('\n\n')[0])
   parser.add_argument('--task', default='pusht-obs')
   parser.add_argument('--backend', default='auto')
   parser.add_argument('--budget', type=argtypes.positive_int, default=None)

@@ -61,7 +61,7 @@ def write(args: argparse.Namespace, config, rows: list) -> dict:
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
   parser.add_argument('--preset', default='faithful', choices=sorted(pusht.PHYSICS_PRESETS))
   parser.add_argument('--engines', default='warp,mjx')

@@ -8,7 +8,6 @@ both scored by their final policy's deterministic success and cost on 256 start 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import tempfile
@@ -30,7 +29,7 @@ def score(env, model, nodes) -> dict:
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--seeds', type=argtypes.positive_int, default=5)
   parser.add_argument('--steps', type=argtypes.positive_int, default=3000)
   parser.add_argument('--move-at', type=argtypes.positive_int, default=1500)

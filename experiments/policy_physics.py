@@ -7,7 +7,6 @@ edge, and the stick tip's height (median over steps with the tip within 10 cm of
 
 from __future__ import annotations
 
-import argparse
 import os
 
 import jax
@@ -49,7 +48,7 @@ def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
   parser.add_argument('--presets', default='planar,faithful')
   parser.add_argument('--instances', type=argtypes.positive_int, default=16)

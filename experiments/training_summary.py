@@ -10,7 +10,6 @@ Flags --device, --revision, --command and --note apply to the --run flags after 
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -19,6 +18,7 @@ import sys
 from typing import Dict, List
 
 import common
+from pachs_jax import argtypes
 
 
 def _float(text: str) -> float:
@@ -57,7 +57,7 @@ def summarize(name: str, run_dir: str) -> Dict:
 
 
 def main(argv: List[str]) -> int:
-  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--out', required=True)
   parser.add_argument('--device', action='append', default=[])
   parser.add_argument('--revision', action='append', default=[])
