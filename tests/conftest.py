@@ -41,7 +41,7 @@ LONGEST_FILES = (
 # room); the default tier keeps every other test.
 SLOW = (
     'test_playground.py', 'test_sharding.py', 'test_plan_signals.py', 'test_serve.py',
-    'test_readme.py',
+    'test_docs.py',
     'test_train_files.py::test_signals_are_handled_while_an_epoch_runs',
     'test_train_files.py::test_resume_after_sigkill_has_one_row_per_epoch',
     'test_train_files.py::test_steps_below_one_epoch_are_named_before_work',

@@ -18,12 +18,16 @@ def _readme_python_blocks():
 
 
 def test_the_readme_python_snippets_run_as_written(tmp_path, monkeypatch):
+  from pachs_jax.envs import registry  # pylint: disable=import-outside-toplevel
+  # the snippets as written, their searches small (a CPU's default budget would plan for
+  # minutes beside the other slow tests)
+  monkeypatch.setitem(registry.CPU_PLANNING, 'mujoco-c', registry.CpuPlanning('all', 1_000))
   blocks = _readme_python_blocks()
   assert len(blocks) == 4, 'the README changed: update this test'
   assert 'rows.json' in blocks[0] and 'ws://127.0.0.1:8000' in blocks[3]
   monkeypatch.chdir(tmp_path)
   command = [sys.executable, '-m', 'pachs_jax.cli', 'plan', '--task', 'pusht-obs', '--layout',
-             'wall', '--instances', '0-1', '--budget', '2000', '--json', 'rows.json']
+             'wall', '--instances', '0-1', '--budget', '1000', '--json', 'rows.json']
   subprocess.run(command, check=True, capture_output=True, timeout=600)
   names = {}
   for block in blocks[:3]:
