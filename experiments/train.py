@@ -134,17 +134,16 @@ def make_env(task: str, physics_preset: str | None = None):
   if make is None:
     raise SystemExit(f'unknown task {task!r}: pachs_jax.envs.make is not available')
   try:
-    env = make(task)
-  except ImportError as e:
-    raise SystemExit(f'error: {e}') from None
+    envs.spec(task)
   except ValueError as e:
     raise SystemExit(f"{e} (or 'point-mass')") from None
-  if physics_preset is None:
-    return env
   try:
-    return make(task, physics=physics_preset)
-  except ValueError as e:
-    raise SystemExit(f'error: --physics-preset: {e}') from None
+    return make(task, physics=physics_preset) if physics_preset else make(task)
+  except ImportError as e:
+    raise SystemExit(f'error: {e}') from None
+  except ValueError as e:  # the task is known: with a preset, the preset is what is wrong
+    raise SystemExit(f'error: --physics-preset: {e}' if physics_preset
+                     else f"{e} (or 'point-mass')") from None
 
 
 def _holds_run(out: str) -> bool:

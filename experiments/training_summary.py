@@ -64,7 +64,7 @@ def main(argv: List[str]) -> int:
   parser.add_argument('--command', action='append', default=[])
   parser.add_argument('--note', action='append', default=[])
   parser.add_argument('--run', action='append', default=[], metavar='NAME=RUN_DIR')
-  parser.parse_args(argv)  # checks the flags; their order is read below
+  args = parser.parse_args(argv)  # checks the flags; their order is read below
   current = {'device': None, 'revision': None, 'command': None, 'note': None}
   runs = []
   it = iter(argv)
@@ -86,7 +86,7 @@ def main(argv: List[str]) -> int:
              'command': r['run_command']} for r in runs]
   payload = {'provenance': {'command': common.command_line(), 'git_revision':
                             common.git_revision(), 'merged_from': merged}, 'runs': runs}
-  common.write_json(parser.parse_args(argv).out, payload)
+  common.write_json(args.out, payload)
   return 0
 
 

@@ -583,11 +583,9 @@ def _main(words, prefetch=None, guard=None) -> int:
                 f'not {args.task!r} (see --help)\n')
   try:
     return args.func(args, prefetch, guard) if args.command == 'plan' else args.func(args)
-  except (ValueError, OSError, ImportError, RuntimeError) as err:  # one line, no traceback
+  except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     if guard is not None and guard.early is not None:  # a library turned the signal's
       raise signals.Interrupted(guard.early) from err  # Interrupted into an error of its own
-    if isinstance(err, RuntimeError):
-      raise
     message = ' '.join(str(err).split()) if not isinstance(err, OSError) or not err.strerror \
         else f'{err.strerror}: {err.filename}' if err.filename else err.strerror
     parser.exit(2, f'pachs {args.command}: error: {message}\n')

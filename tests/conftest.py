@@ -1,10 +1,12 @@
 """Helpers shared by the test files: `from conftest import take, assert_results_equal, ...`,
 and the test run's one persistent compilation cache (`compilation_cache_dir`).
 
-pytest puts this directory on sys.path (the tests are not a package), so the plain import works.
+pytest puts this directory on sys.path (the tests are not a package), so the plain import works;
+experiments/ goes there too, for the tests of the experiment scripts (which import their siblings).
 """
 
 import os
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +14,9 @@ import numpy as np
 import pytest
 
 from pachs_jax.runtime import compile_cache
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                'experiments'))
 
 try:  # the tests compile MuJoCo Warp's CPU kernels (once per machine) at -O0: on a new 2-core
   import warp  # machine about 40 s of kernel compilation become 21 s

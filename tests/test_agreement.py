@@ -1,15 +1,11 @@
 """PushT physics options (free T reference, block contacts) and the planner-world agreement
 check (`experiments/agreement.py`)."""
 
-import os
-import sys
-
 import jax
 import mujoco
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
 
 import agreement  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import pusht  # noqa: E402  pylint: disable=wrong-import-position

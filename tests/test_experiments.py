@@ -1,7 +1,6 @@
 """The experiment scripts' own logic: statistics, curves, cost ratios, closed-loop bookkeeping."""
 
 import json
-import os
 import sys
 
 import jax
@@ -9,7 +8,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
 
 import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
 import merge_results  # noqa: E402  pylint: disable=wrong-import-position

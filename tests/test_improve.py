@@ -153,9 +153,6 @@ def test_after_goal_validation(changes, match):
 
 
 def test_open_loop_rows_report_the_first_goal_and_the_curve_counts_from_it(runs):
-  import os
-  import sys
-  sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
   import open_loop  # pylint: disable=import-outside-toplevel
   result = runs['improve'][3].replace(wall_time_s=jnp.float32(10.0))
   rows = open_loop.run_rows(result, 1, len(STARTS))

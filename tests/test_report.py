@@ -5,12 +5,10 @@ import json
 import os
 import re
 import shutil
-import sys
 
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, 'experiments'))
 
 import report  # noqa: E402  pylint: disable=wrong-import-position
 

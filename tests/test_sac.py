@@ -290,9 +290,8 @@ def test_resume_guards(env, trainer, trained):
     train.train(make_trainer(Renamed(), trainer.config), run_dir, TOTAL_STEPS, resume=True)
 
 
-def test_cli_refuses_conflicts(trained, monkeypatch):
+def test_cli_refuses_conflicts(trained):
   run_dir, _ = trained
-  monkeypatch.syspath_prepend(os.path.join(REPO, 'experiments'))  # train.py imports its siblings
   spec = importlib.util.spec_from_file_location('train_cli',
                                                 os.path.join(REPO, 'experiments', 'train.py'))
   cli = importlib.util.module_from_spec(spec)

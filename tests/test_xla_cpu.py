@@ -7,7 +7,6 @@ import textwrap
 
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'experiments'))
 
 import xla_cpu  # noqa: E402  pylint: disable=wrong-import-position
 

@@ -21,12 +21,6 @@ class Interrupted(BaseException):
     self.signum = signum
 
   @property
-  def early(self) -> Optional[int]:
-    """The signal that arrived before keep(), if any: an error raised after it may be its
-    consequence (a library that turned the `Interrupted` into its own error)."""
-    return None if self._keeping else self._early
-
-  @property
   def exit_code(self) -> int:
     """128 + the signal number (130 for SIGINT, 143 for SIGTERM), as a shell reports it."""
     return 128 + self.signum
