@@ -33,7 +33,7 @@ from pachs_jax import argtypes, client  # pylint: disable=wrong-import-position
 def start_server(args) -> tuple:
   """(process, url) of `pachs serve` with the benchmark's settings, once it says it is ready."""
   command = [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', args.task, '--port', '0',
-             '--max-batch', str(max(args.max_batch, args.big)), '--window-ms', str(args.window_ms),
+             '--max-batch', str(max([args.max_batch] + args.big_sizes)), '--window-ms', str(args.window_ms),
              '--backend', args.backend, '--devices', str(args.devices)]
   if args.budget:
     command += ['--budget', str(args.budget)]
@@ -84,19 +84,25 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
           'mean_requests_per_batch': float(np.mean(np.concatenate(batch)))}
 
 
+CANONICAL = 30  # canonical instances of a PushT task; a larger request repeats them
+
+
 def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> dict:
-  """One request of `instances` canonical instances, `repeats` times: latency and search."""
+  """One request of `instances` episodes (canonical instance i % 30 each), `repeats` times:
+  latency, search time and episodes solved."""
   rows = []
   with client.Client(url, task) as asking:
     for r in range(repeats):
       began = time.perf_counter()
-      answer = asking.plan(instances=list(range(instances)), seed=r, time_limit_s=time_limit_s,
-                           reset=True)
-      rows.append((time.perf_counter() - began, answer.search_s))
-  lat, srch = np.array(rows).T
+      answer = asking.plan(instances=[i % CANONICAL for i in range(instances)], seed=r,
+                           time_limit_s=time_limit_s, reset=True)
+      rows.append((time.perf_counter() - began, answer.search_s,
+                   int(np.sum(np.asarray(answer.found)))))
+  lat, srch, found = np.array(rows).T
   return {'instances': instances, 'repeats': repeats, 'latency_median_s': float(np.median(lat)),
           'search_median_s': float(np.median(srch)),
-          'overhead_median_s': float(np.median(lat - srch))}
+          'overhead_median_s': float(np.median(lat - srch)),
+          'found_median': float(np.median(found))}
 
 
 def main() -> None:
@@ -110,24 +116,34 @@ def main() -> None:
   parser.add_argument('--max-batch', type=argtypes.positive_int, default=16)
   parser.add_argument('--window-ms', type=argtypes.positive_float, default=5.0)
   parser.add_argument('--time-limit', type=argtypes.positive_float, default=None)
-  parser.add_argument('--big', type=int, default=30,
-                      help='instances of the one many-instance request (0: none)')
+  parser.add_argument('--big', default='30',
+                      help='episodes of the many-episode requests, comma-separated (0: none)')
+  parser.add_argument('--big-repeats', type=argtypes.positive_int, default=3)
   parser.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the started server's devices (pachs serve --devices)")
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()
+  try:
+    big_sizes = [int(b) for b in args.big.split(',') if int(b) > 0]
+    counts = [int(c) for c in args.clients.split(',') if c]
+  except ValueError:
+    parser.error(f'--big and --clients: comma-separated integers, got {args.big!r}, '
+                 f'{args.clients!r}')
+  if any(c < 0 for c in counts) or any(b < 0 for b in big_sizes):
+    parser.error('--big and --clients: counts must not be negative')
+  counts = [c for c in counts if c > 0]
+  args.big_sizes = big_sizes
   process, start_s = None, None
   url = args.url
   if url is None:
     process, url, start_s = start_server(args)
   try:
-    counts = [int(c) for c in args.clients.split(',')]
     runs = [run_clients(url, args.task, c, args.requests, args.time_limit) for c in counts]
     alone = next((r for r in runs if r['clients'] == 1), None)
     for r in runs:
       r['speedup_vs_alone'] = alone and r['answers_per_s'] / alone['answers_per_s']
-    big = run_big(url, args.task, args.big, args.time_limit, 3) if args.big else None
+    big = [run_big(url, args.task, b, args.time_limit, args.big_repeats) for b in big_sizes]
     with client.Client(url, args.task) as asking:
       health = asking.health()
   finally:
@@ -146,16 +162,16 @@ def main() -> None:
   columns = ['clients', 'answers', 'answers_per_s', 'speedup_vs_alone', 'latency_median_s',
              'latency_p90_s', 'search_median_s', 'overhead_median_s', 'mean_requests_per_batch']
   lines = [f'# pachs serve: latency and answers per second ({args.task})', '',
-           f'Device: {document["provenance"]["device"]}; physics '
+           f'Device: {document["provenance"]["device"]}; server devices {args.devices}; physics '
            f'{document["server"]["physics"]}; budget {document["server"]["budget"]} evaluations '
            f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.',
            f'Command: `{document["provenance"]["command"]}` at '
            f'{document["provenance"]["git_revision"]}.', '',
-           common.markdown_table(runs, columns), '']
-  if big:
-    lines += [f'One request of {big["instances"]} instances (median of {big["repeats"]}): '
-              f'latency {big["latency_median_s"]:.3f} s, search {big["search_median_s"]:.3f} s, '
-              f'overhead {big["overhead_median_s"]:.3f} s.', '']
+           common.markdown_table(runs, columns) if runs else '', '']
+  for b in big:
+    lines += [f'One request of {b["instances"]} episodes (median of {b["repeats"]}): '
+              f'latency {b["latency_median_s"]:.3f} s, search {b["search_median_s"]:.3f} s, '
+              f'overhead {b["overhead_median_s"]:.3f} s, found {b["found_median"]:g}.', '']
   with open(os.path.join(args.out, 'bench_serve.md'), 'w') as f:
     f.write('\n'.join(lines))
   print('\n'.join(lines))

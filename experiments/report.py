@@ -671,7 +671,7 @@ def playground(src: Sources) -> str:
 def serving(src: Sources) -> str:
   """`pachs serve`: answers per second and latency of one client alone and of several at once."""
   data = src.load('serve_cpu/bench_serve.json')
-  settings, server, big = data['settings'], data['server'], data['big_request']
+  settings, server, big = data['settings'], data['server'], data['big_request'][0]
   rows = [[str(c['clients']), num(c['answers_per_s']), f'{num(c["speedup_vs_alone"], 2)}x',
            num(c['latency_median_s']), num(c['search_median_s']), num(c['overhead_median_s']),
            num(c['mean_requests_per_batch'], 2)] for c in data['clients']]

@@ -85,6 +85,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   g.add_argument('--eval-instances', type=int)
   g.add_argument('--failure-cost', type=float,
                  help="charged at an episode's failed end (SACConfig.failure_cost)")
+  g.add_argument('--absorbing-failure', action=argparse.BooleanOptionalAction, default=None,
+                 help="charge a failed end as if its state were kept for ever "
+                      "(SACConfig.absorbing_failure)")
   args = p.parse_args(argv)
   if args.start_if_missing and not args.resume:
     p.error('--start-if-missing only goes with --resume')
@@ -107,7 +110,8 @@ def overrides(args: argparse.Namespace) -> dict:
             'discount': args.discount, 'reward_scaling': args.reward_scaling,
             'replay_capacity': args.replay_capacity, 'min_replay_size': args.min_replay,
             'init_alpha': args.init_alpha, 'eval_instances': args.eval_instances,
-            'seed': args.seed, 'failure_cost': args.failure_cost}
+            'seed': args.seed, 'failure_cost': args.failure_cost,
+            'absorbing_failure': args.absorbing_failure}
   out.update({k: v for k, v in simple.items() if v is not None})
   if args.lr is not None:
     out.update(actor_learning_rate=args.lr, critic_learning_rate=args.lr,

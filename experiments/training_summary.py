@@ -40,7 +40,8 @@ def summarize(name: str, run_dir: str) -> Dict:
   curve_every = max(1, len(rows) // 20)
   return {
       'name': name, 'task': model['model']['task'], 'physics': model['physics'],
-      'failure_cost': config.get('failure_cost', 0.0), 'num_envs': config['num_envs'],
+      'failure_cost': config.get('failure_cost', 0.0),
+      'absorbing_failure': config.get('absorbing_failure', False), 'num_envs': config['num_envs'],
       'env_steps': int(last['env_steps']), 'epochs': int(last['epoch']),
       'walltime_s': last['walltime'],
       'env_steps_per_s_median': sorted(r['sps'] for r in rows)[len(rows) // 2],

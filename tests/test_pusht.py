@@ -61,6 +61,20 @@ def test_a_pusht_task_takes_a_named_physics():
     envs.make('shelf', physics='faithful')
 
 
+def test_free_t_cost_keeps_the_tip_at_the_t_half_height(env):
+  """Over the T's centre, lifting the tip from the T's half height to 6 cm costs w_height per m
+  of the free T (the 3D reach term is still inside its 5 cm), nothing for the planar T."""
+  free = envs.make('pusht-fixed', physics='faithful')
+  for e, want in ((free, free.config.w_height * 0.04), (env, 0.0)):
+    node = e.canonical_instances(1)
+    node = jax.tree.map(lambda x: x[0], node)
+    centre = np.asarray(pusht.t_pose(node.qpos))[:2]
+    costs = [float(e._cost(node, jnp.asarray([*centre, z], jnp.float32)))
+             for z in (pusht.T_HALF_HEIGHT, 0.06)]
+    assert costs[1] - costs[0] == pytest.approx(want, abs=1e-5)
+  assert free.config.w_height > 0
+
+
 def test_end_effector_matches_dh_in_mujoco_c_and_mjx(env):
   rng = np.random.default_rng(0)
   qs = rng.uniform(panda.JOINT_LOWER, panda.JOINT_UPPER, size=(16, 7))

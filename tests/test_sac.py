@@ -334,8 +334,15 @@ def test_a_failed_episode_end_is_charged_the_failure_cost(trainer):
   discount = np.asarray(charged.buffer_state.data)[:n, 7]
   np.testing.assert_allclose(reward(charged), reward(plain) - 7.0, atol=1e-5)
   assert np.all(discount == 0.0) and np.all(reward(plain) < 0.0)
+  # absorbing: the failed step's reward as if kept for ever, then the failure cost
+  absorbing = make_trainer(_AlwaysInvalid(), dataclasses.replace(
+      small, failure_cost=7.0, absorbing_failure=True)).init()
+  np.testing.assert_allclose(reward(absorbing), reward(plain) / (1 - small.discount) - 7.0,
+                             rtol=1e-5)
   with pytest.raises(ValueError, match='failure_cost must be a finite number >= 0'):
     dataclasses.replace(small, failure_cost=-1.0)
+  with pytest.raises(ValueError, match='absorbing_failure needs discount < 1, got 1.0'):
+    dataclasses.replace(small, absorbing_failure=True, discount=1.0)
 
 
 def test_fine_tuning_starts_from_the_model(env, trainer, trained, tmp_path):

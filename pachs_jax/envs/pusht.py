@@ -54,6 +54,8 @@ class PushTConfig:
   block_solref, block_solimp, block_margin: contact parameters of the T-block and stick-block
     pairs (None: MuJoCo's defaults; margin in m).
   w_angle, w_position, w_reach: cost weights of the three dense terms.
+  w_height: free T only: cost weight (per m) of the stick tip's height off the T's half height,
+    where a push slides the T; above the T's top it rides over the T and tips it.
   """
 
   variant: str = 'fixed'
@@ -76,6 +78,7 @@ class PushTConfig:
   w_angle: float = 1.0
   w_position: float = 3.0
   w_reach: float = 0.5
+  w_height: float = 4.0
   success_coverage: float = coverage.SUCCESS_THRESHOLD
 
 
@@ -469,7 +472,9 @@ class PushTEnv(base.Env):
   Action: [-1, 1]^7 scaled by ARM_ACTION_SCALE to a joint-position target offset from the
   current joint angles, held for `substeps` physics steps. Cost per step (= -reward):
   w_angle * |yaw error| / pi + w_position * position error (m) + w_reach * distance of the tip
-  from the T's centre beyond 5 cm (m; in the plane for the planar T, in 3D for the free T). Success: `coverage.coverage` >= `success_coverage`.
+  from the T's centre beyond 5 cm (m; in the plane for the planar T, in 3D for the free T)
+  + w_height * |tip height - T half height| (m; free T only). Success: `coverage.coverage` >=
+  `success_coverage`.
   """
 
   goal_size = 3
@@ -654,10 +659,13 @@ class PushTEnv(base.Env):
     # T (as ManiSkill's PushT reward), which keeps the tip down at the T's half height, where a
     # push slides the T instead of tipping it over its top edge.
     offset = tip[:2] - pose[:2]
+    height = jnp.zeros((), tip.dtype)
     if self.config.t_body == 'free':
       offset = jnp.append(offset, tip[2] - node.qpos[9])
+      height = jnp.abs(tip[2] - T_HALF_HEIGHT)
     reach = jnp.maximum(jnp.linalg.norm(offset) - 0.05, 0.0)
-    return c.w_angle * angle + c.w_position * position + c.w_reach * reach
+    return (c.w_angle * angle + c.w_position * position + c.w_reach * reach
+            + c.w_height * height)
 
   def _invalid_cost(self) -> jax.Array:
     c = self.config

@@ -64,6 +64,9 @@ class SACConfig:
     invalid edge: a tipped T, the T off the table). Where rewards are negative costs, ending an
     episode must cost more than any continuation (>= the largest step cost / (1 - discount)),
     or the policy learns to fail early.
+  absorbing_failure: a step that ends its episode in failure is charged its reward as if the
+    failed state were kept for ever (reward / (1 - discount)), before failure_cost: failing then
+    costs what staying put costs, no more (needs discount < 1).
   """
 
   num_envs: int = 128
@@ -89,6 +92,7 @@ class SACConfig:
   seed: int = 0
   eval_instances: int = 128
   failure_cost: float = 0.0
+  absorbing_failure: bool = False
 
   def __post_init__(self):
     object.__setattr__(self, 'actor_hidden', tuple(int(h) for h in self.actor_hidden))
@@ -106,6 +110,8 @@ class SACConfig:
     if not (self.failure_cost >= 0 and self.failure_cost < float('inf')):
       raise ValueError(f'SACConfig.failure_cost must be a finite number >= 0, got '
                        f'{self.failure_cost}')
+    if self.absorbing_failure and not self.discount < 1.0:
+      raise ValueError(f'SACConfig.absorbing_failure needs discount < 1, got {self.discount}')
     if self.min_replay_size < 0 or self.max_grad_norm < 0 or self.eval_instances < 0:
       raise ValueError('SACConfig.min_replay_size, max_grad_norm and eval_instances must be '
                        f'>= 0, got {self.min_replay_size}, {self.max_grad_norm}, '

@@ -170,7 +170,10 @@ def make_trainer(env: base.Env, config: SACConfig) -> Trainer:
     done = stepped.done
     terminal = done * (1.0 - stepped.info['truncation'])
     failure = terminal * (1.0 - stepped.metrics['success'])
-    reward = stepped.reward - config.failure_cost * failure
+    reward = stepped.reward
+    if config.absorbing_failure:
+      reward = jnp.where(failure > 0, reward / (1.0 - config.discount), reward)
+    reward = reward - config.failure_cost * failure
     transitions = sac_losses.Transition(observation=obs, action=actions, reward=reward,
                                         discount=1.0 - terminal,
                                         next_observation=stepped.obs)
