@@ -14,9 +14,8 @@ _PUSHT = SACConfig(
     discount=0.8, reward_scaling=1.0, tau=0.005, replay_capacity=1_000_000,
     min_replay_size=65_536, actor_hidden=(256, 256, 256), critic_hidden=(256, 256, 256),
     init_alpha=0.2, eval_instances=256,
-    # >= the largest step cost (4.2) / (1 - discount): a free T tipped on purpose ends an
-    # episode, which without it was the cheapest episode (0.15% success after 22.5 M env steps)
-    failure_cost=25.0)
+    # a tipped T ends an episode: charged as if kept for ever, no more (reasons: docs/sac.md)
+    absorbing_failure=True)
 
 _PLAYGROUND_CPU = SACConfig(
     num_envs=32, batch_size=256, grad_updates_per_step=4, steps_per_epoch=50,
