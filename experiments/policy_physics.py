@@ -2,7 +2,7 @@
 on canonical instances, counting successes, episodes ended by a tipped T or another invalid
 edge, and the stick tip's height (median over steps with the tip within 10 cm of the T).
 
-  python experiments/policy_physics.py --presets planar,faithful --instances 16
+  python experiments/policy_physics.py --presets faithful --instances 30
 """
 
 from __future__ import annotations
@@ -19,8 +19,7 @@ from pachs_jax.envs import backends, pusht
 
 def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
   """The summary row of the policy of `model_dir` on `preset` (MuJoCo C, deterministic)."""
-  config = (pusht.PushTConfig(variant=task.split('-')[1]) if preset == 'planar'
-            else pusht.physics_preset(preset, variant=task.split('-')[1]))
+  config = pusht.physics_preset(preset, variant=task.split('-')[1])
   env = backends.make_backend(pusht.PushTEnv(config), 'mujoco-c')
   _, model = planner.load_model(task, path=model_dir)
   nodes = env.canonical_instances(instances)
@@ -50,15 +49,15 @@ def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
 def main() -> None:
   parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
-  parser.add_argument('--presets', default='planar,faithful')
+  parser.add_argument('--presets', default='faithful')
   parser.add_argument('--instances', type=argtypes.positive_int, default=16)
   parser.add_argument('--model', default=None, help='model directory (default: the shipped)')
   common.add_common_args(parser, out='experiments/results/training/policy_physics.json')
   args = parser.parse_args()
   presets = [p for p in args.presets.split(',') if p]
-  bad = sorted(set(presets) - set(pusht.PHYSICS_PRESETS) - {'planar'})
+  bad = sorted(set(presets) - set(pusht.PHYSICS_PRESETS))
   if not presets or bad:
-    parser.error(f'--presets: names of planar, {", ".join(pusht.PHYSICS_PRESETS)}; got {bad}')
+    parser.error(f'--presets: names of {", ".join(pusht.PHYSICS_PRESETS)}; got {bad}')
   common.check_out(parser, args.out)
   rows = []
   for preset in presets:

@@ -202,6 +202,71 @@ def open_loop_tasks(src: Sources) -> str:
       table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
              'evaluations per expansion', 'wall of the call (s)'], rows)])
 
+FAITHFUL_LAYOUTS = ('gate', 'wall', 'detour')  # the layouts measured on the faithful physics
+
+
+def faithful(src: Sources) -> str:
+  """The shipped models on the default (faithful) PushT physics: open loop on PushT-Fixed,
+  -Rand and three PushT-Obs layouts with Warp planners, the policy alone in MuJoCo C, Warp
+  against MuJoCo C and the penetration into the blocks."""
+  rows = []
+  for task, name in (('PushT-Fixed', 'pusht-fixed'), ('PushT-Rand', 'pusht-rand')):
+    for row in src.load(f'faithful_gpu/{name}.json')['summary']:
+      rows.append([task, row['planner'], solved(row) + ci(row.get('instance_ci95_low'),
+                                                           row.get('instance_ci95_high')),
+                   num(row['cost_success_mean']), num(row['evaluated_mean']),
+                   num(row['batch_wall_s'])])
+  settings = src.load('faithful_gpu/gate.json')['settings']
+  obs = []
+  for layout in FAITHFUL_LAYOUTS:
+    p = src.load(f'faithful_gpu/{layout}.json')
+    pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
+    obs.append([layout, solved(pachs) + ci(pachs.get('instance_ci95_low'),
+                                           pachs.get('instance_ci95_high')),
+                solved(parallel) + (ci(parallel.get('instance_ci95_low'),
+                                       parallel.get('instance_ci95_high')) if parallel else ''),
+                num(pachs['evaluated_mean']), num(pachs['batch_wall_s']),
+                num(parallel['batch_wall_s']) if parallel else '-',
+                cost_ratio(p, 'pachs-improve', 'parallel') if parallel else '-'])
+  policy = [src.load('training/policy_physics.json')['rows'][0],
+            src.load('training/policy_physics_rand.json')['rows'][0]]
+  policy_rows = [[r['task'], f'{r["success"]}/{r["instances"]}', str(r['tipped']),
+                  num(100 * r['tip_height_near_t_median_m'], 2)] for r in policy]
+  agree = {r['layout']: r for r in src.load('faithful_gpu/agreement.json')['rows']
+           if r['horizon'] == 10}
+  deep = {r['layout']: r for r in src.load('physics/penetration_faithful.json')['rows']}
+  physics_rows = [[layout, num(agree[layout]['position_mm_p90'], 2),
+                   num(agree[layout]['angle_deg_p90'], 2),
+                   num(agree[layout]['position_mm_p99'], 2),
+                   num(deep[layout]['t_block_max_mm'], 2),
+                   num(deep[layout]['stick_block_max_mm'], 2)] for layout in LAYOUTS]
+  return '\n\n'.join([
+      'PushT\'s default physics is ManiSkill PushT-v1\'s: a free T of 0.8 kg under gravity, '
+      'T-table friction 1.65, 20 Hz control of 20 physics steps of 2.5 ms, stiff blocks '
+      '(docs/tasks.md); the shipped PushT models were trained on it with MuJoCo Warp '
+      '([training](#training-on-the-faithful-physics-with-warp)). Open loop with Warp '
+      f'planners, one GPU per call: {settings["instances"]} instances x {settings["rounds"]} '
+      f'seeds, {settings["budget"]:,} evaluations per run:',
+      table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
+             'wall of the call (s)'], rows),
+      'PushT-Obs, the PushT-Fixed model (trained without obstacles) on three layouts: PACHS\'s '
+      'default (the first goal\'s path improved) and the parallel rollout of 256 copies '
+      '(detour\'s rollout run was cut by the command\'s time limit). Cost: mean per-run ratio '
+      'over the runs both solved:',
+      table(['layout', 'PACHS', 'parallel rollout', 'PACHS evaluations', 'PACHS wall (s)',
+             'parallel wall (s)', 'cost / parallel'], obs),
+      'The policy alone, deterministic, in MuJoCo C on the canonical instances '
+      '(`policy_physics.py`); the stick tip\'s median height while within 10 cm of the T '
+      '(the T is 4 cm tall):',
+      table(['task', 'solved', 'tipped', 'tip height (cm)'], policy_rows),
+      'Warp (float32, the planners\' physics) against the MuJoCo C float64 world on the '
+      'policy\'s stochastic pushes: the T\'s position (mm) and angle (degrees) error 10 '
+      'control steps after a common state (16 instances x 2 starts per layout); the deepest '
+      'T-block and stick-block penetration (mm) over policy rollouts in MuJoCo C (8 instances x '
+      '60 steps per layout):',
+      table(['layout', 'position p90 (mm)', 'angle p90 (deg)', 'position p99 (mm)',
+             'T-block max (mm)', 'stick-block max (mm)'], physics_rows)])
+
 
 def p_value(p: float) -> str:
   """A p-value as the report prints it: 'p 0.xx', or 'p < 0.01'."""
@@ -612,7 +677,23 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'saved nothing measurable in warm runs', '`787deab`: `engines/plan_startup_first_transfer.json`'),
     ('XLA\'s GPU autotuning off at start-up', 'no faster cold',
      '`7452f30`: `engines/plan_startup_autotune_*.json`'),
+    ('SAC on the free T with a failed end charged 25 (not absorbing), with the tip height cost',
+     lambda src: training_run(src, 'height, failure cost 25, scratch'),
+     'in this tree: `training/runs.json`'),
+    ('The free T\'s cost without the tip height term (four runs, failure cost 0 or 25)',
+     lambda src: training_run(src, 'friction 1.65, fine-tuned'),
+     'in this tree: `training/runs.json`'),
+    ('The planar-physics PushT-Fixed model on the faithful physics (the fine-tuning\'s start)',
+     '1 of 16 canonical instances solved in MuJoCo C, 10 T tipped: its tip rode at the T\'s '
+     'top edge (4.6 cm)', '`5476e47`: `training/policy_physics.json`'),
 )
+
+
+def training_run(src: Sources, name: str) -> str:
+  """A training run's best evaluation success and its env steps (training/runs.json)."""
+  run = next(r for r in src.load('training/runs.json')['runs'] if r['name'] == name)
+  return (f'best evaluation success {pct(run["eval_success_deterministic_best"])} after '
+          f'{run["env_steps"] / 1e6:.1f} M env steps ("{name}" in the training runs)')
 
 
 def ledger(src: Sources) -> str:
@@ -691,8 +772,8 @@ def serving(src: Sources) -> str:
 
 
 def training(src: Sources) -> str:
-  """SAC on the faithful PushT physics with MuJoCo Warp: throughput against MJX-JAX, the
-  training runs so far, and how the shipped (planar) policy pushes a free T."""
+  """SAC on the faithful PushT physics with MuJoCo Warp: throughput against MJX-JAX and the
+  training runs, those of the shipped models among them."""
   bench = src.load('training/bench_training.json')
   speed_rows = [[r['engine'], f'{r["num_envs"]:,}', f'{r["physics_env_steps_per_s"]:,.0f}',
                  f'{r["training_env_steps_per_s"]:,.0f}', num(r['epoch_s']),
@@ -702,10 +783,6 @@ def training(src: Sources) -> str:
   run_rows = [[r['name'], f'{r["env_steps"] / 1e6:.1f} M', f'{r["env_steps_per_s_median"]:,.0f}',
                pct(r['success_rate_last_tenth']), pct(r['eval_success_deterministic_best']),
                num(r['episode_return_last_tenth'], 3), r['note'] or ''] for r in runs]
-  transfer = src.load('training/policy_physics.json')
-  transfer_rows = [[r['preset'], f'{r["success"]}/{r["instances"]}', str(r['tipped']),
-                    num(100 * r['tip_height_near_t_median_m'], 2), num(100 * r['t_top_m'], 2)]
-                   for r in transfer['rows']]
   return '\n\n'.join([
       f'Training throughput on the faithful preset ({bench["task"]}, one GPU, '
       f'`bench_training.py`): env steps/s of the physics alone and of whole training epochs '
@@ -715,22 +792,19 @@ def training(src: Sources) -> str:
       f'{num(ratio["training_env_steps_per_s"], 2)}x the training.',
       table(['engine', 'envs', 'physics env steps/s', 'training env steps/s', 'epoch (s)',
              'physics compile (s)'], speed_rows),
-      'PushT-Fixed training runs on the faithful preset with Warp physics, 2,048 envs (two runs '
-      'side by side share a GPU): none has learnt the task yet. Success is the training '
-      'episodes\' over the last tenth of the epochs and the best periodic evaluation (256 '
-      'instances, deterministic policy); the return is the training episodes\' mean. Without '
-      'a failure cost the policy tipped the T on purpose (a tipped T ends the episode, the '
-      'cheapest end where rewards are negative costs); with it, episodes run to the time '
-      'limit without a goal.',
+      'Training runs on the faithful physics with Warp, 2,048 envs each (the first four two '
+      'to a GPU, the last four one to a GPU). Success: the training episodes\' over the last '
+      'tenth of the epochs, and the best periodic evaluation (256 instances, deterministic '
+      'policy); return: the training episodes\' mean. A tipped T ends an episode; charged '
+      'nothing, it was the cheapest end (rewards are negative costs) and the policy tipped the '
+      'T on purpose; charged 25, the policy left the T alone. Two changes made the task '
+      'learnable: the failed end charged as absorbing (its step cost as if kept for ever, '
+      '`SACConfig.absorbing_failure`), and a cost on the stick tip\'s height off the T\'s half '
+      'height (`PushTConfig.w_height`; the planar model had learnt to push at the T\'s top '
+      'edge, which tips a free T). The shipped PushT-Fixed model is the fine-tuned run, '
+      'PushT-Rand\'s the scratch run, each after under 7 minutes of one H200:',
       table(['run', 'env steps', 'env steps/s', 'training success', 'evaluation success',
              'episode return', 'what'], run_rows),
-      f'The shipped (planar) PushT-Fixed policy in MuJoCo C ({transfer["rows"][0]["instances"]} '
-      'canonical instances, deterministic; `policy_physics.py`): the tip rides near the T\'s '
-      'top edge, which pushes a planar T and tips a free one. The free T\'s reach cost is now '
-      '3D (the tip\'s distance from the T\'s centre, as ManiSkill\'s PushT reward), which '
-      'the runs above did not have.',
-      table(['physics', 'solved', 'tipped', 'tip height near the T (cm)', 'T top (cm)'],
-            transfer_rows),
       _learner_move(src)])
 
 
@@ -750,6 +824,7 @@ def _learner_move(src: Sources) -> str:
 
 
 SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
+    ('PushT on the faithful physics (the default)', faithful),
     ('Open loop: PushT-Obs layouts', suite),
     ('Open loop: other instances and held-out layouts', other_sets),
     ('The layouts: the policy alone', policy_per_layout),
@@ -795,24 +870,26 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
   """The README's headline block (between the markers) and the files it cites."""
   src = Sources(root)
   rows = []
-  for task, name in (('PushT-Fixed', 'open_loop_pusht-fixed.json'),
-                     ('PushT-Rand', 'open_loop_pusht-rand.json')):
+  for task, name in (('PushT-Fixed', 'faithful_gpu/pusht-fixed.json'),
+                     ('PushT-Rand', 'faithful_gpu/pusht-rand.json')):
     p = src.load(name)
     rows.append((task, p, 'pachs', p))  # (runs, PACHS's default there, the policy alone's)
-  for layout in LAYOUTS:
-    rows.append((f'PushT-Obs, {layout}', src.load(f'suite_gpu/{layout}.json'),
-                 'pachs-improve', src.load(f'open_loop_pusht-obs_{layout}.json')))
+  for layout in FAITHFUL_LAYOUTS:
+    rows.append((f'PushT-Obs, {layout}', src.load(f'faithful_gpu/{layout}.json'),
+                 'pachs-improve', None))
   shelf = src.load('open_loop_shelf.json')
   rows.append(('Panda-Shelf', shelf, 'pachs', shelf))
   body = []
   for task, p, name, policy in rows:
     pachs, parallel = summary_of(p, name), summary_of(p, 'parallel')
-    single = summary_of(policy, 'single')
-    at_10k = f'{pct(curve_at(p, name, 10000)[1])} / {pct(curve_at(p, "parallel", 10000)[1])}'
-    body.append([task, pct(pachs['success_rate']), pct(parallel['success_rate']),
+    single = summary_of(policy, 'single') if policy else None
+    rollout_10k = pct(curve_at(p, 'parallel', 10000)[1]) if parallel else '-'
+    at_10k = f'{pct(curve_at(p, name, 10000)[1])} / {rollout_10k}'
+    body.append([task, pct(pachs['success_rate']),
+                 pct(parallel['success_rate']) if parallel else 'not run',
                  pct(single['success_rate']) if single else '-', at_10k,
                  num(pachs['evaluated_mean']), f'{num(pachs["batch_wall_s"], 2)} s',
-                 cost_ratio(p, name, 'parallel')])
+                 cost_ratio(p, name, 'parallel') if parallel else '-'])
   budgets = sorted({r[1]['settings']['budget'] for r in rows}, reverse=True)
   start = src.load('engines/plan_main_job_warp.json')
   cold, warm, _ = command_walls(start, 30)
@@ -832,11 +909,11 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       '',
       f'Open loop: share of runs solved (30 instances x 5 seeds; shelf: 100 targets) within '
       f'{" (shelf: ".join(f"{b:,}" for b in budgets)}) edge evaluations per run, on one '
-      f'{" or one ".join(devices)}, each task\'s default (PushT-Obs: MuJoCo Warp physics, the '
-      f'first goal\'s path improved; the policy alone there from MJX runs). Path cost: mean '
-      f'ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` (30 '
-      f'instances, one GPU, Warp; three machines, H200 and H100): {span(cold)} cold, '
-      f'{span(warm)} warm. On a '
+      f'{" or one ".join(devices)}, each task\'s default, PushT on its default (faithful) '
+      f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved). Path '
+      f'cost: mean ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` '
+      f'(30 instances, one GPU, Warp, the planar physics; three machines, H200 and H100): '
+      f'{span(cold)} cold, {span(warm)} warm. On a '
       f'2-core CPU: '
       f'{claims["job"]}. '
       f'Tests: {claims["suite"]}. Every table, its device, command and revision: '
