@@ -54,7 +54,7 @@ def test_every_layout_builds_with_its_blocks(made):
     lay = layouts.layout(name)
     assert env.name == ('pusht-obs' if name == layouts.DEFAULT else f'pusht-obs:{name}')
     np.testing.assert_array_equal(env.obstacles, np.array(lay.blocks, np.float32))
-    assert env.mj_model.npair == 3 + 3 * len(lay.blocks)
+    assert env.mj_model.npair == 5 + 3 * len(lay.blocks)
     assert lay.kind and lay.description
   kinds = {layouts.layout(n).kind for n in layouts.NAMES}
   assert len(kinds) == len(layouts.NAMES)  # each layout is a different kind of problem
@@ -63,7 +63,7 @@ def test_every_layout_builds_with_its_blocks(made):
 def test_canonical_instances_are_valid(made):
   for name, (env, nodes) in made.items():
     lay = layouts.layout(name)
-    poses, goals = np.asarray(nodes.qpos[:, 7:10]), np.asarray(nodes.goal)
+    poses, goals = np.asarray(pusht.t_pose(nodes.qpos)), np.asarray(nodes.goal)
     assert poses.shape == (30, 3)
     np.testing.assert_array_equal(goals, np.broadcast_to(np.float32(pusht.FIXED_GOAL), (30, 3)))
     assert lay.in_start_region(poses).all(), name
@@ -89,9 +89,10 @@ def test_legacy_layout_reproduces_the_old_pusht_obs(made):
   np.testing.assert_array_equal(env.obstacles, np.float32([[-0.245, 0.035, 0.02, 0.02, 0],
                                                            [-0.065, 0.035, 0.02, 0.02, 0],
                                                            [-0.156, -0.265, 0.05, 0.02, 0]]))
-  poses = np.asarray(nodes.qpos[:, 7:10])  # the canonical instances before the layouts
-  np.testing.assert_array_equal(poses[0], np.float32([-0.23514193, -0.096803725, 1.4356135]))
-  np.testing.assert_array_equal(poses[29], np.float32([-0.17391759, -0.15615904, 0.032504216]))
+  # the canonical instances before the layouts (the yaw read back from the free T's quaternion)
+  poses = np.asarray(pusht.t_pose(nodes.qpos))
+  np.testing.assert_allclose(poses[0], [-0.23514193, -0.096803725, 1.4356135], atol=1e-6)
+  np.testing.assert_allclose(poses[29], [-0.17391759, -0.15615904, 0.032504216], atol=1e-6)
 
 
 def test_unknown_layout_lists_the_valid_ones(capsys):

@@ -54,7 +54,8 @@ def _push(env, num_steps=30):
   m = env.mj_model
   d = mujoco.MjData(m)
   d.qpos[:7] = pusht.HOME_QPOS
-  d.qpos[7:] = [-0.25, -0.18, 0.3]
+  d.qpos[7:] = np.asarray(env.node_from_pose(jnp.float32([-0.25, -0.18, 0.3]),
+                                             jnp.zeros(3)).qpos[7:])
   d.ctrl[:] = d.qpos[:7]
   nodes, actions = [], []
   for k in range(num_steps):
@@ -143,7 +144,7 @@ def test_evaluate_under_jit(env, cenv, c_evaluate):
   # The cost is the env's cost of the successor (tip by MJX forward kinematics).
   mjx_tip = jax.jit(jax.vmap(env.tip_position))(out.next_node)
   np.testing.assert_allclose(cenv.tip_position(out.next_node), mjx_tip, atol=1e-5)
-  want = jax.vmap(env._cost)(out.next_node, mjx_tip[:, :2])
+  want = jax.vmap(env._cost)(out.next_node, mjx_tip)
   np.testing.assert_allclose(np.asarray(out.cost)[[0, 2]], np.asarray(want)[[0, 2]], atol=1e-5)
   obs = jax.jit(cenv.observe)(out.next_node)  # PushT's observation with the C tip
   np.testing.assert_allclose(obs[:, 14:17], mjx_tip, atol=1e-5)
@@ -196,14 +197,23 @@ def test_world_executes_and_perturbations_change_the_outcome(env, push):
   ref.reset(start)
   np.testing.assert_array_equal(ref.execute(actions)[-1].qpos, path[-1].qpos)
   moved = np.linalg.norm(path[-1].qpos[7:9] - start.qpos[7:9])
-  slippery = world_lib.World(env, world_lib.Perturbation(friction=0.3))
-  slippery.reset(start)
-  moved_slippery = np.linalg.norm(slippery.execute(actions)[-1].qpos[7:9] - start.qpos[7:9])
-  print(f'\nT displacement: nominal {moved:.4f} m, friction x0.3 {moved_slippery:.4f} m')
-  assert moved > 0.02 and moved_slippery > moved + 1e-3
-  # The env's model is untouched by the perturbed copy.
-  assert slippery.model.dof_frictionloss[7] == pytest.approx(0.3 * env.mj_model.dof_frictionloss[7])
-  assert env.mj_model.dof_frictionloss[7] == pytest.approx(0.5 * pusht.T_MASS * 9.81)
+  assert moved > 0.02
+  # T-table friction and the other contacts' friction each change where the push leaves the T
+  for change in (dict(friction=0.3), dict(contact_friction=0.3)):
+    perturbed = world_lib.World(env, world_lib.Perturbation(**change))
+    perturbed.reset(start)
+    apart = np.linalg.norm(perturbed.execute(actions)[-1].qpos[7:9] - path[-1].qpos[7:9])
+    assert apart > 0.01, (change, apart)
+  # only the perturbed copy changes: the T-table pairs' friction x 0.3, the others' kept
+  slippery = world_lib.World(env, world_lib.Perturbation(friction=0.3)).model
+  t_table = np.array([world_lib._is_t_table_pair(env.mj_model, p)
+                      for p in range(env.mj_model.npair)])
+  assert t_table.sum() == 2
+  np.testing.assert_allclose(slippery.pair_friction[t_table],
+                             0.3 * env.mj_model.pair_friction[t_table])
+  np.testing.assert_array_equal(slippery.pair_friction[~t_table],
+                                env.mj_model.pair_friction[~t_table])
+  assert env.mj_model.pair_friction[t_table][0, 0] == pytest.approx(1.65)
   heavy = world_lib.Perturbation(t_mass=2.0, actuator_gain=0.5)
   m = heavy.apply(env.mj_model)
   t_body = env.mj_model.body('tblock').id

@@ -64,8 +64,8 @@ def test_a_pusht_task_takes_a_named_physics():
 def test_free_t_cost_keeps_the_tip_at_the_t_half_height(env):
   """Over the T's centre, lifting the tip from the T's half height to 6 cm costs w_height per m
   of the free T (the 3D reach term is still inside its 5 cm), nothing for the planar T."""
-  free = envs.make('pusht-fixed', physics='faithful')
-  for e, want in ((free, free.config.w_height * 0.04), (env, 0.0)):
+  free, planar = env, envs.make('pusht-fixed', physics='planar')
+  for e, want in ((free, free.config.w_height * 0.04), (planar, 0.0)):
     node = e.canonical_instances(1)
     node = jax.tree.map(lambda x: x[0], node)
     centre = np.asarray(pusht.t_pose(node.qpos))[:2]
@@ -83,14 +83,16 @@ def test_end_effector_matches_dh_in_mujoco_c_and_mjx(env):
   site = m.site('flange').id
   base = np.asarray(pusht.BASE_POS)
 
+  t_qpos = np.asarray(env.node_from_pose(jnp.zeros(3), jnp.zeros(3)).qpos[7:])  # the T at 0
+
   @jax.jit
   def mjx_flange(q):
     d = mjx.kinematics(env.mjx_model, env.restore(env.node_from_pose(
-        jnp.zeros(3), jnp.zeros(3))).replace(qpos=jnp.concatenate([q, jnp.zeros(3)])))
+        jnp.zeros(3), jnp.zeros(3))).replace(qpos=jnp.concatenate([q, jnp.asarray(t_qpos)])))
     return d.site_xpos[site]
 
   for q in qs:
-    data.qpos[:] = np.concatenate([q, np.zeros(3)])
+    data.qpos[:] = np.concatenate([q, t_qpos])
     mujoco.mj_kinematics(m, data)
     want = _dh_flange(q)[:3, 3] + base
     np.testing.assert_allclose(data.site_xpos[site], want, atol=1e-4)
@@ -105,12 +107,13 @@ def test_tip_chain_kinematics_matches_mujoco(env, jitted):
   m = env.mj_model
   data = mujoco.MjData(m)
   for _ in range(8):
+    t_pose = np.concatenate([rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi, 1)])
+    node = env.node_from_pose(jnp.asarray(t_pose, jnp.float32), jnp.zeros(3))
     qpos = np.concatenate([rng.uniform(panda.JOINT_LOWER, panda.JOINT_UPPER),
-                           rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi, 1)])
+                           np.asarray(node.qpos[7:])])
     data.qpos[:] = qpos
     mujoco.mj_kinematics(m, data)
-    node = env.node_from_pose(jnp.zeros(3), jnp.zeros(3)).replace(
-        qpos=jnp.asarray(qpos, jnp.float32))
+    node = node.replace(qpos=jnp.asarray(qpos, jnp.float32))
     np.testing.assert_allclose(np.asarray(jitted['tip'](node)), data.site_xpos[m.site('tip').id],
                                atol=2e-6)
 
@@ -121,9 +124,10 @@ def test_model_uses_only_explicit_primitive_contacts(env):
   allowed = {mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_SPHERE,
              mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_PLANE}
   assert {int(t) for t in m.geom_type} <= {int(t) for t in allowed}
-  assert m.npair == 3  # stick against bar, stem and table
+  assert m.npair == 5  # stick against bar, stem and table; the free T's bar and stem on the table
   obs = envs.make('pusht-obs')
-  assert obs.mj_model.npair == 3 + 3 * len(obs.obstacles) and len(obs.obstacles) > 0
+  assert obs.mj_model.npair == 5 + 3 * len(obs.obstacles) and len(obs.obstacles) > 0
+  assert envs.make('pusht-fixed', physics='planar').mj_model.npair == 3  # a T on joints
 
 
 def test_observation_and_interface_sizes(env):
@@ -177,7 +181,8 @@ def test_restored_node_continues_a_carried_simulation_exactly(env):
 
 
 def test_stick_pushes_the_t(env, jitted):
-  """A Jacobian controller drives the tip through the T: the T moves the same way."""
+  """A Jacobian controller drives the tip at 1.5 cm into the T and on along +y: the T slides
+  ahead of the tip, upright, along the same line."""
   node = env.node_from_pose(jnp.array([-0.25, -0.15, 0.0]), jnp.asarray(pusht.FIXED_GOAL))
   data = mujoco.MjData(env.mj_model)
   waypoints = [np.array([-0.25, -0.32, 0.015])] * 10 + [np.array([-0.25, 0.05, 0.015])] * 20
@@ -187,9 +192,10 @@ def test_stick_pushes_the_t(env, jitted):
     assert bool(out.is_valid)
     node = out.next_node
   tip = np.asarray(jitted['tip'](node))
-  assert tip[1] > 0.0 and abs(tip[2] - 0.015) < 0.01  # the tip went through, along the table
-  t_pose = np.asarray(node.qpos[7:])
-  assert t_pose[1] > 0.05 and abs(t_pose[0] + 0.25) < 0.02  # the T was pushed along +y
+  t_pose = np.asarray(pusht.t_pose(node.qpos))
+  assert tip[1] > -0.06 and abs(tip[2] - 0.015) < 0.01  # the tip moved on, along the table
+  assert t_pose[1] > 0.0 and abs(t_pose[0] + 0.25) < 0.02  # the T was pushed along +y
+  assert t_pose[1] - tip[1] > 0.03 and float(pusht.t_tilt(node.qpos)) < 0.1  # ahead, upright
 
 
 def test_bad_actions_and_states(env, jitted):
@@ -228,7 +234,7 @@ def test_canonical_instances(name):
   env = envs.make(name)
   first, again = env.canonical_instances(30), env.canonical_instances(30)
   np.testing.assert_array_equal(np.asarray(first.qpos), np.asarray(again.qpos))
-  poses, goals = np.asarray(first.qpos[:, 7:]), np.asarray(first.goal)
+  poses, goals = np.asarray(pusht.t_pose(first.qpos)), np.asarray(first.goal)
   assert poses.shape == (30, 3)
   assert np.all(np.asarray(coverage.coverage(poses, goals)) < 0.9)
   if env.layout is not None:  # pusht-obs: its layout's start region (tests/test_layouts.py)

@@ -36,11 +36,16 @@ class Layout:
     return np.array(self.blocks, np.float32).reshape(-1, 5)
 
   def in_start_region(self, poses: np.ndarray, tol: float = 1e-6) -> np.ndarray:
-    """[N] bool: poses [N, 3] (x, y, yaw) inside the start region (yaw taken as sampled)."""
+    """[N] bool: poses [N, 3] (x, y, yaw) inside the start region (the yaw range read modulo
+    2 pi: a free T's pose reads its yaw in [-pi, pi])."""
     poses = np.asarray(poses, np.float64)
     ok = np.ones(len(poses), bool)
-    for k, (lo, hi) in enumerate((self.start_x, self.start_y, self.start_yaw)):
+    for k, (lo, hi) in enumerate((self.start_x, self.start_y)):
       ok &= (poses[:, k] >= lo - tol) & (poses[:, k] <= hi + tol)
+    lo, hi = self.start_yaw
+    if hi - lo < 2 * np.pi - tol:
+      offset = np.mod(poses[:, 2] - lo + tol, 2 * np.pi) - tol
+      ok &= offset <= hi - lo + tol
     return ok
 
 

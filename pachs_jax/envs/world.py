@@ -21,7 +21,8 @@ class Perturbation:
 
   friction: T-table friction: `dof_frictionloss` of the T's joints t_x, t_y, t_yaw (a free T:
     the T-table pairs' `pair_friction`).
-  contact_friction: `geom_friction` (all three coefficients) of every geom (stick-T, T-obstacle).
+  contact_friction: the friction of every other contact pair (stick-T, T-obstacle, stick-table;
+    `pair_friction`, and `geom_friction` alike).
   t_mass: the T's `body_mass` and `body_inertia`.
   actuator_gain: the arm servos' stiffness kp (`actuator_gainprm[:, 0]`, `actuator_biasprm[:, 1]`).
   actuator_damping: the arm servos' damping kv (`actuator_biasprm[:, 2]`).
@@ -43,11 +44,12 @@ class Perturbation:
     """A perturbed copy of a PushT model (model itself is unchanged)."""
     m = _copy_model(model)
     t_body = m.body('tblock').id
-    if env_is_free(m):  # the T-table contact pairs' sliding, torsional and rolling friction
-      for p in range(m.npair):
-        if m.geom(m.pair_geom2[p]).name == 'table' and m.geom(m.pair_geom1[p]).name in (
-            't_bar', 't_stem'):
-          m.pair_friction[p] *= self.friction
+    t_table = np.array([_is_t_table_pair(m, p) for p in range(m.npair)], bool)
+    # every contact of the scene is an explicit pair, whose friction MuJoCo fixes at compile
+    # time (pair_friction): geom_friction no longer reaches it
+    m.pair_friction[~t_table] *= self.contact_friction
+    if env_is_free(m):  # the T-table pairs' sliding, torsional and rolling friction
+      m.pair_friction[t_table] *= self.friction
     else:
       for name in ('t_x', 't_y', 't_yaw'):
         m.dof_frictionloss[m.jnt_dofadr[m.joint(name).id]] *= self.friction
@@ -58,6 +60,13 @@ class Perturbation:
     m.actuator_biasprm[:, 1] *= self.actuator_gain
     m.actuator_biasprm[:, 2] *= self.actuator_damping
     return m
+
+
+def _is_t_table_pair(model: mujoco.MjModel, pair: int) -> bool:
+  """Whether contact pair `pair` is the T's bar or stem against the table (MuJoCo may store a
+  pair's geoms in either order)."""
+  names = {model.geom(model.pair_geom1[pair]).name, model.geom(model.pair_geom2[pair]).name}
+  return 'table' in names and bool(names & {'t_bar', 't_stem'})
 
 
 def env_is_free(model: mujoco.MjModel) -> bool:
