@@ -172,7 +172,7 @@ def pushing_policy(seed: int = 0, noise: float = 0.2) -> Policy:
   behind the T (12 cm against u) 9 cm above the table for 7 steps, down to 2 cm for 3, then
   pushes towards 15 cm past the T's centre along u (`pusht.jacobian_action`, 5 cm a step),
   with Gaussian action noise."""
-  config = pusht.PushTConfig()
+  config = pusht.physics_preset('planar')  # the arm's kinematics at the planar nodes it sees
   model = mujoco.MjModel.from_xml_string(pusht.model_xml(config))
   data = mujoco.MjData(model)
   rng = np.random.default_rng(seed)

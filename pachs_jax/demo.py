@@ -140,17 +140,19 @@ def scripted_push(env, node, num_steps: int, progress: bool = False):
 
 def run_demo(task: str, instance: int, out: str, num_steps: int, gif: str | None,
              progress: bool = False, backend: str = 'auto') -> dict:
-  """Runs `scripted_push` on a canonical instance of a PushT task (physics `backend`, see
-  `backends.make_backend`), draws it to the image `out` (and, with `gif`, an animation with
-  the MuJoCo rendering of the arm); returns a JSON-ready summary. Files are written
-  atomically; ValueError for bad arguments before any work."""
+  """Runs `scripted_push` on a canonical instance of a PushT task on its planar physics preset
+  (engine `backend`, see `backends.make_backend`), draws it to the image `out` (and, with
+  `gif`, an animation with the MuJoCo rendering of the arm); returns a JSON-ready summary.
+  Files are written atomically; ValueError for bad arguments before any work."""
   if isinstance(num_steps, bool) or not isinstance(num_steps, int) or \
       not 1 <= num_steps <= MAX_STEPS:
     raise ValueError(f'steps must be an integer in 1..{MAX_STEPS}, got {num_steps!r}')
   outputs.check_distinct({'--out': out, '--gif': gif})
-  env = backends.make_backend(envs.make(task), backend)
-  if not env.name.startswith('pusht'):
+  if not task.startswith('pusht'):
     raise ValueError(f'the scripted demo drives PushT tasks; got {task!r}')
+  # the scripted pusher is a controller for the planar T: on the free T (the default physics)
+  # its pushes stall against the T's friction
+  env = backends.make_backend(envs.make(task, physics='planar'), backend)
   node = jax.tree.map(lambda x: x[instance], env.canonical_instances(instance + 1))
   start = time.perf_counter()
   nodes, tips, cov, pushes = scripted_push(env, node, num_steps, progress)

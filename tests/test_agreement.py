@@ -25,7 +25,7 @@ FREE = dict(t_body='free', table_friction=3.0, physics_dt=0.005, substeps=10)
 
 
 def test_free_env_reads_the_same_pose_cost_and_observation():
-  planar = pusht.PushTEnv(pusht.PushTConfig())
+  planar = pusht.PushTEnv(pusht.physics_preset('planar'))
   free = pusht.PushTEnv(pusht.PushTConfig(**FREE))
   pose, goal = np.array([-0.1, 0.05, 1.0]), np.asarray(pusht.FIXED_GOAL)
   node_p, node_f = planar.node_from_pose(pose, goal), free.node_from_pose(pose, goal)
@@ -33,13 +33,14 @@ def test_free_env_reads_the_same_pose_cost_and_observation():
   np.testing.assert_allclose(pusht.t_pose(node_f.qpos), pose, atol=1e-6)
   np.testing.assert_allclose(free.observation(node_f), planar.observation(node_p), atol=1e-5)
   # the tip 6 cm from the T's centre in the plane: at the T's half height both costs agree; 5 cm
-  # higher, only the free T's reach term (3D, as ManiSkill's reward) counts the height
+  # higher, only the free T's reach term (3D, as ManiSkill's reward) and its height term count
   tip = np.array([pose[0] + 0.06, pose[1], pusht.T_HALF_HEIGHT])
   assert float(free._cost(node_f, tip)) == pytest.approx(float(planar._cost(node_p, tip)),
                                                         abs=1e-6)
   high = tip + np.array([0.0, 0.0, 0.05])
   assert float(planar._cost(node_p, high)) == pytest.approx(float(planar._cost(node_p, tip)))
-  extra = free.config.w_reach * (np.hypot(0.06, 0.05) - 0.05 - 0.01)
+  extra = (free.config.w_reach * (np.hypot(0.06, 0.05) - 0.05 - 0.01)
+           + free.config.w_height * 0.05)
   assert float(free._cost(node_f, high)) == pytest.approx(float(free._cost(node_f, tip)) + extra,
                                                          abs=1e-5)
   at_goal = free.node_from_pose(goal, goal)
@@ -80,9 +81,15 @@ def test_a_tipped_free_t_is_invalid():
   assert float(pusht.t_tilt(out.next_node.qpos[0])) > pusht.MAX_T_TILT
 
 
-def test_defaults_build_the_shipped_model():
-  # the options are additive: the default config's planar T keeps its joints and friction
+def test_defaults_build_the_free_t_and_the_planar_preset_its_joints():
   model = mujoco.MjModel.from_xml_string(pusht.model_xml(pusht.PushTConfig()))
+  assert (model.nq, model.nv) == (14, 13) and model.opt.gravity[2] == pytest.approx(-9.81)
+  assert model.opt.timestep == 0.0025 and model.opt.iterations == 20
+  table = [p for p in range(model.npair) if 'table' in (
+      model.geom(model.pair_geom1[p]).name, model.geom(model.pair_geom2[p]).name)]
+  assert sorted(model.pair_friction[table, 0].round(6))[1:] == [1.65, 1.65]  # bar, stem
+  # the planar preset: the T on slide and hinge joints with friction loss, no gravity
+  model = mujoco.MjModel.from_xml_string(pusht.model_xml(pusht.physics_preset('planar')))
   assert (model.nq, model.nv) == (10, 10)
   assert model.opt.gravity[2] == 0.0
   fl = model.dof_frictionloss[7:10]
@@ -149,7 +156,7 @@ def test_agreement_check_passes_the_same_physics():
 
 
 def test_agreement_check_reports_a_large_time_step_with_numbers():
-  # planner physics at 25 ms x 2 against the task's 12.5 ms x 4 world: refused, with numbers
+  # planner physics at 25 ms x 2 against the task's 2.5 ms x 20 world: refused, with numbers
   coarse = pusht.PushTConfig(physics_dt=0.025, substeps=2)
   report = agreement.check_agreement(coarse, 'mujoco-c', instances=3, steps=20,
                                      world_config=pusht.PushTConfig())

@@ -142,7 +142,7 @@ def test_shelf_plans_are_drawn_and_animated():
 
 
 def test_scripted_pusher_pushes_the_t_through_the_gate():
-  env = backends.make_backend(envs.make('pusht-obs'), 'mujoco-c')
+  env = backends.make_backend(envs.make('pusht-obs', physics='planar'), 'mujoco-c')
   node = jax.tree.map(lambda x: x[0], env.canonical_instances(1))
   nodes, tips, cov, pushes = demo.scripted_push(env, node, 200)
   start, end = nodes.qpos[0, 7:9], nodes.qpos[-1, 7:9]

@@ -150,9 +150,9 @@ def test_a_plan_refuses_other_physics_settings_and_make_env_builds_them():
     saved_plans.replay(env, back)
   other = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=back.physics_settings)
   assert other.config.t_damping == 0.7 and other.physics_settings == back.physics_settings
-  faithful = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=pusht.physics_settings(
-      pusht.physics_preset('faithful')))
-  assert faithful.config.block_solimp == pusht.PHYSICS_PRESETS['faithful']['block_solimp']
+  planar = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=pusht.physics_settings(
+      pusht.physics_preset('planar')))
+  assert planar.config.t_body == 'planar' and planar.config.block_solimp is None
   with pytest.raises(ValueError, match="takes no physics settings t_damping"):
     saved_plans.make_env('shelf', 'jax', physics_settings={'t_damping': 0.7})
 
@@ -162,13 +162,13 @@ def test_the_shipped_models_record_their_physics_and_a_mismatch_is_said():
   from pachs_jax.sac import checkpoint
   path = planner.checkpoint_path('pusht-obs')  # the PushT-Fixed model
   default = pusht.PushTEnv(pusht.PushTConfig())
-  assert checkpoint.trained_physics(path) == {'engine': 'mjx',
+  assert checkpoint.trained_physics(path) == {'engine': 'warp',
                                               'settings': default.physics_settings}
   assert checkpoint.physics_mismatch(path, default) is None  # the same model in any engine
-  free = pusht.PushTEnv(pusht.physics_preset('faithful'))
-  note = checkpoint.physics_mismatch(path, free)
+  planar = pusht.PushTEnv(pusht.physics_preset('planar'))
+  note = checkpoint.physics_mismatch(path, planar)
   assert "trained on other physics than 'pusht-fixed'" in note
-  assert 'physics_dt 0.0125 -> 0.0025' in note and 'and 4 more' in note  # 8 fields differ
+  assert 'physics_dt 0.0025 -> 0.0125' in note and 'and 4 more' in note  # 8 fields differ
 
 
 def test_make_env_builds_the_engine_a_plan_names():

@@ -49,23 +49,24 @@ def test_restore_then_step_reproduces_the_transition(warp_env):
 @needs_warp
 def test_agrees_with_mujoco_c_without_contact(warp_env):
   # the stick starts away from the T: one edge moves the arm only; float32 Warp against MuJoCo
-  # C (float64) on the same model, and the T does not move in either
+  # C (float64) on the same model, and the T stays where it rests (it settles 0.3 mm into the
+  # table's soft contact)
   nodes, actions = _edges(warp_env)
   got = jax.jit(warp_env.evaluate)(nodes, actions)
   c_env = mujoco_c.MujocoCEnv(pusht.PushTEnv(warp_env.config), nthread=1)
   want = c_env.evaluate(nodes, actions)
   np.testing.assert_allclose(np.asarray(got.next_node.qpos), np.asarray(want.next_node.qpos),
                              atol=2e-4)
-  np.testing.assert_array_equal(np.asarray(got.next_node.qpos)[:, 7:],
-                                np.asarray(nodes.qpos)[:, 7:])
+  np.testing.assert_allclose(np.asarray(got.next_node.qpos)[:, 7:],
+                             np.asarray(nodes.qpos)[:, 7:], atol=5e-4)
   assert np.abs(np.asarray(got.next_node.qpos - nodes.qpos)[:, :7]).max() > 1e-3
 
 
 @needs_warp
 def test_overflow_is_reported_per_edge():
   from pachs_jax.envs import warp_physics  # pylint: disable=import-outside-toplevel
-  config = pusht.PushTConfig(variant='obs', layout='two-gaps')
-  # room for the T's three friction-loss rows, not for contact rows too (a contact buffer
+  config = pusht.physics_preset('planar', variant='obs', layout='two-gaps')
+  # the planar T: room for its three friction-loss rows, not for contact rows too (a contact buffer
   # overflow marks every edge of the call: Warp counts contacts for the whole batch)
   env = warp_physics.WarpPushTEnv(config, constraints_per_world=4)
   nodes, actions = _edges(env, 2)
