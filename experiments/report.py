@@ -853,7 +853,14 @@ def results_markdown(root: str = ROOT) -> Tuple[str, List[str]]:
            '`experiments/results/`; do not edit by hand. Each section lists its files by the device '
            'and revision of the runs in them; each file, and the `.md` beside it, holds the '
            'command of each run. The protocol is in '
-           '[experiments.md](experiments.md).', '']
+           '[experiments.md](experiments.md).', '',
+           'PushT\'s default physics is the faithful one (ManiSkill PushT-v1\'s free T, hard '
+           'blocks), its results in the first section, its training in "Training on the '
+           'faithful physics with Warp" and its CPU serving runs. The other PushT sections were '
+           'measured on the planar preset (`physics=\'planar\'`: a T on joints, soft blocks) '
+           'with the models trained on it, which commit `5476e47` holds; they stay as the '
+           'measurements of the search\'s variants until the faithful physics repeats them.',
+           '']
   cited = []
   for title, section in SECTIONS:
     src = Sources(root)

@@ -665,7 +665,7 @@ class PushTEnv(base.Env):
     # T (as ManiSkill's PushT reward), which keeps the tip down at the T's half height, where a
     # push slides the T instead of tipping it over its top edge.
     offset = tip[:2] - pose[:2]
-    height = jnp.zeros((), tip.dtype)
+    height = 0.0
     if self.config.t_body == 'free':
       offset = jnp.append(offset, tip[2] - node.qpos[9])
       height = jnp.abs(tip[2] - T_HALF_HEIGHT)
