@@ -725,10 +725,12 @@ def physics(src: Sources) -> str:
           f'{r["t_block_max_mm"]:.1f} / {r["stick_block_max_mm"]:.1f}')
   deep_rows = [[p] + [cells.get(layout, '-') for layout in LAYOUTS] for p, cells in deep.items()]
   return '\n\n'.join([
-      'MJX (float32, the GPU planners\' physics) against the MuJoCo C float64 world on the '
-      'shipped policy\'s pushes: the T\'s position (mm) / angle (degrees) error at the 90th '
-      'percentile after 10 control steps, per layout ("today": the planar T of the shipped '
-      'models; "free": the free T under gravity, friction 3):',
+      'The candidates that chose the faithful physics, measured with the planar-physics '
+      'model\'s pushes. MJX (float32, the GPU planners\' physics of then) against the MuJoCo C '
+      'float64 world: the T\'s position (mm) / angle (degrees) error at the 90th '
+      'percentile after 10 control steps, per layout (fields over the planar preset; "today": '
+      'the planar preset itself; "free": the free T under gravity, friction 3; the faithful '
+      'physics is "free mu3 2.5ms x20 stiff" at friction 1.65):',
       table(['physics'] + list(LAYOUTS), agree_rows),
       'The deepest T-block / stick-block penetration (mm) over policy rollouts in MuJoCo C:',
       table(['physics'] + list(LAYOUTS), deep_rows)])

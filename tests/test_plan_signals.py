@@ -13,8 +13,9 @@ import threading
 import pytest
 
 # a search that runs for minutes: uniform-cost order (w = 0), one-step edges, no rollout lanes
-LONG_PLAN = ['plan', '--task', 'pusht-obs', '--instances', '2,3', '--budget', '200000',
-             '-w', '0', '--edge-steps', '1', '--rollout-share', '0', '-K', '16', '-N', '8']
+# about a minute of search on a 2-core CPU, neither instance solved
+LONG_PLAN = ['plan', '--task', 'pusht-obs', '--layout', 'detour', '--instances', '2,3',
+             '--budget', '200000']
 
 
 @pytest.fixture(scope='module')
@@ -88,7 +89,7 @@ def test_a_signal_during_the_search_keeps_the_rows(tmp_path, cache_dir, signame,
   table = [line.split() for line in out.splitlines() if line.split()[:1] in (['2'], ['3'])]
   saved = json.loads(rows.read_text())
   stops = [r['stop'] for r in saved['rows']]
-  # instance 2 searches for minutes; instance 3 may find its goal within seconds
+  # instance 2 searches for a minute; instance 3 may find its goal sooner
   assert stops[0] == 'interrupted' and stops[1] in ('interrupted', 'goal')
   assert [row[6] for row in table] == stops
   assert f'interrupted: {stops.count("interrupted")} of 2 instances stopped early' in out

@@ -84,11 +84,11 @@ def test_a_changed_result_makes_the_report_stale(copy_root):
     row = report.summary_of(payload, 'pachs-improve')
     row['successes'], row['success_rate'] = 75, 0.5
 
-  rewrite(copy_root, 'suite_gpu/wall.json', fewer)
+  rewrite(copy_root, 'faithful_gpu/wall.json', fewer)
   written = report.generate(str(copy_root))
   assert written != report.generate()
   assert '| PushT-Obs, wall | 50% |' in written['README.md']
-  assert '| wall | 75/150 (50%) |' in written['docs/results.md']
+  assert '| wall | 75/150 (50%) [' in written['docs/results.md']
 
 
 def test_measured_cpu_timings_replace_the_placeholders(copy_root):
