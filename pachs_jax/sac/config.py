@@ -61,9 +61,9 @@ class SACConfig:
     without x64, so larger seeds would repeat smaller ones).
   eval_instances: start nodes of the periodic single-rollout evaluation (0 disables it).
   failure_cost: subtracted from the reward of a step that ends its episode in failure (an
-    invalid edge: a tipped T, the T off the table). Where rewards are negative costs, ending an
-    episode must cost more than any continuation (>= the largest step cost / (1 - discount)),
-    or the policy learns to fail early.
+    invalid edge: a tipped T, the T off the table). Where rewards are negative costs and
+    nothing is charged, failing early is the cheapest episode; a large charge teaches the
+    policy to avoid what might fail (on PushT: the T itself).
   absorbing_failure: a step that ends its episode in failure is charged its reward as if the
     failed state were kept for ever (reward / (1 - discount)), before failure_cost: failing then
     costs what staying put costs, no more (needs discount < 1).
