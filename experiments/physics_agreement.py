@@ -54,6 +54,9 @@ PLANAR_FITS = {
 }
 PENETRATION = {
     'faithful': FAITHFUL,
+    'faithful margin1mm': dict(FAITHFUL, block_margin=0.001),
+    'faithful 1.25ms x40': dict(FAITHFUL, physics_dt=0.00125, substeps=40,
+                                block_solref=(0.0025, 1.0)),
     'planar': TODAY,
     '10ms x5': MANISKILL_STEP,
     '10ms x5 hard': dict(**MANISKILL_STEP, **HARD),

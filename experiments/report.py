@@ -234,7 +234,8 @@ def faithful(src: Sources) -> str:
                   num(100 * r['tip_height_near_t_median_m'], 2)] for r in policy]
   agree = {r['layout']: r for r in src.load('faithful_gpu/agreement.json')['rows']
            if r['horizon'] == 10}
-  deep = {r['layout']: r for r in src.load('physics/penetration_faithful.json')['rows']}
+  deep = {r['layout']: r for r in src.load('physics/penetration_faithful.json')['rows']
+          if r['physics'] == 'faithful'}
   physics_rows = [[layout, num(agree[layout]['position_mm_p90'], 2),
                    num(agree[layout]['angle_deg_p90'], 2),
                    num(agree[layout]['position_mm_p99'], 2),
