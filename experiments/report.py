@@ -807,8 +807,8 @@ def training(src: Sources) -> str:
       f'{num(ratio["training_env_steps_per_s"], 2)}x the training.',
       table(['engine', 'envs', 'physics env steps/s', 'training env steps/s', 'epoch (s)',
              'physics compile (s)'], speed_rows),
-      'Training runs on the faithful physics with Warp, 2,048 envs each (the first four two '
-      'to a GPU, the last four one to a GPU). Success: the training episodes\' over the last '
+      'Training runs on the faithful physics with Warp, 2,048 envs each (three of the first '
+      'four beside another run on their GPU, the last four alone). Success: the training episodes\' over the last '
       'tenth of the epochs, and the best periodic evaluation (256 instances, deterministic '
       'policy); return: the training episodes\' mean. A tipped T ends an episode; charged '
       'nothing, it was the cheapest end (rewards are negative costs) and the policy tipped the '
