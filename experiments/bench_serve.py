@@ -125,7 +125,7 @@ def main() -> None:
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()
   try:
-    big_sizes = [int(b) for b in args.big.split(',') if int(b) > 0]
+    big_sizes = [int(b) for b in args.big.split(',') if b]
     counts = [int(c) for c in args.clients.split(',') if c]
   except ValueError:
     parser.error(f'--big and --clients: comma-separated integers, got {args.big!r}, '
@@ -133,7 +133,7 @@ def main() -> None:
   if any(c < 0 for c in counts) or any(b < 0 for b in big_sizes):
     parser.error('--big and --clients: counts must not be negative')
   counts = [c for c in counts if c > 0]
-  args.big_sizes = big_sizes
+  args.big_sizes = big_sizes = [b for b in big_sizes if b > 0]
   process, start_s = None, None
   url = args.url
   if url is None:
