@@ -7,7 +7,10 @@
 # machine) starts it, its replay buffer refilled by its policy; else it starts anew.
 # $OUT/NAME.tgz holds the model, metrics, status, training log and learner file.
 set -u
-name=$1; task=$2; minutes=$3; shift 3; out=${OUT:?}
+if [ "$#" -lt 3 ]; then
+  echo "usage: OUT=dir bash $0 NAME TASK MINUTES [train.py flags...]" >&2; exit 2
+fi
+name=$1; task=$2; minutes=$3; shift 3; out=${OUT:?set OUT to the folder the run is packed into}
 here=experiments/results/training
 from=()
 if [ ! -d "/tmp/$name/state" ] && [ -f "$here/${name}_learner.npz" ]; then

@@ -3,6 +3,9 @@
 # after one process has compiled Warp's kernels for the machine (cached on disk for the rest):
 #   OUT=dir bash experiments/results/training/run_many.sh MINUTES 'NAME TASK [flags]' ...
 set -u
+if [ "$#" -lt 2 ]; then
+  echo "usage: OUT=dir bash $0 MINUTES 'NAME TASK [train.py flags]' ..." >&2; exit 2
+fi
 minutes=$1; shift
 here=experiments/results/training
 gpus=$(nvidia-smi -L | wc -l)
