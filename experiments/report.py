@@ -216,6 +216,7 @@ def faithful(src: Sources) -> str:
                                                            row.get('instance_ci95_high')),
                    num(row['cost_success_mean']), num(row['evaluated_mean']),
                    num(row['batch_wall_s'])])
+  cpu_rand = summary_of(src.load('faithful_cpu/pusht-rand.json'), 'pachs')
   settings = src.load('faithful_gpu/gate.json')['settings']
   obs = []
   for layout in FAITHFUL_LAYOUTS:
@@ -257,6 +258,10 @@ def faithful(src: Sources) -> str:
       f'seeds, {settings["budget"]:,} evaluations per run:',
       table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
              'wall of the call (s)'], rows),
+      f'PACHS\'s one unsolved PushT-Rand run emptied its open list. The same 150 runs with '
+      f'MuJoCo C physics on a 2-core CPU (`--backend mujoco-c`): {solved(cpu_rand)}, '
+      f'{num(cpu_rand["evaluated_mean"])} evaluations per run, {num(cpu_rand["batch_wall_s"])} '
+      f's for the call.',
       'PushT-Obs, the PushT-Fixed model (trained without obstacles) on three layouts: PACHS\'s '
       'default (the first goal\'s path improved) and the parallel rollout of 256 copies '
       '(detour\'s rollout run was cut by the command\'s time limit). Cost: mean per-run ratio '
