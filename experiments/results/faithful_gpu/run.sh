@@ -1,18 +1,40 @@
 #!/usr/bin/env bash
-# The shipped models on the faithful physics, one host of 2 GPUs, each line alone on its GPU
-# (Warp planners): PushT-Fixed and -Rand open loop (all planners), the PushT-Obs suite (PACHS's
-# default and the parallel rollout), and Warp against MuJoCo C on policy pushes. MuJoCo Warp's
-# kernels are compiled once first, so that no timed call includes it.
-#   OUT=dir bash experiments/results/faithful_gpu/run.sh
+# The shipped models on the faithful physics (Warp planners), one line of jobs per GPU of the
+# host, each line alone on its GPU, all within one device command (570 s): PushT-Fixed and -Rand
+# open loop (every planner), PushT-Obs layouts (PACHS's default and the parallel rollout), and
+# Warp against MuJoCo C on policy pushes ('agreement'). MuJoCo Warp's kernels are compiled once
+# first, so that no timed call includes them. A line is a comma-separated list of jobs:
+#   OUT=dir bash experiments/results/faithful_gpu/run.sh 'tasks,agreement' 'gate,wall,detour'
+# (the runs of the results: 2 GPUs; pusht-rand and wall were cut by the limit and ran again alone)
 set -u
+if [ "$#" -lt 1 ]; then
+  echo "usage: OUT=dir bash $0 JOBS [JOBS ...] (one line per GPU; jobs: tasks, agreement," \
+       "or a PushT-Obs layout)" >&2
+  exit 2
+fi
+END=$((SECONDS + 570))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
-here=experiments/results/faithful_gpu
 OL="python3 experiments/open_loop.py --backend warp"
 $OL --task pusht-obs --layout slot --planners pachs-improve --instances 1 --rounds 1 \
   --budget 2000 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
-cat > /tmp/jobs <<JOBS
-$OL --task pusht-fixed --planners pachs,single,parallel,beam --out $o/pusht-fixed.json && $OL --task pusht-rand --planners pachs,single,parallel,beam --out $o/pusht-rand.json && python3 experiments/physics_agreement.py agreement --layouts gate,wall,slot,detour,two-gaps --instances 16 --steps 40 --planners warp --candidates today --out $o/agreement.json
-for L in gate wall detour slot two-gaps; do $OL --task pusht-obs --layout \$L --planners pachs-improve,parallel --out $o/\$L.json; done
-JOBS
-bash experiments/parallel_gpus.sh /tmp/jobs "$o/logs" "${LIMIT_S:-450}"
+job() {  # the command line of one job
+  case $1 in
+    tasks) echo "$OL --task pusht-fixed --planners pachs,single,parallel,beam" \
+                "--out $o/pusht-fixed.json && $OL --task pusht-rand" \
+                "--planners pachs,single,parallel,beam --out $o/pusht-rand.json" ;;
+    agreement) echo "python3 experiments/physics_agreement.py agreement" \
+                    "--layouts gate,wall,slot,detour,two-gaps --instances 16 --steps 40" \
+                    "--planners warp --candidates faithful --out $o/agreement.json" ;;
+    *) echo "$OL --task pusht-obs --layout $1 --planners pachs-improve,parallel" \
+            "--out $o/$1.json" ;;
+  esac
+}
+: > /tmp/jobs
+for line in "$@"; do
+  commands=()
+  IFS=',' read -ra names <<< "$line"
+  for name in "${names[@]}"; do commands+=("$(job "$name")"); done
+  (IFS=';'; echo "${commands[*]}") >> /tmp/jobs
+done
+bash experiments/parallel_gpus.sh /tmp/jobs "$o/logs" $((END - SECONDS))
 cd "$OUT" && tar czf faithful.tgz r && rm -rf r
