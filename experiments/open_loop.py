@@ -246,7 +246,7 @@ def main():
                       help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
   flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
                                  'rollout_share', 'chain_restart', 'compact_fractions',
-                                 'after_goal', 'improve_allowance'])
+                                 'after_goal', 'improve_allowance', 'uniform_share'])
   parser.add_argument('--lattice-scale', type=argtypes.positive_float, default=None,
                       help='PACHS lattice resolution = this x the default (default: 1)')
   parser.add_argument('--copies', type=argtypes.positive_int, default=256,

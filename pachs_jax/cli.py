@@ -486,7 +486,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                     help="pachs (default: edges that follow the actor for edge_steps "
                     "transitions) or original (the published one-step edges, its settings)")
   flags.add_search_flags(plan, ['edge_steps', 'rollout_share', 'chain_restart', 'pop_size',
-                               'lattice_resolution'])
+                               'uniform_share', 'lattice_resolution'])
   plan.add_argument('--time-limit', type=argtypes.positive_float, default=None,
                     help='anytime mode: wall-clock seconds, then the path to the best state')
   flags.add_search_flags(plan, ['compact_fractions', 'realtime_answer', 'after_goal',

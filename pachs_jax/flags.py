@@ -32,6 +32,9 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         type=float, help="with --after-goal improve, the evaluations spent after the first "
         "goal as a multiple of those spent up to it ('inf': until the budget ends; default: "
         "the task's)")),
+    'uniform_share': (('--uniform-share',), dict(
+        type=float, help="the probability that an action the search draws from the actor is "
+        "drawn uniformly instead (default: the task's; 0: the actor's alone)")),
     'lattice_resolution': (('--lattice-resolution',), dict(
         type=lambda s: argtypes.numbers(s, 'cell sizes'),
         help='lattice cell sizes, comma separated')),

@@ -537,3 +537,45 @@ def test_traced_loop_is_stored_and_reused(problem, base_result, tmp_path, monkey
     assert any(p.name.endswith('.unexportable') for p in (tmp_path / 'traces').iterdir())
   finally:
     jax.config.update('jax_compilation_cache_dir', previous)
+
+
+class _OneMove:
+  """The grid's stand-in actor-critic, its actor proposing the first move alone."""
+
+  def __init__(self, actor_critic):
+    self.actor_critic = actor_critic
+
+  def sample_actions(self, key, obs, num):
+    return jnp.broadcast_to(self.actor_critic.env.moves[0], obs.shape[:-1] + (num, 2))
+
+  def q_values(self, obs, actions):
+    return self.actor_critic.q_values(obs, actions)
+
+
+def test_uniform_share_leaves_where_the_actor_cannot(problem):
+  """An actor that proposes one move leaves the far-apart instances unsolved (OPEN empties);
+  with half of the search's draws uniform over the action box some are solved (a node's few
+  draws can still miss the move a wall leaves open), and their paths replay; `UniformMix`
+  draws the share it is given."""
+  from pachs_jax.search import model as model_lib
+  one_move = _OneMove(problem.actor_critic)
+  far = np.arange(NUM_FOUND - 1)
+  config = dataclasses.replace(BASE, num_actions=8)
+  alone = _np(plan(problem.env, one_move, problem.nodes, config, problem.keys))
+  mixed = plan(problem.env, one_move, problem.nodes,
+               dataclasses.replace(config, uniform_share=0.5), problem.keys)
+  assert not alone.found[far].any()
+  assert set(alone.stop_reason[far].tolist()) == {int(StopReason.OPEN_EMPTY)}
+  solved = far[np.asarray(mixed.found)[far]]
+  assert len(solved) >= 2
+  for i in solved:
+    cost, _ = _replay(problem.env, mixed, i)
+    np.testing.assert_allclose(cost, np.asarray(mixed.cost)[i], rtol=1e-5)
+  assert model_lib.with_uniform_actions(one_move, 0.0) is one_move
+  obs = jnp.zeros((4096, 4))
+  drawn = model_lib.with_uniform_actions(one_move, 0.25).sample_actions(
+      jax.random.PRNGKey(1), obs, 2)
+  uniform = np.any(np.asarray(drawn) != problem.env.moves[0], axis=-1)
+  assert abs(uniform.mean() - 0.25) < 0.02 and np.abs(np.asarray(drawn)).max() <= 1.0
+  with pytest.raises(ValueError, match=r'uniform_share must be a number in \[0, 1\]'):
+    dataclasses.replace(config, uniform_share=1.5)

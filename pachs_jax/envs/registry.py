@@ -41,7 +41,8 @@ class TaskSpec:
     """The SearchConfig field values of an algorithm of `ALGORITHMS`; ValueError naming them."""
     if check_algorithm(algorithm) == 'pachs':
       return self.search_defaults
-    return self.original_search or dict(self.search_defaults, edge_steps=1, rollout_share=0.0)
+    return self.original_search or dict(self.search_defaults, edge_steps=1, rollout_share=0.0,
+                                        uniform_share=0.0)
 
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
@@ -79,7 +80,7 @@ _SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'budget': 100_000}
 # cheapest goal's path (docs/task_defaults.md).
 _PUSHT = dict(_SEARCH, edge_steps=8, realtime_answer='min_cost')
 _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal='improve',
-                  improve_allowance=3.0)
+                  improve_allowance=3.0, uniform_share=0.25)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,

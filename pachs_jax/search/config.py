@@ -140,6 +140,10 @@ class SearchConfig(EdgeSearchConfig):
     goal found).
   improve_allowance: with 'improve', the evaluations spent after the first goal, as a multiple
     of those spent up to it (inf: until the budget ends).
+  uniform_share: the probability that an action the search draws from the actor (an
+    expansion's N, the steps along an edge, a chain's) is drawn uniformly from [-1, 1]^A
+    instead (`model.with_uniform_actions`): moves the actor never proposes, such as lifting a
+    stick blocked by an obstacle the actor never saw.
   """
 
   num_actions: int = 16
@@ -150,10 +154,15 @@ class SearchConfig(EdgeSearchConfig):
   chain_restart: str = 'start'
   after_goal: str = 'stop'
   improve_allowance: float = math.inf
+  uniform_share: float = 0.0
 
   def __post_init__(self):
     super().__post_init__()
     positive_int('SearchConfig', 'num_actions', self.num_actions)
+    share = self.uniform_share
+    if (isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share <= 1):
+      raise ValueError(f'SearchConfig.uniform_share must be a number in [0, 1], got {share!r}')
+    object.__setattr__(self, 'uniform_share', float(share))
     if self.chain_restart not in CHAIN_RESTARTS:
       raise ValueError(f'SearchConfig.chain_restart must be one of {CHAIN_RESTARTS}, got '
                        f'{self.chain_restart!r}')

@@ -1,8 +1,10 @@
 """The trained model as the search sees it: the actor-critic protocol, the cost-to-go of its
-critic, its actions made safe to simulate, and the check of its outputs on the start states."""
+critic, its actions made safe to simulate, the check of its outputs on the start states, and
+the actor mixed with uniform actions."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Protocol
 
 import jax
@@ -49,3 +51,27 @@ def output_checks(env, actor_critic: ActorCritic, num_actions: int):
     return finite(obs), finite(actions), finite(q)
 
   return outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class UniformMix:
+  """An ActorCritic whose `sample_actions` draws each action uniformly from [-1, 1]^A with
+  probability `share`, else from `actor_critic`; `q_values` is actor_critic's."""
+
+  actor_critic: ActorCritic
+  share: float
+
+  def sample_actions(self, key: jax.Array, obs: jax.Array, num: int) -> jax.Array:
+    k_actor, k_uniform, k_pick = jax.random.split(key, 3)
+    actions = self.actor_critic.sample_actions(k_actor, obs, num)
+    uniform = jax.random.uniform(k_uniform, actions.shape, actions.dtype, -1.0, 1.0)
+    pick = jax.random.uniform(k_pick, actions.shape[:-1] + (1,)) < self.share
+    return jnp.where(pick, uniform, actions)
+
+  def q_values(self, obs: jax.Array, actions: jax.Array) -> jax.Array:
+    return self.actor_critic.q_values(obs, actions)
+
+
+def with_uniform_actions(actor_critic: ActorCritic, share: float) -> ActorCritic:
+  """actor_critic, or `UniformMix` of it where share > 0 (`SearchConfig.uniform_share`)."""
+  return UniformMix(actor_critic, share) if share > 0 else actor_critic

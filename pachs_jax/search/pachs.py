@@ -16,6 +16,7 @@ from pachs_jax.search import capacity as capacity_lib
 from pachs_jax.search import compact
 from pachs_jax.search import heap as heap_lib
 from pachs_jax.search import improve
+from pachs_jax.search import model as model_lib
 from pachs_jax.search import novelty
 from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
@@ -326,6 +327,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   edge, chain-restart, real-time answer and after-goal functions (None: those config names,
   `rules.from_config`); capacities: the arrays' sizes (None: derived from the budget)."""
   resolution = _check(env, actor_critic, config)
+  actor_critic = model_lib.with_uniform_actions(actor_critic, config.uniform_share)
   capacities = capacity_lib.Capacities() if capacities is None else capacities
   sizes = capacity_lib.sizes(capacities, config.budget, config.num_actions + 1,
                              config.edge_steps, heap_per_node=config.num_actions)
