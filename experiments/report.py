@@ -229,6 +229,15 @@ def faithful(src: Sources) -> str:
                 num(pachs['evaluated_mean']), num(pachs['batch_wall_s']),
                 num(parallel['batch_wall_s']) if parallel else '-',
                 cost_ratio(p, 'pachs-improve', 'parallel') if parallel else '-'])
+  uniform_rows = []
+  for layout in FAITHFUL_LAYOUTS:
+    without = src.load(f'uniform_cpu/{layout}_u0.json')
+    with_share = src.load(f'uniform_cpu/{layout}_u0.25.json')
+    a, b = summary_of(without, 'pachs-improve'), summary_of(with_share, 'pachs-improve')
+    uniform_rows.append([layout, solved(a), ', '.join(f'{k} {v}' for k, v in
+                                                      sorted(a['stop_reasons'].items())),
+                         solved(b), num(b['cost_success_mean'])])
+  uniform_settings = without['settings']
   policy = [src.load('training/policy_physics.json')['rows'][0],
             src.load('training/policy_physics_rand.json')['rows'][0]]
   policy_rows = [[r['task'], f'{r["success"]}/{r["instances"]}', str(r['tipped']),
@@ -262,12 +271,22 @@ def faithful(src: Sources) -> str:
       f'MuJoCo C physics on a 2-core CPU (`--backend mujoco-c`): {solved(cpu_rand)}, '
       f'{num(cpu_rand["evaluated_mean"])} evaluations per run, {num(cpu_rand["batch_wall_s"])} '
       f's for the call.',
-      'PushT-Obs, the PushT-Fixed model (trained without obstacles) on three layouts: PACHS\'s '
-      'default (the first goal\'s path improved) and the parallel rollout of 256 copies '
+      'PushT-Obs, the PushT-Fixed model (trained without obstacles) on three layouts: PACHS '
+      '(the first goal\'s path improved, every action drawn from the actor) and the parallel '
+      'rollout of 256 copies '
       '(detour\'s rollout run was cut by the command\'s time limit). Cost: mean per-run ratio '
       'over the runs both solved:',
       table(['layout', 'PACHS', 'parallel rollout', 'PACHS evaluations', 'PACHS wall (s)',
              'parallel wall (s)', 'cost / parallel'], obs),
+      'The actor, trained without obstacles, drives the stick against the hard blocks, '
+      'where every action it proposes leaves the stick where it is (the original algorithm\'s '
+      'OPEN empties; PACHS\'s chains spend the budget). '
+      'The runs above drew every action from the actor; PushT-Obs\'s default now draws a '
+      'quarter of them uniformly from the action box (`uniform_share` 0.25). On this CPU '
+      f'(MuJoCo C), {uniform_settings["instances"]} instances x {uniform_settings["rounds"]} '
+      f'seed, {uniform_settings["budget"]:,} evaluations:',
+      table(['layout', 'actor only: solved', 'its stops', 'a quarter uniform: solved',
+             'mean cost (solved)'], uniform_rows),
       'The policy alone, deterministic, in MuJoCo C on the canonical instances '
       '(`policy_physics.py`); the stick tip\'s median height while within 10 cm of the T '
       '(the T is 4 cm tall):',
@@ -937,7 +956,9 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       f'Open loop: share of runs solved (30 instances x 5 seeds; shelf: 100 targets) within '
       f'{" (shelf: ".join(f"{b:,}" for b in budgets)}) edge evaluations per run, on one '
       f'{" or one ".join(devices)}, each task\'s default, PushT on its default (faithful) '
-      f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved). Path '
+      f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved, every '
+      f'action drawn from the actor: its default now draws a quarter uniformly, measured on a '
+      f'CPU so far, [results](docs/results.md#pusht-on-the-faithful-physics-the-default)). Path '
       f'cost: mean ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` '
       f'(30 instances, one GPU, Warp, the planar physics; three machines, H200 and H100): '
       f'{span(cold)} cold, {span(warm)} warm. On a '
