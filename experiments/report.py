@@ -155,6 +155,19 @@ def solved(row: Optional[Dict]) -> str:
   return f'{row["successes"]}/{row["runs"]} ({pct(row["success_rate"])})'
 
 
+def solved_ci(row: Optional[Dict]) -> str:
+  """`solved` and the 95% interval over instances of an open-loop summary row."""
+  if row is None:
+    return '-'
+  return solved(row) + ci(row.get('instance_ci95_low'), row.get('instance_ci95_high'))
+
+
+def planner_row(task: str, row: Dict) -> List[str]:
+  """[task, planner, solved with interval, mean cost (solved), mean evaluations] of a row."""
+  return [task, row['planner'], solved_ci(row), num(row['cost_success_mean']),
+          num(row['evaluated_mean'])]
+
+
 def curve_at(payload: Dict, planner: str, budget: int) -> Tuple[int, Optional[float]]:
   """(the curve budget nearest `budget`, the planner's share of runs solved within it)."""
   budgets = payload['curve_budgets']
@@ -193,10 +206,8 @@ def open_loop_tasks(src: Sources) -> str:
                  'evaluations per run' + (f', {s["time_limit_s"]:g} s limit per call'
                                           if s.get('time_limit_s') else ''))
     for row in p['summary']:
-      rows.append([task, row['planner'], solved(row) + ci(row.get('instance_ci95_low'),
-                                                           row.get('instance_ci95_high')),
-                   num(row['cost_success_mean']), num(row['evaluated_mean']),
-                   num(row.get('evaluated_per_expanded')), num(row['batch_wall_s'])])
+      rows.append(planner_row(task, row) + [num(row.get('evaluated_per_expanded')),
+                                            num(row['batch_wall_s'])])
   return '\n\n'.join([
       '; '.join(notes) + '. ePA*SE on the shelf runs its own budget (its config in the file).',
       table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
@@ -212,20 +223,14 @@ def faithful(src: Sources) -> str:
   rows = []
   for task, name in (('PushT-Fixed', 'pusht-fixed'), ('PushT-Rand', 'pusht-rand')):
     for row in src.load(f'faithful_gpu/{name}.json')['summary']:
-      rows.append([task, row['planner'], solved(row) + ci(row.get('instance_ci95_low'),
-                                                           row.get('instance_ci95_high')),
-                   num(row['cost_success_mean']), num(row['evaluated_mean']),
-                   num(row['batch_wall_s'])])
+      rows.append(planner_row(task, row) + [num(row['batch_wall_s'])])
   cpu_rand = summary_of(src.load('faithful_cpu/pusht-rand.json'), 'pachs')
   settings = src.load('faithful_gpu/gate.json')['settings']
   obs = []
   for layout in FAITHFUL_LAYOUTS:
     p = src.load(f'faithful_gpu/{layout}.json')
     pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
-    obs.append([layout, solved(pachs) + ci(pachs.get('instance_ci95_low'),
-                                           pachs.get('instance_ci95_high')),
-                solved(parallel) + (ci(parallel.get('instance_ci95_low'),
-                                       parallel.get('instance_ci95_high')) if parallel else ''),
+    obs.append([layout, solved_ci(pachs), solved_ci(parallel),
                 num(pachs['evaluated_mean']), num(pachs['batch_wall_s']),
                 num(parallel['batch_wall_s']) if parallel else '-',
                 cost_ratio(p, 'pachs-improve', 'parallel') if parallel else '-'])
@@ -832,9 +837,9 @@ def training(src: Sources) -> str:
       table(['engine', 'envs', 'physics env steps/s', 'training env steps/s', 'epoch (s)',
              'physics compile (s)'], speed_rows),
       'Training runs on the faithful physics with Warp, 2,048 envs each (three of the first '
-      'four beside another run on their GPU, the last four alone). Success: the training episodes\' over the last '
-      'tenth of the epochs, and the best periodic evaluation (256 instances, deterministic '
-      'policy); return: the training episodes\' mean. A tipped T ends an episode; charged '
+      'four beside another run on their GPU, the last four alone). Success: the training '
+      'episodes\' over the last tenth of the epochs, and the best periodic evaluation (256 '
+      'instances, deterministic policy); return: the training episodes\' mean. A tipped T ends an episode; charged '
       'nothing, it was the cheapest end (rewards are negative costs) and the policy tipped the '
       'T on purpose; charged 25, the policy left the T alone. Two changes made the task '
       'learnable: the failed end charged as absorbing (its step cost as if kept for ever, '
