@@ -31,7 +31,7 @@ P = pusht.PushTConfig
 # Every named candidate below is PushTConfig physics fields over the 'planar' preset (the default
 # when they were written); 'faithful' spells out today's defaults.
 BASE = pusht.PHYSICS_PRESETS['planar']
-TODAY = dict()  # the planar preset itself
+PLANAR = dict()  # the planar preset itself
 FAITHFUL = {f: getattr(P(), f) for f in pusht.PHYSICS_FIELDS}
 MANISKILL_STEP = dict(physics_dt=0.01, substeps=5)
 HARD = dict(block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.0005, 0.5, 2))
@@ -57,7 +57,7 @@ PENETRATION = {
     'faithful margin1mm': dict(FAITHFUL, block_margin=0.001),
     'faithful 1.25ms x40': dict(FAITHFUL, physics_dt=0.00125, substeps=40,
                                 block_solref=(0.0025, 1.0)),
-    'planar': TODAY,
+    'planar': PLANAR,
     '10ms x5': MANISKILL_STEP,
     '10ms x5 hard': dict(**MANISKILL_STEP, **HARD),
     '5ms x10 hard': dict(physics_dt=0.005, substeps=10, **HARD),
@@ -73,7 +73,7 @@ PENETRATION = {
 }
 AGREEMENT = {
     'faithful': FAITHFUL,
-    'planar': TODAY,
+    'planar': PLANAR,
     'newton 10/20': dict(solver_iterations=10, ls_iterations=20),
     '10ms x5': MANISKILL_STEP,
     '10ms x5 newton 10/20': dict(**MANISKILL_STEP, solver_iterations=10, ls_iterations=20),
@@ -182,7 +182,7 @@ def run_reference(args, layouts, policies, starts_of):
     begins = agreement.replay_begins(args.steps, length)
     truth = agreement.truth_at(roll, begins, length)
     qpos, qvel = roll.planar()
-    for name, fields in {ref_name + ' (float64 replay)': ref_fields, 'planar': TODAY,
+    for name, fields in {ref_name + ' (float64 replay)': ref_fields, 'planar': PLANAR,
                          **PLANAR_FITS}.items():
       cfg = config_of(layout, fields)
       world = agreement.CWorld(cfg)
