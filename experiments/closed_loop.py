@@ -99,6 +99,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = planner.default_config(task, algorithm, budget=args.budget,
                                     **flags.search_overrides(args))
     session = replan.Session(env, model, config, candidates=args.candidates,
+                             plant_remainder=bool(args.plant_remainder),
                              chunk_iterations=args.chunk_iterations)
 
     def query(nodes, keys, executed):
@@ -380,6 +381,9 @@ def main():
                       help="what competes with PACHS's path in each query (replan.Session): "
                       "'remainder' (the last answer's unexecuted actions), 'policy' (the "
                       "policy's rollout); '' the search's path alone")
+  parser.add_argument('--plant-remainder', type=int, default=0, choices=[0, 1],
+                      help="1: each PACHS search's tree begins with the last answer's remainder "
+                      '(replan.Session.plant_remainder)')
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--server', default=None,

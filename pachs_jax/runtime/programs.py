@@ -173,7 +173,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
          started: Optional[Callable[[], object]] = None,
-         compile_first: bool = False) -> SearchResult:
+         compile_first: bool = False, seed=None) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -200,6 +200,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     wider pops) as instances stop (each one more program to compile or load); False runs the
     whole search in the loop of the live instances' layout
     (the one-shot `pachs plan`: a shorter start-up for a longer search).
+  seed: a `search.seed.Seed` [I] of known paths from the starts that the search's tree begins
+    with (a replanning query's last answer; None: the starts alone).
   """
   if time_limit_s is not None and (isinstance(time_limit_s, bool)
                                    or not isinstance(time_limit_s, numbers.Real)
@@ -244,35 +246,38 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     checked = threads.submit(check_model, env, actor_critic, start_nodes, config.num_actions,
                              stored('model check'), owner)
     if padded != num_instances:
-      start_nodes, keys = pad_rows((start_nodes, keys), padded)
+      start_nodes, keys, seed = pad_rows((start_nodes, keys, seed), padded)
     live = jax.device_put(np.arange(padded) < num_instances)
-    new = 'init' not in programs
+    init_name, init_args = (('init', (start_nodes, keys, live)) if seed is None else
+                            ('init seeded', (start_nodes, keys, live, seed)))
+    new = init_name not in programs
     if new:
-      programs['init'] = compiled_program(search.init, (start_nodes, keys, live), stored('init'))
+      programs[init_name] = compiled_program(search.init, init_args, stored(init_name))
       # a budget that cannot fit is refused before the result and loops compile (traced only)
       check_memory(env, actor_critic, start_nodes, config, search, padded,
-                   need=memory.tree_bytes((programs['init'].out_shapes, jax.eval_shape(
-                       search.result, programs['init'].out_shapes))))
-      result = threads.submit(compiled_program, search.result,
-                              (programs['init'].out_shapes,), stored('result'))
+                   need=memory.tree_bytes((programs[init_name].out_shapes, jax.eval_shape(
+                       search.result, programs[init_name].out_shapes))))
+    if 'result' not in programs:
+      programs['result'] = threads.submit(compiled_program, search.result,
+                                          (programs[init_name].out_shapes,), stored('result'))
     for lanes in reachable:
       if ('loop', lanes) not in programs:
         programs[('loop', lanes)] = threads.submit(
             compiled_program,
             jax.jit(lambda state, n, shrink, lanes=lanes: search.loop(state, n, lanes, shrink),
                     donate_argnums=0),
-            (programs['init'].out_shapes, steps, shrinking), stored(_loop_name(lanes)),
+            (programs[init_name].out_shapes, steps, shrinking), stored(_loop_name(lanes)),
             donate_argnums=(0,))
     _wait(checked, stop)  # a bad model's error before anything runs
-    if new:
-      programs['result'] = _wait(result, stop)
+    if isinstance(programs['result'], concurrent.futures.Future):
+      programs['result'] = _wait(programs['result'], stop)
     for lanes in reachable[:1] if time_limit_s is None and not compile_first else reachable:
       if isinstance(programs[('loop', lanes)], concurrent.futures.Future):
         programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)
     if stop is not None and stop():
       raise signals.StoppedBeforeSearch('stopped while the programs compiled')
     waiting = {'s': 0.0}  # for the smaller loops during the search
-    state = programs['init'](start_nodes, keys, live)
+    state = programs[init_name](*init_args)
     if started is not None:
       started()
 

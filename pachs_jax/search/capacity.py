@@ -20,6 +20,7 @@ class Capacities:
   pool: nodes (None: one per edge the budget pays for, and the start).
   table: lattice-table slots, a power of two (None: the power of two >= 2 * pool).
   max_path_length: actions kept in a returned path (longer paths keep their first ones).
+  planted: nodes a `seed.Seed` may add at the start (`pachs.plant`), beyond the budget's.
   """
 
   max_iterations: Optional[int] = None
@@ -27,10 +28,13 @@ class Capacities:
   pool: Optional[int] = None
   table: Optional[int] = None
   max_path_length: int = 1024
+  planted: int = 0
 
   def __post_init__(self):
     normalize_numbers(self)
     positive_int('Capacities', 'max_path_length', self.max_path_length)
+    if isinstance(self.planted, bool) or not isinstance(self.planted, int) or self.planted < 0:
+      raise ValueError(f'Capacities.planted must be an int >= 0, got {self.planted!r}')
     for name in ('max_iterations', 'heap', 'pool', 'table'):
       positive_int('Capacities', name, getattr(self, name), allow_none=True)
     if self.table is not None and self.table & (self.table - 1):
@@ -59,7 +63,8 @@ def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps:
   capacities = Capacities() if capacities is None else capacities
   if not isinstance(capacities, Capacities):
     raise ValueError(f'capacities must be a Capacities, got {type(capacities).__name__}')
-  edges = budget // edge_steps + 1  # the edges the budget pays for, and the start's
+  # the edges the budget pays for, the start's and the planted nodes'
+  edges = budget // edge_steps + 1 + capacities.planted
   pool = capacities.pool or edges
   if pool * slots >= INT32_LIMIT:
     raise ValueError(f'the pool capacity * (edges per node + 1) must stay below 2**31 (heap '

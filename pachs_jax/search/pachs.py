@@ -22,6 +22,7 @@ from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search import rules as rules_lib
+from pachs_jax.search import seed as seed_lib
 from pachs_jax.search import segment
 from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
                                      instance_keys)
@@ -64,8 +65,9 @@ class Lanes(NamedTuple):
 class Search:
   """PACHS bound to one environment, actor-critic and config (jitted functions).
 
-  init(start_nodes [I], keys [I, 2], live [I] bool) -> SearchState with the start states'
-    dummy edges in OPEN; instances that are not live (padding) start stopped.
+  init(start_nodes [I], keys [I, 2], live [I] bool, seed=None) -> SearchState with the start
+    states' dummy edges in OPEN; instances that are not live (padding) start stopped; a
+    `seed.Seed` [I] puts known paths from the starts into the tree (`plant`).
   loop(state, num_iterations, lanes, shrink=True) -> state after at most num_iterations more
     iterations laid out as `lanes` (a `Lanes`; None: Lanes()), with shrink (a traced bool)
     stopping early once another layout applies to the active instances (the input state's
@@ -313,6 +315,44 @@ def insert(parts: Parts, state: SearchState, expansion: Expansion,
                        lanes_offered=state.lanes_offered + k * state.active)
 
 
+def plant(parts: Parts, state: SearchState, seed: seed_lib.Seed) -> SearchState:
+  """state with the seed's paths [I] in its tree: every H transitions a node of its own (outside
+  the lattice, as a chain's successor), its parent the one before, its dummy edge in OPEN (key
+  g + w h, h the critic's for an actor sample there) and its cell counted for the chains'
+  restarts; a path that ends at a goal is the incumbent (the first goal, found before the
+  first iteration). A path stops at its first node that finds no room (the pool and OPEN are sized for
+  the budget's edges)."""
+  config, env, steps = parts.config, parts.env, parts.rules.edges.steps
+  num_instances = seed.length.shape[0]
+  edges = seed_lib.num_edges(seed.horizon, steps)
+  keys = lane_keys(state, 4, edges)
+  pool, table, visits, dummy_heap = state.pool, state.table, state.visits, state.dummy_heap
+  incumbent = state.incumbent
+  parent = jnp.full((num_instances,), pool_lib.ROOT_INDEX, jnp.int32)
+  alive = jnp.ones((num_instances,), bool)
+  own = jnp.ones((num_instances, 1), bool)
+  for index in range(edges):
+    action, outcome, present = seed_lib.edge(seed, index, steps)
+    obs = env.observe(outcome.next_node)
+    sample = segment.actor_samples(parts.actor_critic, keys[:, index], obs)
+    h = cost_to_go(parts.actor_critic.q_values(obs, sample[:, None]))
+    outcome = outcome.replace(is_goal=env.is_goal(outcome.next_node) & present)
+    usable = (present & alive)[:, None]
+    cells = env.lattice_key(outcome.next_node, parts.resolution)[:, None]
+    pool, table, dummy_key, node, write = phases.insert(
+        pool, table, cells, parent[:, None], jax.tree.map(lambda x: x[:, None], outcome),
+        usable, action[:, None], h, config.weight, unmerged=own)
+    visits = parts.rules.restart.record(visits, node, write, cells)
+    dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * parts.slots + config.num_actions,
+                               write)
+    incumbent = improve.offer(incumbent, pool, write[:, 0] & outcome.is_goal, node[:, 0])
+    parent, alive = node[:, 0], write[:, 0] & ~outcome.is_goal
+  # a node that finds no room is left out, not counted as the search's overflow
+  return state.replace(pool=pool.replace(overflow=state.pool.overflow), table=table,
+                       visits=visits, incumbent=incumbent,
+                       dummy_heap=dummy_heap.replace(overflow=state.dummy_heap.overflow))
+
+
 def step(parts: Parts, state: SearchState, lanes: Lanes) -> SearchState:
   """One iteration of every instance: expansion, evaluation, insertion."""
   expansion = expand(parts, state)
@@ -336,13 +376,14 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   k, n, r, steps = config.pop_size, config.num_actions, config.rollout_lanes, rules.edges.steps
   slots, dummy = parts.slots, n  # edge slots per node; the dummy edge's slot
 
-  def init(start_nodes: base.NodeState, keys: jax.Array, live=None) -> SearchState:
+  def init(start_nodes: base.NodeState, keys: jax.Array, live=None,
+           seed: Optional[seed_lib.Seed] = None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
     start_cells = env.lattice_key(start_nodes, resolution)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
                                sizes.pool, sizes.table, n, env.action_size, steps)
     dummy_heap = heap_lib.init(num_instances, sizes.dummy_heap, k)
-    return SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
+    state = SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
@@ -350,6 +391,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
                        incumbent=improve.init(num_instances, config.budget),
                        **phases.start_state(pool, table, live))
+    return state if seed is None else plant(parts, state, seed)
 
   def loop(state: SearchState, num_iterations, lanes: Optional[Lanes] = None,
            shrink=True) -> SearchState:

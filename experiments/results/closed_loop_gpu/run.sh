@@ -1,39 +1,52 @@
-# The closed loop on PushT-Obs (one GPU, Warp planners, MuJoCo C worlds unless the variant says
-# otherwise), each planner alone on the GPU, one after another: 20 instances x 5 rounds.
-# Items LAYOUT/VARIANT; variants: pachs (replan.Session, its default candidates), pachs-alone
-# (the search's path alone), parallel (the parallel rollout), and any of
-# them with '-planner-world' (the plans executed in the planners' own physics).
+#!/usr/bin/env bash
+# The closed loop on PushT-Obs (Warp planners, MuJoCo C worlds unless the variant says
+# otherwise), one line of runs per GPU of the host, each line alone on its GPU, one run after
+# another, all within one device command (570 s): 20 instances x 5 rounds per run.
+# A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, its default
+# candidates) or parallel (the parallel rollout), then options joined by '-': alone (the
+# search's path alone), plant (the remainder planted in the search's tree), k<N> (N edges per
+# iteration), planner-world (the plans executed in the planners' own physics). A line is a
+# comma-separated list of runs:
+#   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
+#     'wall/parallel,detour/parallel'
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does.
-# run as: bash experiments/results/closed_loop_gpu/run.sh detour/pachs detour/parallel ...
-source experiments/results/default_gpu_runs/common.sh
-python3 -m compileall -q -j 16 /tmp/site > /dev/null 2>&1
-END=$((SECONDS + ${BUDGET_S:-570}))
+set -u
+if [ "$#" -lt 1 ]; then
+  echo "usage: OUT=dir bash $0 RUNS [RUNS ...] (one line per GPU; a run: LAYOUT/VARIANT)" >&2
+  exit 2
+fi
+END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
+o=$OUT/r; mkdir -p "$o"
 CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp}"
-[ "${WARM:-1}" = 1 ] && LABEL=warp_kernels wall $CL --layout gate --planners pachs --instances 1 --rounds 1 \
-  --max-queries 2 --out /tmp/warp_kernels.json > $O/warp_kernels.log 2>&1
-for item in "$@"; do
-  L=${item%%/*}; V=${item#*/}; flags=()
-  case $V in *-planner-world) flags+=(--world planner); V0=${V%-planner-world};; *) V0=$V;; esac
-  case $V0 in
-    pachs) flags+=(--planners pachs);;
-    pachs-alone) flags+=(--planners pachs --candidates '');;
-    parallel) flags+=(--planners parallel);;
-    *) echo "unknown variant $V0"; continue;;
+$CL --layout gate --planners pachs --instances 1 --rounds 1 --max-queries 2 \
+  --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
+run() {  # the command line of one run
+  local layout=${1%%/*} variant=${1#*/} flags=()
+  local planner=${variant%%-*} opts=${variant#*-}
+  [ "$opts" = "$variant" ] && opts=''
+  case $planner in
+    pachs|parallel) flags+=(--planners "$planner") ;;
+    *) echo "echo unknown planner $planner"; return ;;
   esac
-  LABEL=$L/$V wall timeout $((END - SECONDS)) $CL --layout $L "${flags[@]}" \
-    $EXTRA --out $O/${L}_$V.json > $O/${L}_$V.log 2>&1
-  python3 - $O/${L}_$V.json <<'PY'
-import json, sys
-try:
-  d = json.load(open(sys.argv[1]))
-except Exception as e:
-  print(sys.argv[1], 'missing', e); sys.exit()
-for s in d['summary']:
-  print(sys.argv[1].split('/')[-1], s['successes'], '/', s['episodes'], 'evals/q',
-        round(s['evaluations_per_query_mean'] or 0), 'it/q', s.get('iterations_per_query_mean'),
-        'q_s', round(s['query_time_s_mean'] or 0, 3), 'answers', s.get('answers'),
-        'empty_search', s.get('empty_search'), 'follow_s', s.get('follow_s_mean'), flush=True)
-PY
+  for opt in ${opts//-/ }; do
+    case $opt in
+      alone) flags+=(--candidates "''") ;;
+      plant) flags+=(--plant-remainder 1) ;;
+      k[0-9]*) flags+=(-K "${opt#k}") ;;
+      planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
+      *) echo "echo unknown option $opt"; return ;;
+    esac
+  done
+  echo "$CL --layout $layout ${flags[*]} --out $o/${layout}_$variant.json" \
+       "> $o/${layout}_$variant.log 2>&1; echo $1; tail -c 900 $o/${layout}_$variant.log"
+}
+: > /tmp/jobs
+for line in "$@"; do
+  commands=()
+  IFS=',' read -ra names <<< "$line"
+  for name in "${names[@]}"; do commands+=("$(run "$name")"); done
+  (IFS=';'; echo "${commands[*]}") >> /tmp/jobs
 done
-cat $O/walls.txt
-cd $OUT && tar czf r.tgz r && rm -rf r
+cat /tmp/jobs
+bash experiments/parallel_gpus.sh /tmp/jobs "$o/logs" $((END - SECONDS))
+cd "$OUT" && tar czf closed_loop.tgz r && rm -rf r
