@@ -376,11 +376,11 @@ def main():
   flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
                                  'compact_fractions'],
                          defaults={'compact_fractions': COMPACT_FRACTIONS})
-  parser.add_argument('--candidates', default=','.join(replan.CANDIDATES),
+  parser.add_argument('--candidates', default=','.join(replan.DEFAULT_CANDIDATES),
                       type=lambda text: tuple(c for c in text.split(',') if c),
                       help="what competes with PACHS's path in each query (replan.Session): "
                       "'remainder' (the last answer's unexecuted actions), 'policy' (the "
-                      "policy's rollout); '' the search's path alone")
+                      "policy's rollout); '' (the default) the search's path alone")
   parser.add_argument('--plant-remainder', type=int, default=0, choices=[0, 1],
                       help="1: each PACHS search's tree begins with the last answer's remainder "
                       '(replan.Session.plant_remainder)')
@@ -405,6 +405,8 @@ def main():
   if not names or unknown:
     parser.error(f'--planners: {"unknown " + ", ".join(unknown) if unknown else "none named"}; '
                  f'valid: {", ".join(PLANNERS)}')
+  if args.plant_remainder and 'remainder' not in args.candidates:
+    parser.error("--plant-remainder 1 needs 'remainder' in --candidates")
   unknown = sorted(set(args.candidates) - set(replan.CANDIDATES))
   if unknown:
     parser.error(f'--candidates: unknown {", ".join(unknown)}; valid: '

@@ -453,39 +453,57 @@ def answer_counts(row: Dict) -> str:
   return ', '.join(f'{label} {answers[name]:,}' for name, label in names)
 
 
+# the closed-loop runs on the faithful physics: file suffix -> what ran
+CLOSED_LOOP_VARIANTS = (
+    ('pachs', "PACHS (the default: the search's path alone, K 64)"),
+    ('pachs-k256', "PACHS, K 256"),
+    ('pachs-remainder-policy', 'PACHS, candidates remainder + policy'),
+    ('pachs-k256-remainder-policy', 'PACHS, K 256, candidates remainder + policy'),
+    ('parallel', 'parallel rollout (256 copies)'),
+)
+
+
 def closed_loop_sessions(src: Sources) -> str:
-  """The closed loop on one GPU with Warp planners: PACHS replanning through `replan.Session`
-  against the parallel rollout."""
+  """The closed loop on the faithful physics, one GPU per planner, Warp planners: PACHS's
+  variants against the parallel rollout."""
   folder = 'closed_loop_gpu'
-  rows = []
+  rows, first = [], None
   for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
-    p = src.load(f'{folder}/{layout}_pachs.json')
-    r = (src.load(f'{folder}/{layout}_parallel.json')
-         if src.exists(f'{folder}/{layout}_parallel.json') else None)
-    a, b = summary_of(p, 'pachs'), r and summary_of(r, 'parallel')
-    ratio = (num(a['evaluations_per_query_mean'] / b['evaluations_per_query_mean'], 2)
-             if b else '-')
-    rows.append([layout, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                 f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}' if b else '-',
-                 num(a['evaluations_per_query_mean']), ratio,
-                 num(a['iterations_per_query_mean']), num(a['follow_s_mean'], 2),
-                 answer_counts(a), str(a['empty_search']['t_off_table_queries'])])
-  p = src.load(f'{folder}/gate_pachs.json')
-  s, prov = p['settings'], p['provenance']
+    rollout = (summary_of(src.load(f'{folder}/{layout}_parallel.json'), 'parallel')
+               if src.exists(f'{folder}/{layout}_parallel.json') else None)
+    for variant, label in CLOSED_LOOP_VARIANTS:
+      name = f'{folder}/{layout}_{variant}.json'
+      if not src.exists(name):
+        continue
+      p = src.load(name)
+      first = first or p
+      a = summary_of(p, variant.split('-')[0])
+      edges = a['evaluations_per_query_mean']
+      is_pachs = variant != 'parallel'
+      rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+                   num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
+                   if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
+                   num(a['follow_s_mean'], 2) if is_pachs else '-',
+                   answer_counts(a) if is_pachs else '-'])
+  s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
-      f'One GPU ({prov["device"]}), Warp planners, MuJoCo C worlds; each planner alone on the '
-      f'GPU (`{folder}/run.sh`). {s["instances"]} instances x {s["rounds"]} rounds per layout '
-      f'and planner, {s["query_time"]:g} s per query for all episodes together, '
-      f'{s["execute"]} actions executed per query, at most {s["max_queries"]} queries; 95% '
-      'intervals over the instances. PACHS replans through `replan.Session`: each answer is the '
-      "best of the search's path, the last answer's unexecuted remainder and the policy's "
-      "rollout, simulated in the planner's physics (docs/closed_loop.md). gate-mirror and "
-      'wall-right are the held-out layouts. The slot rollout run was cut by the command\'s time '
-      'limit.',
-      table(['layout', 'PACHS', 'parallel rollout', 'PACHS edges per query and episode',
-             'PACHS / rollout edges', 'PACHS iterations per query',
-             'candidates followed (s per query)', 'PACHS answers',
-             'queries with the T off the table'], rows)])
+      f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
+      f'worlds, each planner alone on its GPU ({prov["device"]}; `{folder}/run.sh`, two GPUs '
+      f'side by side). {s["instances"]} instances x {s["rounds"]} rounds per layout and planner, '
+      f'all {s["instances"] * s["rounds"]} episodes planned together, {s["query_time"]:g} s per '
+      f'query, {s["execute"]} actions executed per query, at most {s["max_queries"]} queries; 95% '
+      'intervals over the instances. PACHS replans through `replan.Session` '
+      '(docs/closed_loop.md); with the candidates, each answer is the best of the search\'s path, '
+      'the last answer\'s unexecuted remainder and the policy\'s rollout, both followed in the '
+      'planner\'s physics before the search. Each file is named by what ran (its command '
+      'names the file it was written as). Gate\'s default (K 64, the path alone) did not run.',
+      table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
+             'iterations per query', 'candidates followed (s per query)', 'PACHS answers'],
+            rows),
+      'Following the candidates over the episode\'s horizon took half of each query on this '
+      'physics (20 physics steps per action), and they won few answers; the search\'s path alone '
+      'solved more episodes, and is the default. Four times the edges per iteration (K 256) '
+      'evaluated twice the edges per query and solved no more.'])
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
@@ -665,6 +683,35 @@ def cells_alike(src: Sources) -> str:
           'later at middle budgets')
 
 
+def closed_loop_rate(src: Sources, layout: str, variant: str) -> str:
+  """'92%' of a closed-loop run (closed_loop_gpu/LAYOUT_VARIANT.json)."""
+  p = src.load(f'closed_loop_gpu/{layout}_{variant}.json')
+  return pct(summary_of(p, variant.split('-')[0])['success_rate'])
+
+
+def closed_loop_candidates(src: Sources) -> str:
+  """The candidates against the search's path alone (wall, K 64 and K 256)."""
+  a = summary_of(src.load('closed_loop_gpu/wall_pachs-remainder-policy.json'), 'pachs')
+  won = a['answers']['remainder'] + a['answers']['policy']
+  return (f'wall {closed_loop_rate(src, "wall", "pachs-remainder-policy")} against '
+          f'{closed_loop_rate(src, "wall", "pachs")} alone (K 256: '
+          f'{closed_loop_rate(src, "wall", "pachs-k256-remainder-policy")} against '
+          f'{closed_loop_rate(src, "wall", "pachs-k256")}); following them took '
+          f'{a["follow_s_mean"]:.1f} s of each 3 s query and they won {won} of '
+          f'{sum(a["answers"].values()):,} answers')
+
+
+def closed_loop_k256(src: Sources) -> str:
+  """K 256 against K 64, the search's path alone (wall, detour)."""
+  edges = lambda layout, variant: summary_of(src.load(
+      f'closed_loop_gpu/{layout}_{variant}.json'), 'pachs')['evaluations_per_query_mean']
+  return (f'{edges("wall", "pachs-k256") / edges("wall", "pachs"):.1f}x the edges per query; '
+          f'wall {closed_loop_rate(src, "wall", "pachs-k256")} against '
+          f'{closed_loop_rate(src, "wall", "pachs")}, detour '
+          f'{closed_loop_rate(src, "detour", "pachs-k256")} against '
+          f'{closed_loop_rate(src, "detour", "pachs")}')
+
+
 OPEN_LOOP_FILES = 'in this tree: `open_loop_pusht-obs_<layout>.json`'
 
 # What was measured and not kept: (what it changed, its result: text or a function of the
@@ -700,10 +747,14 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('Chains restart at the start with probability 0.25, at novel cells otherwise',
      'no lag behind the rollout removed on gate; fewer runs solved on two-gaps and detour',
      '`9e669eb`: `start_share_gpu/`'),
-    ('Closed loop: the search\'s path alone, without the session\'s candidates',
-     'fewer episodes solved than the session on detour and wall-right (measured while edges '
-     'from a T off the table square were invalid)',
-     '`bbc0798`: `closed_loop_gpu/before_table_fix/`'),
+    ('Closed loop: the session\'s candidates (the remainder and the policy\'s rollout, '
+     'followed before each search)', closed_loop_candidates,
+     'in this tree: `closed_loop_gpu/*_pachs-remainder-policy.json`; on the planar physics, '
+     'where they won: `9053f4e`: `closed_loop_gpu/`, `bbc0798`: `closed_loop_gpu/before_table_fix/`'),
+    ('Closed loop: K 256 edges per iteration', closed_loop_k256,
+     'in this tree: `closed_loop_gpu/*_pachs-k256*.json`'),
+    ('Closed loop on the planar physics (Warp planners, sessions with both candidates)',
+     'superseded by the faithful physics\' runs', '`9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop with MJX planners (float32 plans executed in MuJoCo C), also with the plans '
      'executed in the planners\' own physics',
      'PushT-Fixed and PushT-Rand solved in nearly every episode by every planner; on the layouts '
@@ -874,7 +925,7 @@ SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('The layouts: the policy alone', policy_per_layout),
     ('Open loop: PushT-Fixed, PushT-Rand, Panda-Shelf', open_loop_tasks),
     ('Open loop: the original paper\'s planners on the layouts', paper_open_loop),
-    ('Closed loop: replanning sessions on Warp', closed_loop_sessions),
+    ('Closed loop on the faithful physics', closed_loop_sessions),
     ('Speed and start-up', speed),
     ('Physics engines: MuJoCo Warp, MJX and MuJoCo C', engines),
     ('MuJoCo Playground', playground),

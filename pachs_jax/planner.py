@@ -238,7 +238,7 @@ class Planner:
         raise
 
   def session(self, horizon: Optional[int] = None,
-              candidates: Sequence[str] = replan.CANDIDATES) -> replan.Session:
+              candidates: Sequence[str] = replan.DEFAULT_CANDIDATES) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
     env, model, config and compiled programs, keeping its last answer between queries
     (horizon and candidates as there)."""

@@ -175,6 +175,9 @@ def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int)
 
 
 CANDIDATES = ('remainder', 'policy')
+# none: on PushT's faithful physics, following them took half of a 3 s query on an H200 and they
+# won few answers; the search's path alone solved more episodes (docs/results.md, closed loop)
+DEFAULT_CANDIDATES = ()
 
 
 @dataclasses.dataclass
@@ -188,7 +191,8 @@ class Session:
     room for the planted remainder's nodes).
   horizon: T, the actions an answer keeps and the policy's rollout takes at most (None: the
     env's episode length).
-  candidates: which of `CANDIDATES` compete with the search's path ('remainder', 'policy').
+  candidates: which of `CANDIDATES` compete with the search's path ('remainder', 'policy';
+    `DEFAULT_CANDIDATES`: none).
   chunk_iterations: as in `programs.plan`.
   mesh: a `jax.sharding.Mesh` over which the search splits the episodes
     (`sharding.ShardedSearch`; None: one device, `programs.plan` with its lane compaction).
@@ -201,7 +205,7 @@ class Session:
   config: object
   search: Optional[programs.Programs] = None
   horizon: Optional[int] = None
-  candidates: Sequence[str] = CANDIDATES
+  candidates: Sequence[str] = DEFAULT_CANDIDATES
   chunk_iterations: Optional[int] = None
   mesh: Optional[object] = None
   plant_remainder: bool = False
@@ -215,6 +219,8 @@ class Session:
     if not hasattr(self.actor_critic, 'deterministic_action'):
       raise ValueError('replanning needs an actor-critic with deterministic_action(obs) (the '
                        'policy candidate)')
+    if self.plant_remainder and 'remainder' not in self.candidates:
+      raise ValueError("plant_remainder needs the 'remainder' candidate")
     if self.plant_remainder and self.mesh is not None:
       raise ValueError('plant_remainder needs a search on one device (mesh None)')
     if self.horizon is None:
@@ -275,11 +281,13 @@ class Session:
     """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
     [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
     that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
-    `plan`. bucket: a power of two >= E that the follow and the search are padded to (one
+    `plan`; the remainder is dropped unless 'remainder' is a candidate. bucket: a power of two >= E that the follow and the search are padded to (one
     compiled program for every E up to it; None: E's own bucket)."""
     num = jax.tree.leaves(states)[0].shape[0]
     key = jax.random.PRNGKey(0) if key is None else key
     horizon = self.horizon
+    if 'remainder' not in self.candidates:  # nothing to follow
+      length = jnp.zeros_like(length)
     rows = num if bucket is None else bucket
     if rows < num:
       raise ValueError(f'bucket {bucket} holds fewer than the {num} episodes')

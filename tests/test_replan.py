@@ -214,7 +214,9 @@ def test_a_planted_remainder_is_the_search_s_own_goal(env):
 @pytest.mark.parametrize('kwargs, message', [
     ({'candidates': ('remainder', 'previous')}, "unknown replanning candidate 'previous'"),
     ({'horizon': 0}, 'horizon must be a positive int'),
-    ({'plant_remainder': True, 'mesh': object()}, 'plant_remainder needs a search on one'),
+    ({'plant_remainder': True}, "plant_remainder needs the 'remainder' candidate"),
+    ({'plant_remainder': True, 'candidates': ('remainder',), 'mesh': object()},
+     'plant_remainder needs a search on one'),
 ])
 def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):

@@ -2,13 +2,13 @@
 # The closed loop on PushT-Obs (Warp planners, MuJoCo C worlds unless the variant says
 # otherwise), one line of runs per GPU of the host, each line alone on its GPU, one run after
 # another, all within one device command (570 s): 20 instances x 5 rounds per run.
-# A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, its default
-# candidates) or parallel (the parallel rollout), then options joined by '-': alone (the
-# search's path alone), plant (the remainder planted in the search's tree), k<N> (N edges per
-# iteration), planner-world (the plans executed in the planners' own physics). A line is a
-# comma-separated list of runs:
+# A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, the search's path
+# alone by default) or parallel (the parallel rollout), then options joined by '-': remainder,
+# policy (the session's candidates), plant (the remainder planted in the search's tree), k<N>
+# (N edges per iteration), planner-world (the plans executed in the planners' own physics).
+# A line is a comma-separated list of runs (the results' runs: 2 GPUs, three commands):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
-#     'wall/parallel,detour/parallel'
+#     'wall/parallel,wall/pachs-remainder-policy'
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does.
 set -u
 if [ "$#" -lt 1 ]; then
@@ -28,15 +28,17 @@ run() {  # the command line of one run
     pachs|parallel) flags+=(--planners "$planner") ;;
     *) echo "echo unknown planner $planner"; return ;;
   esac
+  local candidates=()
   for opt in ${opts//-/ }; do
     case $opt in
-      alone) flags+=(--candidates "''") ;;
+      remainder|policy) candidates+=("$opt") ;;
       plant) flags+=(--plant-remainder 1) ;;
       k[0-9]*) flags+=(-K "${opt#k}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
+  flags+=(--candidates "'$(IFS=,; echo "${candidates[*]}")'")
   echo "$CL --layout $layout ${flags[*]} --out $o/${layout}_$variant.json" \
        "> $o/${layout}_$variant.log 2>&1; echo $1; tail -c 900 $o/${layout}_$variant.log"
 }
