@@ -99,7 +99,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = planner.default_config(task, algorithm, budget=args.budget,
                                     **flags.search_overrides(args))
     session = replan.Session(env, model, config, candidates=args.candidates,
-                             plant_remainder=bool(args.plant_remainder),
+                             replay_remainder=bool(args.replay_remainder),
                              chunk_iterations=args.chunk_iterations)
 
     def query(nodes, keys, executed):
@@ -381,9 +381,9 @@ def main():
                       help="what competes with PACHS's path in each query (replan.Session): "
                       "'remainder' (the last answer's unexecuted actions), 'policy' (the "
                       "policy's rollout); '' (the default) the search's path alone")
-  parser.add_argument('--plant-remainder', type=int, default=0, choices=[0, 1],
-                      help="1: each PACHS search's tree begins with the last answer's remainder "
-                      '(replan.Session.plant_remainder)')
+  parser.add_argument('--replay-remainder', type=int, default=0, choices=[0, 1],
+                      help="1: each PACHS search's first chain lane replays the last answer's "
+                      'remainder (replan.Session.replay_remainder)')
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--server', default=None,
@@ -405,8 +405,6 @@ def main():
   if not names or unknown:
     parser.error(f'--planners: {"unknown " + ", ".join(unknown) if unknown else "none named"}; '
                  f'valid: {", ".join(PLANNERS)}')
-  if args.plant_remainder and 'remainder' not in args.candidates:
-    parser.error("--plant-remainder 1 needs 'remainder' in --candidates")
   unknown = sorted(set(args.candidates) - set(replan.CANDIDATES))
   if unknown:
     parser.error(f'--candidates: unknown {", ".join(unknown)}; valid: '

@@ -17,7 +17,6 @@ from pachs_jax import trees
 from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import base
 from pachs_jax.search import capacity
-from pachs_jax.search import seed as seed_lib
 from pachs_jax.search.result import SearchResult
 
 # `Session.plan`'s `executed` for an episode whose last answer was not followed as given
@@ -50,7 +49,6 @@ class Followed:
     before its first invalid edge.
   reached_goal: [B] bool the path ends at a goal state (a start at a goal counts, steps 0).
   cost: [B] float32 the applied edges' summed cost (the env's cost units).
-  step_cost: [B, T] float32 each applied edge's cost (0 past steps).
   states: NodeState [B, T + 1, ...] the states along the path, the start first (rows past
     steps repeat the last).
   """
@@ -59,7 +57,6 @@ class Followed:
   steps: jax.Array
   reached_goal: jax.Array
   cost: jax.Array
-  step_cost: jax.Array
   states: base.NodeState
 
 
@@ -75,7 +72,7 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
     return (t < horizon) & jnp.any(running)
 
   def body(carry):
-    t, node, running, taken, steps, reached, step_cost, states = carry
+    t, node, running, taken, steps, reached, cost, states = carry
     action = jnp.where(use_policy[:, None], policy(env.observe(node)), actions[:, t])
     out = env.evaluate(node, action)
     take = running & out.is_valid & jnp.isfinite(out.cost) & ((t < length) | use_policy)
@@ -84,21 +81,20 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
     reached = reached | (take & out.is_goal)
     running = take & ~out.is_goal
     states = jax.tree.map(lambda s, n: s.at[:, t + 1].set(n), states, node)
-    step_cost = step_cost.at[:, t].set(jnp.where(take, out.cost, 0.0))
-    return t + 1, node, running, taken, steps + take, reached, step_cost, states
+    return (t + 1, node, running, taken, steps + take, reached,
+            cost + jnp.where(take, out.cost, 0.0), states)
 
   at_goal = env.is_goal(start)
   states = jax.tree.map(lambda x: jnp.repeat(x[:, None], horizon + 1, axis=1), start)
   carry = (jnp.zeros((), jnp.int32), start, ~at_goal & ((length > 0) | use_policy),
            jnp.zeros_like(actions, jnp.float32), jnp.zeros((batch,), jnp.int32), at_goal,
-           jnp.zeros((batch, horizon), jnp.float32), states)
-  t, last, _, taken, steps, reached, step_cost, states = jax.lax.while_loop(cond, body, carry)
+           jnp.zeros((batch,), jnp.float32), states)
+  t, last, _, taken, steps, reached, cost, states = jax.lax.while_loop(cond, body, carry)
   # rows the loop did not reach repeat the last state
   later = jnp.arange(horizon + 1) > t
   states = jax.tree.map(lambda s, n: jnp.where(
       later.reshape((1, -1) + (1,) * (s.ndim - 2)), n[:, None], s), states, last)
-  return Followed(actions=taken, steps=steps, reached_goal=reached,
-                  cost=jnp.sum(step_cost, axis=1), step_cost=step_cost, states=states)
+  return Followed(actions=taken, steps=steps, reached_goal=reached, cost=cost, states=states)
 
 
 def remainder(actions: jax.Array, length: jax.Array, executed: jax.Array):
@@ -188,7 +184,7 @@ class Session:
   env, actor_critic, config: as in `programs.plan` (the actor-critic's
     `deterministic_action(obs [B, O]) -> [B, A]` is the policy).
   search: a `programs.Programs` whose compiled programs the session reuses (None: built, with
-    room for the planted remainder's nodes).
+    room for the remainder's replay).
   horizon: T, the actions an answer keeps and the policy's rollout takes at most (None: the
     env's episode length).
   candidates: which of `CANDIDATES` compete with the search's path ('remainder', 'policy';
@@ -196,8 +192,9 @@ class Session:
   chunk_iterations: as in `programs.plan`.
   mesh: a `jax.sharding.Mesh` over which the search splits the episodes
     (`sharding.ShardedSearch`; None: one device, `programs.plan` with its lane compaction).
-  plant_remainder: the search's tree begins with the remainder's path as nodes
-    (`search.seed`), so it goes on from where the last answer got (one device only).
+  replay_remainder: the search's first chain lane replays the last answer's remainder from the
+    new state inside the search's physics batches (`search.replay`), so the search goes on from
+    where the last answer got without following it first (needs chain lanes; one device).
   """
 
   env: base.Env
@@ -208,7 +205,7 @@ class Session:
   candidates: Sequence[str] = DEFAULT_CANDIDATES
   chunk_iterations: Optional[int] = None
   mesh: Optional[object] = None
-  plant_remainder: bool = False
+  replay_remainder: bool = False
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -219,21 +216,22 @@ class Session:
     if not hasattr(self.actor_critic, 'deterministic_action'):
       raise ValueError('replanning needs an actor-critic with deterministic_action(obs) (the '
                        'policy candidate)')
-    if self.plant_remainder and 'remainder' not in self.candidates:
-      raise ValueError("plant_remainder needs the 'remainder' candidate")
-    if self.plant_remainder and self.mesh is not None:
-      raise ValueError('plant_remainder needs a search on one device (mesh None)')
+    if self.replay_remainder and not self.config.rollout_lanes:
+      raise ValueError('replay_remainder needs chain lanes (SearchConfig.rollout_share > 0)')
+    if self.replay_remainder and self.mesh is not None:
+      raise ValueError('replay_remainder needs a search on one device (mesh None)')
     if self.horizon is None:
       self.horizon = int(self.env.episode_length)
     if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 1:
       raise ValueError(f'horizon must be a positive int, got {self.horizon!r}')
-    if self.search is None:  # with room for the planted remainder's nodes
+    if self.search is None:  # with room for the remainder's replay
       from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
-      planted = (seed_lib.num_edges(self.horizon, self.config.edge_steps)
-                 if self.plant_remainder else 0)
       self.search = programs.Programs(make_search(
-          self.env, self.actor_critic, self.config,
-          capacities=capacity.Capacities(planted=planted)))
+          self.env, self.actor_critic, self.config, capacities=capacity.Capacities(
+              replay=self.horizon if self.replay_remainder else 0)))
+    if self.replay_remainder and self.search.search.sizes.replay < self.horizon:
+      raise ValueError(f'the search replays paths of at most {self.search.search.sizes.replay} '
+                       f'actions, the session keeps {self.horizon} (Capacities.replay)')
     env, policy = self.env, self.actor_critic.deterministic_action
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
     self._choose = jax.jit(choose, static_argnums=3)
@@ -264,7 +262,8 @@ class Session:
       raise ValueError(f'the session plans {self.last.length.shape[0]} episodes, got {num} '
                        'states (reset() starts new episodes)')
     horizon, action_size = self.horizon, self.env.action_size
-    if self.last is None or executed is None or 'remainder' not in self.candidates:
+    if self.last is None or executed is None or not (
+        'remainder' in self.candidates or self.replay_remainder):
       actions = jnp.zeros((num, horizon, action_size), jnp.float32)
       length = jnp.zeros((num,), jnp.int32)
     else:
@@ -281,11 +280,13 @@ class Session:
     """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
     [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
     that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
-    `plan`; the remainder is dropped unless 'remainder' is a candidate. bucket: a power of two >= E that the follow and the search are padded to (one
-    compiled program for every E up to it; None: E's own bucket)."""
+    `plan`. The remainder is followed where 'remainder' is a candidate and replayed by the
+    search where replay_remainder. bucket: a power of two >= E that the follow and the search are
+    padded to (one compiled program for every E up to it; None: E's own bucket)."""
     num = jax.tree.leaves(states)[0].shape[0]
     key = jax.random.PRNGKey(0) if key is None else key
     horizon = self.horizon
+    replay = (actions, length) if self.replay_remainder else None
     if 'remainder' not in self.candidates:  # nothing to follow
       length = jnp.zeros_like(length)
     rows = num if bucket is None else bucket
@@ -317,12 +318,9 @@ class Session:
       # are compiled for one device
       result = jax.device_put(result, jax.devices()[0])
     else:
-      seed = (seed_lib.Seed(actions=last.actions, states=last.states,
-                            step_cost=last.step_cost, length=last.steps)
-              if self.plant_remainder else None)
       result = programs.plan(self.env, self.actor_critic, states, self.config, key,
                              time_limit_s=left, chunk_iterations=self.chunk_iterations,
-                             search=self.search, min_bucket=bucket, seed=seed)
+                             search=self.search, min_bucket=bucket, replay=replay)
     choosing = time.perf_counter()
     if rows > num:  # the choice in the padded batch too (its rows after num dropped)
       grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)

@@ -88,7 +88,6 @@ def _followed(steps, reached, cost, horizon=4, mark=1.0):
   actions = jnp.where(jnp.arange(horizon)[None, :, None] < steps[:, None, None], 1.0, 0.0)
   return replan.Followed(actions=actions * jnp.ones((1, 1, DIM)), steps=steps,
                          reached_goal=jnp.asarray(reached), cost=jnp.asarray(cost, jnp.float32),
-                         step_cost=jnp.zeros((len(steps), horizon)),
                          states=jnp.full((len(steps), horizon + 1, 1), mark))
 
 
@@ -188,12 +187,12 @@ def test_a_search_goal_cheaper_than_the_remainder_wins(env):
   assert answer.cost[0] <= float(remainder.cost[0])
 
 
-def test_a_planted_remainder_is_the_search_s_own_goal(env):
-  # a budget of 16 one-step edges finds no goal; the remainder, planted in the search's tree,
-  # is the search's incumbent, and the search answers with it
-  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
-  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, candidates=('remainder',),
-                           plant_remainder=True)
+def test_a_replayed_remainder_is_the_search_s_own_goal(env):
+  # the remainder is no candidate here: the search's first chain lane replays it from the new
+  # state, reaches the goal and answers with it
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=64, rollout_share=0.5,
+                        chain_restart='start')
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, replay_remainder=True)
   starts = np.array([[-0.3, -0.3], [0.4, 0.0]], np.float32)
   goals = np.array([[0.3, 0.2], [-0.3, 0.1]], np.float32)
   session.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0))
@@ -204,23 +203,22 @@ def test_a_planted_remainder_is_the_search_s_own_goal(env):
   answer = jax.tree.map(np.asarray, session.plan(moved, executed=[3, 3],
                                                  key=jax.random.PRNGKey(1)))
   assert [AnswerKind.name(k) for k in answer.kind] == ['goal_path'] * 2
-  assert answer.search.found.all()
   np.testing.assert_array_equal(answer.length, 7)
   np.testing.assert_allclose(answer.actions[:, :7], straight[:, :7], atol=1e-6)
-  np.testing.assert_allclose(answer.cost, np.asarray(session.followed['remainder'].cost),
-                             rtol=1e-5)
+  np.testing.assert_allclose(answer.states.qpos[:, 7], goals, atol=1e-5)
 
 
 @pytest.mark.parametrize('kwargs, message', [
     ({'candidates': ('remainder', 'previous')}, "unknown replanning candidate 'previous'"),
     ({'horizon': 0}, 'horizon must be a positive int'),
-    ({'plant_remainder': True}, "plant_remainder needs the 'remainder' candidate"),
-    ({'plant_remainder': True, 'candidates': ('remainder',), 'mesh': object()},
-     'plant_remainder needs a search on one'),
+    ({'replay_remainder': True}, 'replay_remainder needs chain lanes'),
+    ({'replay_remainder': True, 'config': SearchConfig(budget=16, rollout_share=0.5),
+      'mesh': object()}, 'replay_remainder needs a search on one'),
 ])
 def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):
-    replan.Session(env, TowardGoal(DIM), SearchConfig(budget=16), **kwargs)
+    kwargs = {'config': SearchConfig(budget=16), **kwargs}
+    replan.Session(env, TowardGoal(DIM), **kwargs)
 
 
 def test_executed_must_match_the_episodes(env, session):

@@ -173,7 +173,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
          started: Optional[Callable[[], object]] = None,
-         compile_first: bool = False, seed=None) -> SearchResult:
+         compile_first: bool = False, replay=None) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -200,8 +200,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     wider pops) as instances stop (each one more program to compile or load); False runs the
     whole search in the loop of the live instances' layout
     (the one-shot `pachs plan`: a shorter start-up for a longer search).
-  seed: a `search.seed.Seed` [I] of known paths from the starts that the search's tree begins
-    with (a replanning query's last answer; None: the starts alone).
+  replay: paths from the starts (actions [I, T, A], length [I]) that the search's first chain
+    lane replays (`search.replay`; a replanning query's last answer; None: none).
   """
   if time_limit_s is not None and (isinstance(time_limit_s, bool)
                                    or not isinstance(time_limit_s, numbers.Real)
@@ -246,10 +246,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     checked = threads.submit(check_model, env, actor_critic, start_nodes, config.num_actions,
                              stored('model check'), owner)
     if padded != num_instances:
-      start_nodes, keys, seed = pad_rows((start_nodes, keys, seed), padded)
+      start_nodes, keys, replay = pad_rows((start_nodes, keys, replay), padded)
     live = jax.device_put(np.arange(padded) < num_instances)
-    init_name, init_args = (('init', (start_nodes, keys, live)) if seed is None else
-                            ('init seeded', (start_nodes, keys, live, seed)))
+    init_name, init_args = (('init', (start_nodes, keys, live)) if replay is None else
+                            ('init replay', (start_nodes, keys, live, replay)))
     new = init_name not in programs
     if new:
       programs[init_name] = compiled_program(search.init, init_args, stored(init_name))

@@ -20,7 +20,8 @@ class Capacities:
   pool: nodes (None: one per edge the budget pays for, and the start).
   table: lattice-table slots, a power of two (None: the power of two >= 2 * pool).
   max_path_length: actions kept in a returned path (longer paths keep their first ones).
-  planted: nodes a `seed.Seed` may add at the start (`pachs.plant`), beyond the budget's.
+  replay: the most actions of a path the first chain lane can replay (`replay.Replay`; 0:
+    none).
   """
 
   max_iterations: Optional[int] = None
@@ -28,13 +29,13 @@ class Capacities:
   pool: Optional[int] = None
   table: Optional[int] = None
   max_path_length: int = 1024
-  planted: int = 0
+  replay: int = 0
 
   def __post_init__(self):
     normalize_numbers(self)
     positive_int('Capacities', 'max_path_length', self.max_path_length)
-    if isinstance(self.planted, bool) or not isinstance(self.planted, int) or self.planted < 0:
-      raise ValueError(f'Capacities.planted must be an int >= 0, got {self.planted!r}')
+    if isinstance(self.replay, bool) or not isinstance(self.replay, int) or self.replay < 0:
+      raise ValueError(f'Capacities.replay must be an int >= 0, got {self.replay!r}')
     for name in ('max_iterations', 'heap', 'pool', 'table'):
       positive_int('Capacities', name, getattr(self, name), allow_none=True)
     if self.table is not None and self.table & (self.table - 1):
@@ -44,7 +45,7 @@ class Capacities:
 class Sizes(NamedTuple):
   """A search's per-instance array sizes: pool nodes, lattice-table slots, OPEN entries (heap:
   real edges, or every edge where one heap holds all; dummy_heap: PACHS's dummy edges),
-  loop iterations and the actions kept in a returned path."""
+  loop iterations, the actions kept in a returned path and those of a replayed path."""
 
   pool: int
   table: int
@@ -52,6 +53,7 @@ class Sizes(NamedTuple):
   dummy_heap: int
   iterations: int
   path: int
+  replay: int = 0
 
 
 def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps: int = 1,
@@ -63,8 +65,7 @@ def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps:
   capacities = Capacities() if capacities is None else capacities
   if not isinstance(capacities, Capacities):
     raise ValueError(f'capacities must be a Capacities, got {type(capacities).__name__}')
-  # the edges the budget pays for, the start's and the planted nodes'
-  edges = budget // edge_steps + 1 + capacities.planted
+  edges = budget // edge_steps + 1  # the edges the budget pays for, and the start's
   pool = capacities.pool or edges
   if pool * slots >= INT32_LIMIT:
     raise ValueError(f'the pool capacity * (edges per node + 1) must stay below 2**31 (heap '
@@ -81,4 +82,5 @@ def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps:
                      f'table {table})')
   iterations = (capacities.max_iterations if capacities.max_iterations is not None
                 else min(INT32_LIMIT - 1, slots * (budget + 1) + 1))
-  return Sizes(pool, table, heap, dummy_heap, iterations, capacities.max_path_length)
+  return Sizes(pool, table, heap, dummy_heap, iterations, capacities.max_path_length,
+               capacities.replay)

@@ -22,7 +22,7 @@ from pachs_jax.search import path as path_lib
 from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search import rules as rules_lib
-from pachs_jax.search import seed as seed_lib
+from pachs_jax.search import replay as replay_lib
 from pachs_jax.search import segment
 from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
                                      instance_keys)
@@ -43,6 +43,7 @@ class SearchState(phases.EdgeSearchState):
     of one node otherwise).
   lanes_offered: [I] int32 the edges the iterations so far could have evaluated (K each).
   incumbent: the cheapest goal found, the first goal's counts, the evaluation limit.
+  replay: the path the first chain lane replays (`replay.Replay`; length 0: none).
   """
 
   edge_heap: heap_lib.Heap
@@ -52,6 +53,7 @@ class SearchState(phases.EdgeSearchState):
   visits: novelty.Visits
   lanes_offered: jax.Array
   incumbent: improve.Incumbent
+  replay: replay_lib.Replay
 
 
 class Lanes(NamedTuple):
@@ -65,9 +67,10 @@ class Lanes(NamedTuple):
 class Search:
   """PACHS bound to one environment, actor-critic and config (jitted functions).
 
-  init(start_nodes [I], keys [I, 2], live [I] bool, seed=None) -> SearchState with the start
-    states' dummy edges in OPEN; instances that are not live (padding) start stopped; a
-    `seed.Seed` [I] puts known paths from the starts into the tree (`plant`).
+  init(start_nodes [I], keys [I, 2], live [I] bool, replay=None) -> SearchState with the start
+    states' dummy edges in OPEN; instances that are not live (padding) start stopped; replay:
+    paths from the starts (actions [I, T, A], length [I]) that the first chain lane replays
+    (`replay`; T at most capacities.replay).
   loop(state, num_iterations, lanes, shrink=True) -> state after at most num_iterations more
     iterations laid out as `lanes` (a `Lanes`; None: Lanes()), with shrink (a traced bool)
     stopping early once another layout applies to the active instances (the input state's
@@ -236,21 +239,28 @@ def evaluate(parts: Parts, state: SearchState, expansion: Expansion, lanes: Lane
   action = pool.edge_actions[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
   q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
   parent, mask = edges.node, edges.mask
-  if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
-    tips = state.chain
-    num_instances = tips.shape[0]
+  num_instances = parent.shape[0]
+  first, forced, forced_steps = replay_lib.next_edge(state.replay, rules.edges.steps)
+  if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges;
+    tips = state.chain  # the first replays its path while the replay lasts
     obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
     tip_action = segment.actor_samples(parts.actor_critic,
                                        lane_keys(state, 2, r).reshape(-1, 2), obs)
+    first_lane = jnp.arange(num_instances * r) % r == 0
+    tip_action = jnp.where((first_lane & jnp.repeat(forced_steps > 0, r))[:, None],
+                           jnp.repeat(first, r, axis=0), tip_action)
     tip_q = cost_to_go(parts.actor_critic.q_values(obs, tip_action[:, None]))
     parent, action, q = (jnp.concatenate(x, axis=1) for x in (
         (parent, tips), (action, tip_action.reshape(num_instances, r, -1)),
         (q, tip_q.reshape(num_instances, r))))
     mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
   mask = rules.after_goal.prune(mask, pool_lib.gather(pool.g, parent), expansion.incumbent)
+  lane = jnp.arange(k) == k - r  # the first chain lane (none without chains)
+  replayed = (jnp.where(lane[None, :, None, None], forced[:, None], 0.0),
+              jnp.where(lane[None], forced_steps[:, None], 0))
   outcome, within, usable, out_of_budget = phases.evaluate(
       rules.edges.simulate, pool_lib.gather_nodes(pool, parent),
-      rules.edges.inputs(action, lane_keys(state, 1, k)), mask, state.evaluated,
+      rules.edges.inputs(action, lane_keys(state, 1, k), replayed), mask, state.evaluated,
       expansion.incumbent.evaluation_limit, lanes.size, rules.edges.steps)
   return Evaluation(parent, action, q, mask, outcome, within, usable, out_of_budget, edge_heap)
 
@@ -294,6 +304,12 @@ def insert(parts: Parts, state: SearchState, expansion: Expansion,
   visits = rules.restart.record(state.visits, node, new, cells)
   chain = next_chains(parts, pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
                       node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:])
+  replay = state.replay
+  if r:  # the replay goes on while its chain goes on from the edge's successor
+    steps_taken = outcome.length[:, k - r] if hasattr(outcome, 'length') else jnp.ones_like(
+        replay.done)
+    replay = replay_lib.advance(replay, steps_taken,
+                                write[:, k - r] & (chain[:, 0] == node[:, k - r]))
   incumbent = improve.offer(incumbent, pool, *improve.cheapest(
       pool, node, write & outcome.is_goal & rules.after_goal.goal_lanes(chain_lane)))
   dummy_heap = heap_lib.push(expansion.dummy_heap, dummy_key,
@@ -311,46 +327,8 @@ def insert(parts: Parts, state: SearchState, expansion: Expansion,
                        overflow, parts.sizes.iterations, expansion.expanding,
                        evaluation.within, usable, steps, edge_heap=evaluation.edge_heap,
                        dummy_heap=dummy_heap, pool=pool, table=table, chain=chain,
-                       visits=visits, incumbent=incumbent,
+                       visits=visits, incumbent=incumbent, replay=replay,
                        lanes_offered=state.lanes_offered + k * state.active)
-
-
-def plant(parts: Parts, state: SearchState, seed: seed_lib.Seed) -> SearchState:
-  """state with the seed's paths [I] in its tree: every H transitions a node of its own (outside
-  the lattice, as a chain's successor), its parent the one before, its dummy edge in OPEN (key
-  g + w h, h the critic's for an actor sample there) and its cell counted for the chains'
-  restarts; a path that ends at a goal is the incumbent (the first goal, found before the
-  first iteration). A path stops at its first node that finds no room (the pool and OPEN are sized for
-  the budget's edges)."""
-  config, env, steps = parts.config, parts.env, parts.rules.edges.steps
-  num_instances = seed.length.shape[0]
-  edges = seed_lib.num_edges(seed.horizon, steps)
-  keys = lane_keys(state, 4, edges)
-  pool, table, visits, dummy_heap = state.pool, state.table, state.visits, state.dummy_heap
-  incumbent = state.incumbent
-  parent = jnp.full((num_instances,), pool_lib.ROOT_INDEX, jnp.int32)
-  alive = jnp.ones((num_instances,), bool)
-  own = jnp.ones((num_instances, 1), bool)
-  for index in range(edges):
-    action, outcome, present = seed_lib.edge(seed, index, steps)
-    obs = env.observe(outcome.next_node)
-    sample = segment.actor_samples(parts.actor_critic, keys[:, index], obs)
-    h = cost_to_go(parts.actor_critic.q_values(obs, sample[:, None]))
-    outcome = outcome.replace(is_goal=env.is_goal(outcome.next_node) & present)
-    usable = (present & alive)[:, None]
-    cells = env.lattice_key(outcome.next_node, parts.resolution)[:, None]
-    pool, table, dummy_key, node, write = phases.insert(
-        pool, table, cells, parent[:, None], jax.tree.map(lambda x: x[:, None], outcome),
-        usable, action[:, None], h, config.weight, unmerged=own)
-    visits = parts.rules.restart.record(visits, node, write, cells)
-    dummy_heap = heap_lib.push(dummy_heap, dummy_key, node * parts.slots + config.num_actions,
-                               write)
-    incumbent = improve.offer(incumbent, pool, write[:, 0] & outcome.is_goal, node[:, 0])
-    parent, alive = node[:, 0], write[:, 0] & ~outcome.is_goal
-  # a node that finds no room is left out, not counted as the search's overflow
-  return state.replace(pool=pool.replace(overflow=state.pool.overflow), table=table,
-                       visits=visits, incumbent=incumbent,
-                       dummy_heap=dummy_heap.replace(overflow=state.dummy_heap.overflow))
 
 
 def step(parts: Parts, state: SearchState, lanes: Lanes) -> SearchState:
@@ -377,21 +355,22 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   slots, dummy = parts.slots, n  # edge slots per node; the dummy edge's slot
 
   def init(start_nodes: base.NodeState, keys: jax.Array, live=None,
-           seed: Optional[seed_lib.Seed] = None) -> SearchState:
+           replay=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
     start_cells = env.lattice_key(start_nodes, resolution)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
                                sizes.pool, sizes.table, n, env.action_size, steps)
     dummy_heap = heap_lib.init(num_instances, sizes.dummy_heap, k)
-    state = SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
+    return SearchState(edge_heap=heap_lib.init(num_instances, sizes.heap, k),
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
                        visits=rules.restart.visits(start_cells, sizes.pool),
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
                        incumbent=improve.init(num_instances, config.budget),
+                       replay=replay_lib.init(num_instances, sizes.replay, env.action_size,
+                                              replay),
                        **phases.start_state(pool, table, live))
-    return state if seed is None else plant(parts, state, seed)
 
   def loop(state: SearchState, num_iterations, lanes: Optional[Lanes] = None,
            shrink=True) -> SearchState:

@@ -21,7 +21,8 @@ class Edges(NamedTuple):
 
   steps: H, its transitions (the evaluations it costs).
   simulate(nodes [B], inputs) -> its outcome (`base.EdgeOutcome` or `segment.SegmentOutcome`).
-  inputs(actions [I, K, A], keys [I, K, 2]) -> simulate's inputs per lane.
+  inputs(actions [I, K, A], keys [I, K, 2], replayed) -> simulate's inputs per lane; replayed:
+    (forced [I, K, H - 1, A], forced_steps [I, K]) the lanes that replay a path (`replay`).
   h(q [I, K], outcome) -> [I, K] the successors' cost-to-go estimates.
   """
 
@@ -33,7 +34,7 @@ class Edges(NamedTuple):
 
 def one_step_edges(env) -> Edges:
   """The original's edges: one transition of the sampled action, h = max(q - c, 0)."""
-  return Edges(1, env.evaluate, lambda actions, keys: actions,
+  return Edges(1, env.evaluate, lambda actions, keys, replayed: actions,
                lambda q, outcome: jnp.maximum(q - outcome.cost, 0.0))
 
 
@@ -41,7 +42,8 @@ def actor_edges(env, actor_critic, steps: int) -> Edges:
   """The sampled action, then steps - 1 actions the actor samples (`segment`); h the critic's
   at the successor."""
   return Edges(steps, segment.make_segment_fn(env, actor_critic, steps),
-               lambda actions, keys: (actions, keys), lambda q, outcome: outcome.h)
+               lambda actions, keys, replayed: (actions, keys) + replayed,
+               lambda q, outcome: outcome.h)
 
 
 class Restart(NamedTuple):

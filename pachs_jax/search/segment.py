@@ -44,16 +44,21 @@ def actor_samples(actor_critic: ActorCritic, keys: jax.Array, obs: jax.Array) ->
 
 def make_segment_fn(env: base.Env, actor_critic: ActorCritic, edge_steps: int
                     ) -> Callable[[base.NodeState, Tuple[jax.Array, jax.Array]], SegmentOutcome]:
-  """segment(nodes [B], (actions [B, A], keys [B, 2] uint32)) -> SegmentOutcome [B].
+  """segment(nodes [B], (actions [B, A], keys [B, 2] uint32[, forced [B, H - 1, A],
+  forced_steps [B] int32])) -> SegmentOutcome [B].
 
   Step 1 applies the edge's action; steps 2 .. H apply the actor's sample at the current state
-  (`actor_samples` with the lane's key folded with the step). Every lane simulates all H steps
-  (a stopped lane repeats its last state).
+  (`actor_samples` with the lane's key folded with the step), or in a lane with forced_steps
+  m >= 1 (a replayed path, `replay`) the forced actions, the segment ending after m steps.
+  Every lane simulates all H steps (a stopped lane repeats its last state).
   """
 
   def segment(nodes: base.NodeState, inputs) -> SegmentOutcome:
-    first_action, keys = inputs
+    first_action, keys = inputs[:2]
     batch = first_action.shape[0]
+    forced, forced_steps = inputs[2:] if len(inputs) > 2 else (
+        jnp.zeros((batch, max(edge_steps - 1, 1), first_action.shape[1]), jnp.float32),
+        jnp.zeros((batch,), jnp.int32))
 
     def body(carry, step):
       node, action, _, cost, length, is_goal, done = carry
@@ -62,11 +67,13 @@ def make_segment_fn(env: base.Env, actor_critic: ActorCritic, edge_steps: int
       node = trees.where(take, out.next_node, node)
       cost = cost + jnp.where(take, out.cost, 0.0)
       is_goal = jnp.where(take, out.is_goal, is_goal)
-      done = done | ~take | is_goal
+      done = done | ~take | is_goal | ((forced_steps > 0) & (step + 1 >= forced_steps))
       obs = env.observe(node)
       step_keys = jax.vmap(jax.random.fold_in, (0, None))(keys, step)
-      carry = (node, actor_samples(actor_critic, step_keys, obs), obs, cost, length + take,
-               is_goal, done)
+      given = forced[:, jnp.minimum(step, forced.shape[1] - 1)]
+      next_action = jnp.where((step + 1 < forced_steps)[:, None], given,
+                              actor_samples(actor_critic, step_keys, obs))
+      carry = (node, next_action, obs, cost, length + take, is_goal, done)
       return carry, (jnp.where(take[:, None], action, 0.0), node)
 
     carry = (nodes, first_action.astype(jnp.float32),

@@ -4,12 +4,14 @@
 # another, all within one device command (570 s): 20 instances x 5 rounds per run.
 # A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, the search's path
 # alone by default) or parallel (the parallel rollout), then options joined by '-': remainder,
-# policy (the session's candidates), plant (the remainder planted in the search's tree), k<N>
+# policy (the session's candidates), replay (the remainder replayed in the search), k<N>
 # (N edges per iteration), planner-world (the plans executed in the planners' own physics).
 # A line is a comma-separated list of runs (the results' runs: 2 GPUs, three commands):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
-# A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does.
+# A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does
+# (WARM=0 leaves it to each run's first query, before its clock). EXTRA: more closed_loop.py
+# flags for every run.
 set -u
 if [ "$#" -lt 1 ]; then
   echo "usage: OUT=dir bash $0 RUNS [RUNS ...] (one line per GPU; a run: LAYOUT/VARIANT)" >&2
@@ -17,9 +19,9 @@ if [ "$#" -lt 1 ]; then
 fi
 END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
-CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp}"
-$CL --layout gate --planners pachs --instances 1 --rounds 1 --max-queries 2 \
-  --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
+CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp} ${EXTRA:-}"
+[ "${WARM:-1}" = 1 ] && $CL --layout gate --planners pachs --instances 1 --rounds 1 \
+  --max-queries 2 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
 run() {  # the command line of one run
   local layout=${1%%/*} variant=${1#*/} flags=()
   local planner=${variant%%-*} opts=${variant#*-}
@@ -32,7 +34,7 @@ run() {  # the command line of one run
   for opt in ${opts//-/ }; do
     case $opt in
       remainder|policy) candidates+=("$opt") ;;
-      plant) flags+=(--plant-remainder 1) ;;
+      replay) flags+=(--replay-remainder 1) ;;
       k[0-9]*) flags+=(-K "${opt#k}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       *) echo "echo unknown option $opt"; return ;;
