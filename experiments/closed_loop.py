@@ -111,6 +111,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'generated': search.generated, 'invalid': search.invalid,
                'iterations': search.iterations, 'stop': search.stop_reason,
                'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s'],
+               'remainder_followed': 'remainder' in session.candidates,
                'remainder_steps': np.asarray(session.followed['remainder'].steps),
                'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)})
     return query, config
@@ -210,6 +211,7 @@ def served_query(task: str, args, num: int):
              'stop': join(lambda a: a.search['stop_reason']),
              'search_s': max(a.search_s for a in answers),
              'follow_s': max(a.follow_s for a in answers),
+             'remainder_followed': bool(np.any(join(lambda a: a.remainder['steps']) > 0)),
              'remainder_steps': join(lambda a: a.remainder['steps']),
              'remainder_goal': join(lambda a: a.remainder['reaches_goal'])})
   return query, (f'served by {args.server} ({health["backend"]}, budget {served["budget"]}, '
@@ -233,17 +235,18 @@ def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
 class SessionAnswers:
   """What a planner's queries answered, for its row: answers by kind (`replan.AnswerKind`);
   queries whose search returned no edge (stop reasons, evaluations, invalid edges, nodes
-  generated, the T off the table square: why it had nothing to say); iterations, search and
-  follow seconds per query (after the first, which compiles); and after a goal answer executed
-  as given, whether its remainder still reaches the goal from the world's state (how well goal
-  paths survive the world)."""
+  generated, the T off the table square or tipped over: why it had nothing to say); iterations,
+  search and follow seconds per query (after the first, which compiles); and, where the
+  remainder is followed, after a goal answer executed as given, whether its remainder still
+  reaches the goal from the world's state (how well goal paths survive the world)."""
 
   def __init__(self):
     self.kinds = np.zeros(len(replan.AnswerKind.NAMES), np.int64)
     self.empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
-                         'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0}
+                         'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0,
+                         't_tipped': 0, 't_tipped_queries': 0}
     self.iterations, self.search_s, self.follow_s = [], [], []
-    self.previous_goal, self.survival = None, [0, 0]
+    self.previous_goal, self.survival, self.followed = None, [0, 0], False
 
   def add(self, query: int, info: Dict, nodes, running, evaluated, executed, found) -> None:
     """One query's answers [E] (info: the query's extras) for the running episodes [E]."""
@@ -260,11 +263,15 @@ class SessionAnswers:
       outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0
       empty['t_off_table'] += int(np.sum(outside & nothing))
       empty['t_off_table_queries'] += int(np.sum(outside & running))
-    if 'remainder_goal' in info and self.previous_goal is not None:
+      tipped = np.asarray(pusht.t_tilt(nodes.qpos)) >= pusht.MAX_T_TILT
+      empty['t_tipped'] += int(np.sum(tipped & nothing))
+      empty['t_tipped_queries'] += int(np.sum(tipped & running))
+    if info.get('remainder_followed') and self.previous_goal is not None:
       kept = running & self.previous_goal & (np.asarray(executed) < replan.DIVERGED)
       self.survival[0] += int(kept.sum())
       self.survival[1] += int(np.sum(kept & info['remainder_goal']
                                      & (info['remainder_steps'] > 0)))
+    self.followed = self.followed or bool(info.get('remainder_followed'))
     self.previous_goal = found.copy() if 'kind' in info else None
     if query > 0 and 'iterations' in info:
       self.iterations.append(float(np.max(info['iterations'][running])))
@@ -278,8 +285,8 @@ class SessionAnswers:
                         if session else None),
             'empty_search': self.empty_search if session else None,
             'iterations_per_query_mean': stats.mean_or_none(self.iterations),
-            'goal_answers_followed': self.survival[0] if session else None,
-            'remainders_still_at_goal': self.survival[1] if session else None,
+            'goal_answers_followed': self.survival[0] if self.followed else None,
+            'remainders_still_at_goal': self.survival[1] if self.followed else None,
             'search_s_mean': stats.mean_or_none(self.search_s),
             'follow_s_mean': stats.mean_or_none(self.follow_s)}
 
