@@ -222,7 +222,7 @@ def scale(argv):
             'devices_available': available, 'rows': [], 'skipped': [], 'per_run': {}}
   for pop_size in pop_sizes:
     config = dataclasses.replace(tuned, pop_size=pop_size, compact_fractions=fractions)
-    result['configs'][pop_size] = repr(config)
+    result['configs'][pop_size] = common.config_record(config)
     search = pachs.make_search(env, model, config)
     reference = None  # (device count, host result) of the first count measured with this K
     for count in counts:

@@ -347,10 +347,8 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           continue
         policy_steps += int(need.sum())
         episodes.execute(np.asarray(fallback(episodes.batch())), need.astype(np.int64))
-  config_fields = (dataclasses.asdict(config) if dataclasses.is_dataclass(config)
-                   else repr(config))
-  return {'config': {'type': type(config).__name__, **config_fields}
-          if isinstance(config_fields, dict) else config_fields, 'interrupted_at_query': q if interrupted else None,
+  return {'config': common.config_record(config),
+          'interrupted_at_query': q if interrupted else None,
           'queries_per_episode_mean': float(np.mean(queries)),
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -144,6 +145,14 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1) -> Dict[
     jax.block_until_ready(fn())
     times.append(time.perf_counter() - start)
   return {'median_s': float(np.median(times)), 'min_s': float(np.min(times))}
+
+
+def config_record(config: Any) -> Any:
+  """A planner's config as a result file keeps it: a dataclass as {'type': its class name,
+  **its fields}, anything else as its repr."""
+  if dataclasses.is_dataclass(config) and not isinstance(config, type):
+    return {'type': type(config).__name__, **dataclasses.asdict(config)}
+  return repr(config)
 
 
 def write_json(path: str, payload: Dict[str, Any]) -> None:

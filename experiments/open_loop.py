@@ -317,7 +317,7 @@ def main():
              'success_curve': {}}
   for name in names:
     fn, config = make_planner(name, args.task, env, model, args, mesh)
-    payload['configs'][name] = repr(config)
+    payload['configs'][name] = common.config_record(config)
     start = time.perf_counter()
     result = fn(starts, keys)  # compiles, then runs (wall_time_s excludes compilation)
     compile_s = time.perf_counter() - start - float(result.wall_time_s)
