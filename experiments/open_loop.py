@@ -256,7 +256,7 @@ def main():
                       'seed draws a new set from the same start region, by the same rules)')
   parser.add_argument('--beam-width', type=argtypes.positive_int, default=64)
   parser.add_argument('--epase-weight', type=argtypes.positive_float, default=20.0,
-                      help='w of ePA*SE (results/tune_epase.md)')
+                      help='w of ePA*SE (chosen by a sweep: commit f3cad6e, results/tune_epase.md)')
   parser.add_argument('--epase-budget', type=argtypes.positive_int, default=200_000)
   parser.add_argument('--epase-spread', type=argtypes.integer(0), default=3,
                       help='cells the BFS-3D distances extend into blocked cells')

@@ -126,6 +126,37 @@ def test_every_result_file_is_read_by_the_report_or_beside_one():
   assert not stray
 
 
+def test_every_experiment_script_is_used():
+  """An experiment script stays while something uses it: a result file's command or a job
+  script runs it, a test or another script imports it, or it draws a figure the README shows;
+  otherwise it leaves the tree with its results (git keeps both)."""
+  def text(path):
+    with open(os.path.join(ROOT, path), errors='replace') as f:
+      return f.read()
+  users = {}
+  for folder, _, names in os.walk(os.path.join(ROOT, 'experiments', 'results')):
+    for name in names:
+      if name.endswith(('.json', '.sh')):
+        path = os.path.relpath(os.path.join(folder, name), ROOT)
+        users[path] = text(path)
+  for folder in ('tests', 'experiments'):
+    for name in os.listdir(os.path.join(ROOT, folder)):
+      if name.endswith(('.py', '.sh')):
+        users[f'{folder}/{name}'] = text(f'{folder}/{name}')
+  readme = read('README.md')
+  unused = []
+  for name in sorted(os.listdir(os.path.join(ROOT, 'experiments'))):
+    if not name.endswith('.py'):
+      continue
+    script, stem = f'experiments/{name}', name[:-len('.py')]
+    used = any(name in t or re.search(rf'^\s*(import|from) {stem}\b', t, re.M)
+               for path, t in users.items() if path != script)
+    figures = re.findall(r'([\w-]+\.png)', text(script).split('"""')[1])
+    if not (used or any(figure in readme for figure in figures)):
+      unused.append(script)
+  assert not unused
+
+
 def test_the_ledger_reads_its_numbers_from_the_files(copy_root):
   """A ledger row computed from the files follows them; a row of removed files names a commit."""
   def fewer(payload):
