@@ -22,6 +22,7 @@ import common
 import stats
 from pachs_jax import argtypes, flags, planner, replan, trees
 from pachs_jax.runtime import anytime, signals
+from pachs_jax import episodes as episodes_lib
 from pachs_jax.episodes import Worlds
 from pachs_jax.envs import pusht, world as world_lib
 from pachs_jax.search import baselines as bl
@@ -80,13 +81,25 @@ class PlannerWorldEpisodes(Worlds):
 
 
 def policy_actions(env, model):
-  """jitted nodes [E] -> [E, 1, A] deterministic actions of the policy."""
-  return jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes))[:, None])
+  """jitted nodes [E] -> [E, A] deterministic actions of the policy."""
+  return jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes)))
+
+
+@dataclasses.dataclass
+class Asked:
+  """A query's answer for `episodes.run` and the planner's row: actions [E, T, A] and length
+  [E] (numpy), evaluated [E] edge evaluations, found [E] the answer ends at a goal, info: a
+  session's extras (`SessionAnswers`)."""
+
+  actions: np.ndarray
+  length: np.ndarray
+  evaluated: np.ndarray
+  found: np.ndarray
+  info: dict
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
-  """query(nodes [E], keys [E, 2], executed) -> (actions [E, T, A], lengths [E], edge
-  evaluations [E], found [E]: the path ends at a goal) numpy.
+  """(query(nodes [E], keys [E, 2], executed [E]) -> `Asked`, the planner's config).
 
   Every planner's clock covers the whole query, its result included (`anytime.timed_result`).
   parallel: steps in chunks, then its best rollout; pachs: real-time mode
@@ -106,7 +119,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
                                                      time_limit_s=args.query_time))
       search = answer.search
-      return (answer.actions, answer.length, search.evaluated, answer.reaches_goal,
+      return Asked(answer.actions, answer.length, search.evaluated, answer.reaches_goal,
               {'kind': answer.kind, 'search_length': search.path_length,
                'generated': search.generated, 'invalid': search.invalid,
                'iterations': search.iterations, 'stop': search.stop_reason,
@@ -145,9 +158,9 @@ def make_query(name: str, task: str, env, model, args, num: int):
       out = anytime.timed_result(chunk, compiled['init'](nodes, keys),
                                  lambda state: compiled['result'](compiled['stop'](state)),
                                  args.query_time, start, timing)
-      return (np.asarray(out.path_actions), np.asarray(out.path_length),
-              np.asarray(out.evaluated), np.asarray(out.found),
-              {'iterations': np.asarray(out.iterations)})
+      return Asked(np.asarray(out.path_actions), np.asarray(out.path_length),
+                   np.asarray(out.evaluated), np.asarray(out.found),
+                   {'iterations': np.asarray(out.iterations)})
     return query, config
   if name == 'mppi':
     config = bl.MppiConfig(budget=args.budget)
@@ -169,8 +182,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
       out = anytime.run_search(mppi, nodes, keys, jnp.asarray(nominal),
                                time_limit_s=args.query_time, timing=timing)
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
-      return (previous['actions'], previous['length'], np.asarray(out.evaluated),
-              np.asarray(out.found), {})
+      return Asked(previous['actions'], previous['length'], np.asarray(out.evaluated),
+                   np.asarray(out.found), {})
     return query, config
   raise ValueError(f'unknown planner {name!r}')
 
@@ -201,8 +214,8 @@ def served_query(task: str, args, num: int):
     answers = list(pool.map(ask, clients, parts))
     asked[0] += 1
     join = lambda get: np.concatenate([get(a) for a in answers])
-    return (join(lambda a: a.actions), join(lambda a: a.length), join(lambda a: a.evaluated),
-            join(lambda a: a.reaches_goal),
+    return Asked(join(lambda a: a.actions), join(lambda a: a.length),
+                 join(lambda a: a.evaluated), join(lambda a: a.reaches_goal),
             {'kind': join(lambda a: a.kind),
              'search_length': join(lambda a: a.search['path_length']),
              'generated': join(lambda a: a.search['generated']),
@@ -226,7 +239,7 @@ def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
     if not episodes.active.any():
       break
     start = time.perf_counter()
-    actions = np.asarray(act(episodes.batch()))
+    actions = np.asarray(act(episodes.batch()))[:, None]
     times.append(time.perf_counter() - start)
     episodes.execute(actions, np.ones(actions.shape[0], np.int64))
   return times
@@ -293,72 +306,45 @@ class SessionAnswers:
 
 def run_planner(name, task, env, model, episodes: Worlds, args, key,
                 stop=lambda: False) -> Dict:
-  """Runs one planner's episodes; stop() is checked before each query (a signal: the episodes
-  end where they are, and the row says 'interrupted')."""
+  """Runs one planner's episodes (`pachs_jax.episodes.run`); stop() is checked before each
+  query (a signal: the episodes end where they are, and the row says 'interrupted')."""
   num = episodes.num
   if name == 'single':
     times = run_single(env, model, episodes, args.max_queries * args.execute)
     return {'queries_per_episode_mean': None, 'step_time_s_mean': float(np.mean(times))}
   query, config = make_query(name, task, env, model, args, num)
-  fallback = policy_actions(env, model)
-  query_times, compile_s, queries = [], None, np.zeros(num, np.int64)
-  executed = np.zeros(num, np.int64)
-  empty_answers, actions_per_query, evaluations_per_query, policy_steps = 0, [], [], 0
+  query_times, compile_s = [], [None]
+  empty_answers, actions_per_query, evaluations_per_query = [0], [], []
   by_query = []  # [running episodes, goal answers] per query
   answers = SessionAnswers()
-  interrupted = False
-  for q in range(args.max_queries):
-    if not episodes.active.any():
-      break
-    if stop():
-      interrupted = True
-      break
-    nodes = episodes.batch()
-    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, q), i))(
-        jnp.arange(num))
-    start = time.perf_counter()
-    actions, lengths, evaluated, found, info = query(nodes, keys, executed)
-    elapsed = time.perf_counter() - start
-    answers.add(q, info, nodes, episodes.active, evaluated, executed, found)
+
+  def on_answer(q, nodes, running, executed, answer, elapsed):
+    answers.add(q, answer.info, nodes, running, answer.evaluated, executed, answer.found)
     if q == 0:
-      compile_s = elapsed  # the first query includes compilation
+      compile_s[0] = elapsed  # the first query includes compilation
     else:
       query_times.append(elapsed)
-    lengths = np.minimum(lengths, args.execute)
-    actions = actions[:, :args.execute]
-    empty = lengths == 0
-    empty_answers += int(np.sum(empty & episodes.active))
-    by_query.append([int(episodes.active.sum()), int(np.sum(found & episodes.active))])
-    actions_per_query += lengths[episodes.active].tolist()
-    evaluations_per_query += evaluated[episodes.active].tolist()
-    if empty.any():
-      actions = actions.copy()
-      actions[empty, 0] = np.asarray(fallback(nodes))[empty, 0]
-      lengths = np.where(empty, 1, lengths)
-    queries += episodes.active
-    # the plan's actions executed (a row the policy filled gets a fresh warm start next time)
-    short = lengths < args.execute
-    executed = np.where(short & args.fill_with_policy, replan.DIVERGED, lengths)
-    episodes.execute(actions, lengths)
-    if args.fill_with_policy:  # the policy acts on up to `execute` world steps per query
-      for j in range(1, args.execute):
-        need = episodes.active & (lengths <= j)
-        if not need.any():
-          continue
-        policy_steps += int(need.sum())
-        episodes.execute(np.asarray(fallback(episodes.batch())), need.astype(np.int64))
+    lengths = np.minimum(answer.length, args.execute)
+    empty_answers[0] += int(np.sum((lengths == 0) & running))
+    by_query.append([int(running.sum()), int(np.sum(answer.found & running))])
+    actions_per_query.extend(lengths[running].tolist())
+    evaluations_per_query.extend(answer.evaluated[running].tolist())
+
+  log = episodes_lib.run(query, episodes, execute=args.execute, max_queries=args.max_queries,
+                         key=key, fill_with_policy=bool(args.fill_with_policy),
+                         policy=policy_actions(env, model),
+                         stop=stop, on_answer=on_answer)
   return {'config': common.config_record(config),
-          'interrupted_at_query': q if interrupted else None,
-          'queries_per_episode_mean': float(np.mean(queries)),
+          'interrupted_at_query': log.interrupted_at_query,
+          'queries_per_episode_mean': float(np.mean(log.queries)),
           'query_time_s_mean': stats.mean_or_none(query_times),
           'query_time_s_max': float(np.max(query_times)) if query_times else None,
-          'first_query_s_incl_compile': compile_s, 'empty_answers': empty_answers,
+          'first_query_s_incl_compile': compile_s[0], 'empty_answers': empty_answers[0],
           'goal_answers': sum(goals for _, goals in by_query), 'goal_answers_by_query': by_query,
-          'policy_fill_steps': policy_steps,
+          'policy_fill_steps': int(log.policy_steps.sum()) - empty_answers[0],
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}
-
 
 def main():
   parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])

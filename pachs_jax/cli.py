@@ -295,8 +295,9 @@ def _loop(args: argparse.Namespace) -> int:
         f'{env.physics} physics: {args.query_time:g} s per query, {args.execute} actions '
         f'executed, at most {args.max_queries} queries, budget {config.budget}',
         flush=True)
+  import jax  # pylint: disable=import-outside-toplevel
   log = episodes.run(planning.session(), worlds, args.query_time, args.execute,
-                     args.max_queries, args.seed)
+                     args.max_queries, jax.random.PRNGKey(args.seed))
   names = replan.AnswerKind.NAMES
   rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),
                 'steps': int(worlds.steps[e]), 'queries': int(log.queries[e]),

@@ -5,7 +5,8 @@ planned from again (docs/closed_loop.md)."""
 from __future__ import annotations
 
 import dataclasses
-from typing import List, Optional
+import time
+from typing import Callable, List, Optional
 
 import jax
 import jax.numpy as jnp
@@ -79,16 +80,21 @@ class Log:
   """What a closed loop did, per episode e of E.
 
   queries: [E] int the queries each episode made.
-  answers: [E, len(AnswerKind.NAMES)] int its answers of each `replan.AnswerKind`.
-  policy_steps: [E] int world steps the policy filled after a short answer.
+  answers: [E, len(AnswerKind.NAMES)] int its answers of each `replan.AnswerKind` (a planner
+    whose answers have no kind: zeros).
+  policy_steps: [E] int world steps the policy took: after a short answer, and one for an empty
+    answer.
   plans: per query, (the world step of each episode when it was asked [E], the answer's
-    states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]).
+    states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]);
+    for answers that carry their states.
+  interrupted_at_query: the query before which `stop` ended the episodes (None: it did not).
   """
 
   queries: np.ndarray
   answers: np.ndarray
   policy_steps: np.ndarray
   plans: list = dataclasses.field(default_factory=list)
+  interrupted_at_query: Optional[int] = None
 
   def executed_plans(self, episode: int, num_states: int) -> list:
     """Per world state s < num_states of `episode`, the answer being executed there (its
@@ -106,6 +112,8 @@ class Log:
     return out
 
 
+
+
 def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarray:
   """frames [F, H, W, 3] uint8 of what episode's world did, the plan being executed drawn
   dashed (`render.loop_frames`)."""
@@ -115,39 +123,79 @@ def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarr
   return render.loop_frames(worlds.env, states, plans, title)
 
 
-def run(session: replan.Session, worlds: Worlds, time_limit_s: float, execute: int = 10,
-        max_queries: int = 30, seed: int = 0, fill_with_policy: bool = True) -> Log:
-  """Runs the worlds' episodes in closed loop: a query of `time_limit_s` seconds for all
-  episodes still running, the first `execute` actions of each answer in its world (a shorter
-  answer, or `none`, followed by the policy's actions up to `execute` when fill_with_policy),
-  until every episode reached the goal or made max_queries queries."""
-  env, model = session.env, session.actor_critic
-  policy = jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes)))
+def session_query(session: replan.Session, time_limit_s: float) -> Callable:
+  """query(nodes [E], keys [E, 2], executed [E]) -> the session's `replan.Answer` (numpy) of a
+  `time_limit_s` query (`run`'s planner)."""
+  return lambda nodes, keys, executed: jax.tree.map(np.asarray, session.plan(
+      nodes, executed, keys, time_limit_s=time_limit_s))
+
+
+def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: int = 10,
+        max_queries: int = 30, key: Optional[jax.Array] = None, fill_with_policy: bool = True,
+        policy: Optional[Callable] = None, stop: Optional[Callable[[], bool]] = None,
+        on_answer: Optional[Callable] = None) -> Log:
+  """Runs the worlds' episodes in closed loop: a query for all episodes still running, the
+  first `execute` actions of each answer in its world (an empty answer: one action of the
+  policy; a shorter answer followed by the policy's actions up to `execute` when
+  fill_with_policy), until every episode reached the goal or made max_queries queries.
+
+  planner: a `replan.Session` (reset, then asked for `time_limit_s` s per query), or
+    query(nodes [E], keys [E, 2], executed [E]) -> an answer with actions [E, T, A] and length
+    [E] (numpy; its kind and states are logged where it has them). executed: the actions of
+    the last answer executed (`replan.DIVERGED` where the policy moved the episode after it).
+  key: the PRNG key each query's per-episode keys are folded from (None: PRNGKey(0)).
+  policy: nodes [E] -> actions [E, A] (None: the session's deterministic actor).
+  stop: checked before each query; once True the episodes end where they are.
+  on_answer(query, nodes, running [E], executed [E], answer, seconds): after each query.
+  """
+  if isinstance(planner, replan.Session):
+    query = session_query(planner, time_limit_s)
+    planner.reset()
+    if policy is None:
+      env, model = planner.env, planner.actor_critic
+      policy = jax.jit(lambda nodes: model.deterministic_action(env.observe(nodes)))
+  else:
+    query = planner
+  if policy is None:
+    raise ValueError('run needs the policy that fills short answers (policy=...)')
   num = worlds.num
   log = Log(queries=np.zeros(num, np.int64),
             answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
             policy_steps=np.zeros(num, np.int64))
-  key = jax.random.PRNGKey(seed)
-  executed = None
-  session.reset()
-  for query in range(max_queries):
+  key = jax.random.PRNGKey(0) if key is None else key
+  executed = np.zeros(num, np.int64)
+  for number in range(max_queries):
     running = worlds.active
     if not running.any():
       break
-    keys = jax.vmap(lambda i, q=query: jax.random.fold_in(jax.random.fold_in(key, q), i))(
+    if stop is not None and stop():
+      log.interrupted_at_query = number
+      break
+    nodes = worlds.batch()
+    keys = jax.vmap(lambda i, q=number: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
-    answer = jax.tree.map(np.asarray, session.plan(worlds.batch(), executed, keys,
-                                                   time_limit_s=time_limit_s))
+    began = time.perf_counter()
+    answer = query(nodes, keys, executed)
+    if on_answer is not None:
+      on_answer(number, nodes, running, executed, answer, time.perf_counter() - began)
     log.queries += running
-    log.answers[np.flatnonzero(running), answer.kind[running]] += 1
-    log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
+    if getattr(answer, 'kind', None) is not None:
+      log.answers[np.flatnonzero(running), answer.kind[running]] += 1
+      log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
     lengths = np.minimum(answer.length, execute)
-    worlds.execute(answer.actions[:, :execute], lengths)
+    actions = answer.actions[:, :execute]
+    empty = running & (lengths == 0)
+    if empty.any():  # one action of the policy where the answer has none
+      actions = actions.copy()
+      actions[empty, 0] = np.asarray(policy(nodes))[empty]
+      lengths = np.where(empty, 1, lengths)
+      log.policy_steps += empty
+    worlds.execute(actions, lengths)
     # the answer's actions executed; an episode the policy moves next diverges from it
     short = lengths < execute
     executed = np.where(short & fill_with_policy, replan.DIVERGED, lengths)
     if fill_with_policy:
-      for j in range(execute):
+      for j in range(1, execute):
         need = worlds.active & (lengths <= j)
         if not need.any():
           continue
