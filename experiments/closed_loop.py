@@ -99,7 +99,8 @@ class Asked:
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
-  """(query(nodes [E], keys [E, 2], executed [E]) -> `Asked`, the planner's config).
+  """(query(nodes [E], keys [E, 2], executed [E], running [E]) -> `Asked`, the planner's
+  config).
 
   Every planner's clock covers the whole query, its result included (`anytime.timed_result`).
   parallel: steps in chunks, then its best rollout; pachs: real-time mode
@@ -115,9 +116,10 @@ def make_query(name: str, task: str, env, model, args, num: int):
                              replay_remainder=bool(args.replay_remainder),
                              chunk_iterations=args.chunk_iterations)
 
-    def query(nodes, keys, executed):
+    def query(nodes, keys, executed, running):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
-                                                     time_limit_s=args.query_time))
+                                                     time_limit_s=args.query_time,
+                                                     active=running))
       search = answer.search
       return Asked(answer.actions, answer.length, search.evaluated, answer.reaches_goal,
               {'kind': answer.kind, 'search_length': search.path_length,
@@ -136,7 +138,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     compiled, steps, timing = {}, {}, {}
     episodes_at_goal = jax.jit(env.is_goal)
 
-    def query(nodes, keys, executed):
+    def query(nodes, keys, executed, running):
       if not compiled:  # compiled in the first query, before its clock, as PACHS and MPPI are
         shape = jax.eval_shape(rollout.init, nodes, keys)
         compiled.update(init=rollout.init.lower(nodes, keys).compile(),
@@ -169,7 +171,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     mppi = bl.make_mppi(env, model, config)
     previous, timing = {}, {}
 
-    def query(nodes, keys, executed):
+    def query(nodes, keys, executed, running):
       # warm start: the last plan without its executed actions (its last action repeated),
       # or the policy's rollout from the current state where nothing of it is left
       nominal = np.asarray(mppi.init(nodes, keys).nominal)
@@ -206,7 +208,7 @@ def served_query(task: str, args, num: int):
   pool = concurrent.futures.ThreadPoolExecutor(len(parts))
   asked = [0]
 
-  def query(nodes, keys, executed):
+  def query(nodes, keys, executed, running):
     fields = client.node_fields(nodes)
     ask = lambda c, rows: c.plan({k: v[rows] for k, v in fields.items()},
                                  executed=np.asarray(executed)[rows], keys=np.asarray(keys)[rows],
@@ -445,6 +447,7 @@ def run_one(name, args, env, model, starts, perturbation, payload, out, stop) ->
   wilson = stats.wilson_interval(k, n)
   won = episodes.success_step[episodes.success]
   row = {'planner': name, 'episodes': n, 'successes': k, 'success_rate': k / n,
+         'failures': int(episodes.failed.sum()),
          'ci95_low': low, 'ci95_high': high, 'wilson_ci95': list(wilson),
          'world_steps_failed_mean': stats.mean_where(episodes.steps, ~episodes.success),
          'steps_to_success_mean': stats.mean_or_none(won),
@@ -452,6 +455,7 @@ def run_one(name, args, env, model, starts, perturbation, payload, out, stop) ->
   print(row, flush=True)
   payload['summary'].append(row)
   payload['episodes'][name] = {'success': episodes.success.tolist(),
+                               'failed': episodes.failed.tolist(),
                                'success_step': episodes.success_step.tolist(),
                                'steps': episodes.steps.tolist()}
   common.write_json(out, payload)

@@ -300,12 +300,13 @@ def _loop(args: argparse.Namespace) -> int:
                      args.max_queries, jax.random.PRNGKey(args.seed))
   names = replan.AnswerKind.NAMES
   rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),
+                'failed': bool(worlds.failed[e]),
                 'steps': int(worlds.steps[e]), 'queries': int(log.queries[e]),
                 'policy_steps': int(log.policy_steps[e])},
                **{name: int(log.answers[e, k]) for k, name in enumerate(names)})
           for e, inst in enumerate(instances)]
-  print(planner.format_table(rows, ['instance', 'success', 'steps', 'queries'] + list(names)
-                             + ['policy_steps']))
+  print(planner.format_table(rows, ['instance', 'success', 'failed', 'steps', 'queries']
+                             + list(names) + ['policy_steps']))
   print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
   writes = []
   if args.json:

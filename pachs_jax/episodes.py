@@ -37,16 +37,19 @@ class Worlds:
     self._start_bookkeeping()
 
   def _start_bookkeeping(self) -> None:
-    """Success (episodes that start at a goal count), steps and the step of each success."""
+    """Success (episodes that start at a goal count), failure (`env.is_failure`: no edge
+    leaves the state), steps and the step of each success."""
     self.is_goal = jax.jit(self.env.is_goal)
+    self.is_failure = jax.jit(self.env.is_failure)
     self.success = np.array(self.is_goal(self.batch()))
+    self.failed = np.array(self.is_failure(self.batch())) & ~self.success
     self.steps = np.zeros(self.num, np.int64)
     self.success_step = np.full(self.num, -1, np.int64)
 
   @property
   def active(self) -> np.ndarray:
-    """[E] bool the episodes that have not reached the goal."""
-    return ~self.success
+    """[E] bool the episodes that have neither reached the goal nor failed."""
+    return ~self.success & ~self.failed
 
   def batch(self) -> base.NodeState:
     """NodeState [E] of the worlds' current states."""
@@ -66,9 +69,11 @@ class Worlds:
       self._judge(moving)
 
   def _judge(self, moving: np.ndarray) -> None:
-    reached = np.asarray(self.is_goal(self.batch())) & moving
+    batch = self.batch()
+    reached = np.asarray(self.is_goal(batch)) & moving
     self.success_step[reached] = self.steps[reached]
     self.success |= reached
+    self.failed |= np.asarray(self.is_failure(batch)) & moving & ~reached
 
   def trajectory(self, episode: int) -> base.NodeState:
     """NodeState [S + 1, ...] the states episode went through, the start first."""
@@ -124,10 +129,11 @@ def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarr
 
 
 def session_query(session: replan.Session, time_limit_s: float) -> Callable:
-  """query(nodes [E], keys [E, 2], executed [E]) -> the session's `replan.Answer` (numpy) of a
-  `time_limit_s` query (`run`'s planner)."""
-  return lambda nodes, keys, executed: jax.tree.map(np.asarray, session.plan(
-      nodes, executed, keys, time_limit_s=time_limit_s))
+  """query(nodes [E], keys [E, 2], executed [E], running [E]) -> the session's
+  `replan.Answer` (numpy) of a `time_limit_s` query, searched for the running episodes (`run`'s
+  planner)."""
+  return lambda nodes, keys, executed, running: jax.tree.map(np.asarray, session.plan(
+      nodes, executed, keys, time_limit_s=time_limit_s, active=running))
 
 
 def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: int = 10,
@@ -140,9 +146,10 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   fill_with_policy), until every episode reached the goal or made max_queries queries.
 
   planner: a `replan.Session` (reset, then asked for `time_limit_s` s per query), or
-    query(nodes [E], keys [E, 2], executed [E]) -> an answer with actions [E, T, A] and length
-    [E] (numpy; its kind and states are logged where it has them). executed: the actions of
-    the last answer executed (`replan.DIVERGED` where the policy moved the episode after it).
+    query(nodes [E], keys [E, 2], executed [E], running [E]) -> an answer with actions
+    [E, T, A] and length [E] (numpy; its kind and states are logged where it has them).
+    executed: the actions of the last answer executed (`replan.DIVERGED` where the policy
+    moved the episode after it); running: the episodes still going (`Worlds.active`).
   key: the PRNG key each query's per-episode keys are folded from (None: PRNGKey(0)).
   policy: nodes [E] -> actions [E, A] (None: the session's deterministic actor).
   stop: checked before each query; once True the episodes end where they are.
@@ -175,7 +182,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     keys = jax.vmap(lambda i, q=number: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
     began = time.perf_counter()
-    answer = query(nodes, keys, executed)
+    answer = query(nodes, keys, executed, running)
     if on_answer is not None:
       on_answer(number, nodes, running, executed, answer, time.perf_counter() - began)
     log.queries += running

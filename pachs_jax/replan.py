@@ -247,7 +247,7 @@ class Session:
     self.last = None
 
   def plan(self, states: base.NodeState, executed=None, key: jax.Array = None,
-           time_limit_s: Optional[float] = None) -> Answer:
+           time_limit_s: Optional[float] = None, active=None) -> Answer:
     """The `Answer` [E] from the episodes' current states [E].
 
     executed: [E] ints, the actions of the last answer executed since it was given
@@ -255,6 +255,8 @@ class Session:
     key: one PRNG key or per-episode keys [E, 2] (None: PRNGKey(0)).
     time_limit_s: the whole query's wall clock (s): following the candidates, the search and
       the choice; None searches to the end of the budget.
+    active: [E] bool the episodes to search (None: all); the others' searches stop at once
+      (their answer: a candidate's, or none). One device only (a mesh searches all).
     """
     num = jax.tree.leaves(states)[0].shape[0]
     key = jax.random.PRNGKey(0) if key is None else key
@@ -271,16 +273,16 @@ class Session:
       if done.shape != (num,) or np.any(done < 0):
         raise ValueError(f'executed must hold {num} counts >= 0, got {executed!r}')
       actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
-    self.last = self.answer(states, actions, length, key, time_limit_s)
+    self.last = self.answer(states, actions, length, key, time_limit_s, active=active)
     return self.last
 
   def answer(self, states: base.NodeState, actions: jax.Array, length: jax.Array,
              key: jax.Array = None, time_limit_s: Optional[float] = None,
-             bucket: Optional[int] = None) -> Answer:
+             bucket: Optional[int] = None, active=None) -> Answer:
     """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
     [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
     that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
-    `plan`. The remainder is followed where 'remainder' is a candidate and replayed by the
+    `plan`, active as there. The remainder is followed where 'remainder' is a candidate and replayed by the
     search where replay_remainder. bucket: a power of two >= E that the follow and the search are
     padded to (one compiled program for every E up to it; None: E's own bucket)."""
     num = jax.tree.leaves(states)[0].shape[0]
@@ -320,7 +322,7 @@ class Session:
     else:
       result = programs.plan(self.env, self.actor_critic, states, self.config, key,
                              time_limit_s=left, chunk_iterations=self.chunk_iterations,
-                             search=self.search, min_bucket=bucket, replay=replay)
+                             search=self.search, min_bucket=bucket, replay=replay, live=active)
     choosing = time.perf_counter()
     if rows > num:  # the choice in the padded batch too (its rows after num dropped)
       grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)

@@ -27,6 +27,19 @@ def test_worlds_judge_success_in_the_world_and_stop_finished_ones():
   assert [len(worlds.trajectory(e).t) for e in range(2)] == [1, 3]
 
 
+def test_an_episode_whose_t_tipped_over_has_failed_and_stops():
+  env = envs.make('pusht-fixed')
+  away = env.node_from_pose(np.array([0.1, 0.1, 0.0]), np.asarray(pusht.FIXED_GOAL))
+  tipped = away.replace(qpos=np.asarray(away.qpos).copy())
+  tipped.qpos[10:14] = [np.cos(0.4), np.sin(0.4), 0.0, 0.0]  # 46 degrees about the x axis
+  starts = jax.tree.map(lambda a, b: np.stack([np.asarray(a), np.asarray(b)]), away, tipped)
+  assert np.asarray(env.is_failure(starts)).tolist() == [False, True]
+  worlds = episodes.Worlds(env, starts, None)
+  assert worlds.failed.tolist() == [False, True] and worlds.active.tolist() == [True, False]
+  worlds.execute(np.zeros((2, 2, env.action_size), np.float32), np.array([2, 2]))
+  assert worlds.steps.tolist() == [2, 0]  # the failed episode does not move
+
+
 def test_executed_plans_follow_the_queries_of_an_episode():
   states = lambda value: jax.tree.map(lambda x: np.full((2, 5), value), {'q': 0})
   log = episodes.Log(queries=np.zeros(2), answers=np.zeros((2, 5)), policy_steps=np.zeros(2))

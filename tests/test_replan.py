@@ -221,6 +221,14 @@ def test_bad_session_settings_are_refused(env, kwargs, message):
     replan.Session(env, TowardGoal(DIM), **kwargs)
 
 
+def test_episodes_not_active_are_not_searched(env, session):
+  nodes = _nodes(env, [[0.0, 0.0]] * 3, [[0.5, 0.0]] * 3)
+  session.reset()
+  answer = jax.tree.map(np.asarray, session.plan(nodes, active=np.array([True, False, True])))
+  assert answer.search.evaluated.tolist()[1] == 0 and answer.search.path_length[1] == 0
+  assert answer.search.evaluated[0] > 0 and answer.search.evaluated[2] > 0
+
+
 def test_executed_must_match_the_episodes(env, session):
   nodes = _nodes(env, [[0.0, 0.0]] * 3, [[0.3, 0.0]] * 3)
   session.reset()

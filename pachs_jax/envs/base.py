@@ -152,6 +152,11 @@ class Env(abc.ABC):
     """[B] bool success rule of a batch of nodes."""
     return jax.vmap(self.goal_reached)(nodes)
 
+  def is_failure(self, nodes: NodeState) -> jax.Array:
+    """[B] bool states no edge can leave validly (an episode there has failed; PushT: the
+    free T tipped over). Default: none."""
+    return jnp.zeros(jax.tree.leaves(nodes)[0].shape[:1], bool)
+
   def initial_nodes(self, keys: jax.Array) -> NodeState:
     """[B] random start nodes, one per key in keys [B, 2]."""
     return jax.vmap(self.sample_instance)(keys)

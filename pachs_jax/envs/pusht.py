@@ -704,3 +704,7 @@ class PushTEnv(base.Env):
 
   def goal_reached(self, node: base.NodeState) -> jax.Array:
     return coverage.coverage(t_pose(node.qpos), node.goal) >= self.config.success_coverage
+
+  def is_failure(self, nodes: base.NodeState) -> jax.Array:
+    """[B] bool the free T has tipped over: every edge from there is invalid."""
+    return t_tilt(nodes.qpos) >= MAX_T_TILT

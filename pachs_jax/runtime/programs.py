@@ -173,7 +173,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
          started: Optional[Callable[[], object]] = None,
-         compile_first: bool = False, replay=None) -> SearchResult:
+         compile_first: bool = False, replay=None, live=None) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -200,6 +200,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     wider pops) as instances stop (each one more program to compile or load); False runs the
     whole search in the loop of the live instances' layout
     (the one-shot `pachs plan`: a shorter start-up for a longer search).
+  live: [I] bool the instances to search (None: all); the others stop at once (stop reason
+    'running', no path).
   replay: paths from the starts (actions [I, T, A], length [I]) that the search's first chain
     lane replays (`search.replay`; a replanning query's last answer; None: none).
   """
@@ -247,7 +249,10 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                              stored('model check'), owner)
     if padded != num_instances:
       start_nodes, keys, replay = pad_rows((start_nodes, keys, replay), padded)
-    live = jax.device_put(np.arange(padded) < num_instances)
+    searched = np.arange(padded) < num_instances
+    if live is not None:
+      searched[:num_instances] &= np.asarray(live, bool).reshape(num_instances)
+    live = jax.device_put(searched)
     init_name, init_args = (('init', (start_nodes, keys, live)) if replay is None else
                             ('init replay', (start_nodes, keys, live, replay)))
     new = init_name not in programs
