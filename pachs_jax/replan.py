@@ -5,6 +5,7 @@ with the best of the search's path, the last answer's remainder and the policy's
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import time
 from typing import Callable, Optional, Sequence
 
@@ -17,6 +18,7 @@ from pachs_jax import trees
 from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import base
 from pachs_jax.search import capacity
+from pachs_jax.search.checks import check_start_nodes, instance_keys
 from pachs_jax.search.result import SearchResult
 
 # `Session.plan`'s `executed` for an episode whose last answer was not followed as given
@@ -170,6 +172,31 @@ def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int)
       search=search)
 
 
+def _counts(executed, num: int) -> np.ndarray:
+  """[num] int32 `executed` counts (>= 0, DIVERGED for larger); ValueError naming it."""
+  try:
+    values = np.asarray(executed)
+  except (TypeError, ValueError):
+    values = None
+  if (values is None or values.shape != (num,) or values.dtype.kind not in 'iu'
+      or np.any(values < 0)):
+    raise ValueError(f'executed must hold {num} integer counts >= 0, got {executed!r}')
+  return np.minimum(values.astype(np.int64), DIVERGED).astype(np.int32)
+
+
+def _check_query(time_limit_s, active, num: int) -> None:
+  """ValueError naming the argument for a time limit that is not seconds > 0 (or None) and an
+  active mask that is not [num] bools."""
+  if time_limit_s is not None and (isinstance(time_limit_s, bool) or not isinstance(
+      time_limit_s, numbers.Real) or not time_limit_s > 0 or not np.isfinite(time_limit_s)):
+    raise ValueError(f'time_limit_s must be a number of seconds > 0 or None, got '
+                     f'{time_limit_s!r}')
+  if active is not None:
+    mask = np.asarray(active)
+    if mask.shape != (num,) or mask.dtype != bool:
+      raise ValueError(f'active must be [{num}] bools, got {active!r}')
+
+
 CANDIDATES = ('remainder', 'policy')
 # none: on PushT's faithful physics, following them took half of a 3 s query on an H200 and they
 # won few answers; the search's path alone solved more episodes (docs/results.md, closed loop)
@@ -209,6 +236,12 @@ class Session:
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
+    if isinstance(self.candidates, str) or not all(
+        isinstance(c, str) for c in (self.candidates if isinstance(
+            self.candidates, (list, tuple, set, frozenset)) else [None])):
+      raise ValueError(f'candidates must be a sequence of names from {", ".join(CANDIDATES)} '
+                       f'(() for none), got {self.candidates!r}')
+    self.candidates = tuple(self.candidates)
     unknown = sorted(set(self.candidates) - set(CANDIDATES))
     if unknown:
       raise ValueError(f'unknown replanning candidate {unknown[0]!r}; valid: '
@@ -242,6 +275,13 @@ class Session:
     self.last: Optional[Answer] = None
     self.followed = {}  # the last query's candidates: 'remainder', 'policy' -> Followed [E]
 
+  def _check_states(self, states) -> int:
+    """E, the episodes of states [E] (ValueError unless the env's NodeState [E, ...])."""
+    if not isinstance(states, base.NodeState):
+      raise ValueError(f'states must be the env\'s NodeState [E, ...], got '
+                       f'{type(states).__name__}')
+    return check_start_nodes(states, self.env)
+
   def reset(self) -> None:
     """Forgets the last answer (new episodes)."""
     self.last = None
@@ -258,20 +298,18 @@ class Session:
     active: [E] bool the episodes to search (None: all); the others' searches stop at once
       (their answer: a candidate's, or none). One device only (a mesh searches all).
     """
-    num = jax.tree.leaves(states)[0].shape[0]
+    num = self._check_states(states)
     key = jax.random.PRNGKey(0) if key is None else key
     if self.last is not None and self.last.length.shape[0] != num:
       raise ValueError(f'the session plans {self.last.length.shape[0]} episodes, got {num} '
                        'states (reset() starts new episodes)')
     horizon, action_size = self.horizon, self.env.action_size
-    if self.last is None or executed is None or not (
+    done = None if executed is None else _counts(executed, num)
+    if self.last is None or done is None or not (
         'remainder' in self.candidates or self.replay_remainder):
       actions = jnp.zeros((num, horizon, action_size), jnp.float32)
       length = jnp.zeros((num,), jnp.int32)
     else:
-      done = np.minimum(np.asarray(executed, np.int64), DIVERGED).astype(np.int32)
-      if done.shape != (num,) or np.any(done < 0):
-        raise ValueError(f'executed must hold {num} counts >= 0, got {executed!r}')
       actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
     self.last = self.answer(states, actions, length, key, time_limit_s, active=active)
     return self.last
@@ -285,8 +323,13 @@ class Session:
     `plan`, active as there. The remainder is followed where 'remainder' is a candidate and replayed by the
     search where replay_remainder. bucket: a power of two >= E that the follow and the search are
     padded to (one compiled program for every E up to it; None: E's own bucket)."""
-    num = jax.tree.leaves(states)[0].shape[0]
+    num = self._check_states(states)
     key = jax.random.PRNGKey(0) if key is None else key
+    _check_query(time_limit_s, active, num)
+    try:
+      instance_keys(key, num)
+    except (TypeError, ValueError):
+      raise ValueError(f'key must be one PRNG key or [{num}, 2] keys, got {key!r}') from None
     horizon = self.horizon
     replay = (actions, length) if self.replay_remainder else None
     if 'remainder' not in self.candidates:  # nothing to follow

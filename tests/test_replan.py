@@ -211,6 +211,8 @@ def test_a_replayed_remainder_is_the_search_s_own_goal(env):
 @pytest.mark.parametrize('kwargs, message', [
     ({'candidates': ('remainder', 'previous')}, "unknown replanning candidate 'previous'"),
     ({'horizon': 0}, 'horizon must be a positive int'),
+    ({'candidates': 'policy'}, 'candidates must be a sequence of names'),
+    ({'candidates': None}, 'candidates must be a sequence of names'),
     ({'replay_remainder': True}, 'replay_remainder needs chain lanes'),
     ({'replay_remainder': True, 'config': SearchConfig(budget=16, rollout_share=0.5),
       'mesh': object()}, 'replay_remainder needs a search on one'),
@@ -219,6 +221,25 @@ def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):
     kwargs = {'config': SearchConfig(budget=16), **kwargs}
     replan.Session(env, TowardGoal(DIM), **kwargs)
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'states': None}, "states must be the env's NodeState"),
+    ({'time_limit_s': '1'}, 'time_limit_s must be a number of seconds > 0'),
+    ({'time_limit_s': -1.0}, 'time_limit_s must be a number of seconds > 0'),
+    ({'key': 'x'}, 'key must be one PRNG key or \\[2, 2\\] keys'),
+    ({'active': [True]}, 'active must be \\[2\\] bools'),
+    ({'active': [1, 0]}, 'active must be \\[2\\] bools'),
+    ({'executed': [np.nan, 1]}, 'executed must hold 2 integer counts'),
+    ({'executed': [1.5, 1]}, 'executed must hold 2 integer counts'),
+    ({'executed': [-1, 1]}, 'executed must hold 2 integer counts'),
+])
+def test_bad_query_arguments_are_refused_by_name(env, session, kwargs, message):
+  nodes = _nodes(env, [[0.0, 0.0]] * 2, [[0.3, 0.0]] * 2)
+  args = {'states': nodes, **kwargs}
+  session.reset()
+  with pytest.raises(ValueError, match=message):
+    session.plan(args.pop('states'), **args)
 
 
 def test_episodes_not_active_are_not_searched(env, session):
@@ -233,7 +254,7 @@ def test_executed_must_match_the_episodes(env, session):
   nodes = _nodes(env, [[0.0, 0.0]] * 3, [[0.3, 0.0]] * 3)
   session.reset()
   session.plan(nodes)
-  with pytest.raises(ValueError, match='executed must hold 3 counts'):
+  with pytest.raises(ValueError, match='executed must hold 3 integer counts'):
     session.plan(nodes, executed=[1, 2])
   with pytest.raises(ValueError, match='the session plans 3 episodes, got 2'):
     session.plan(jax.tree.map(lambda x: x[:2], nodes), executed=[1, 1])

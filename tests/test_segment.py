@@ -141,6 +141,7 @@ def test_segments_with_compaction_equal_without(grid, share, restart, sharded):
     (dict(edge_steps=0), 'edge_steps'),
     (dict(edge_steps=2.5), 'edge_steps'),
     (dict(edge_steps=3001), 'exceeds budget'),
+    (dict(pop_size=300_000_000, edge_steps=8), 'pop_size \\* edge_steps must stay below'),
 ])
 def test_edge_steps_validation(changes, match):
   with pytest.raises(ValueError, match=match):

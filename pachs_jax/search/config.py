@@ -171,6 +171,9 @@ class SearchConfig(EdgeSearchConfig):
     if (isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 <= share < 1):
       raise ValueError(f'SearchConfig.rollout_share must be a number in [0, 1), got {share!r}')
     object.__setattr__(self, 'rollout_share', float(share))
+    if self.pop_size * self.edge_steps >= 2**31:
+      raise ValueError(f'SearchConfig.pop_size * edge_steps must stay below 2**31 (int32 '
+                       f'evaluation counts), got {self.pop_size} * {self.edge_steps}')
     if self.edge_steps > self.budget:
       raise ValueError(f'SearchConfig.edge_steps ({self.edge_steps}) exceeds budget '
                        f'({self.budget}): no edge would fit the budget')
