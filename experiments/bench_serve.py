@@ -124,6 +124,9 @@ def main() -> None:
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()
+  common.check_out_folder(parser, args.out)
+  if args.url is not None and not args.url.startswith(('ws://', 'wss://')):
+    parser.error(f'--url {args.url!r}: a ws:// or wss:// address of a running pachs serve')
   try:
     big_sizes = [int(b) for b in args.big.split(',') if b]
     counts = [int(c) for c in args.clients.split(',') if c]

@@ -404,9 +404,19 @@ def main():
                  f'{", ".join(replan.CANDIDATES)}')
   for name in ('pachs', 'pachs-original'):  # a bad search setting before any work
     if name in names:
-      common.checked(parser, lambda name=name: planner.default_config(
+      config = common.checked(parser, lambda name=name: planner.default_config(
           args.task, 'original' if name == 'pachs-original' else 'pachs',
           budget=args.budget, **flags.search_overrides(args)))
+      if args.replay_remainder and not config.rollout_lanes:
+        parser.error(f'--replay-remainder 1: {name} on {args.task} has no chain lanes to '
+                     'replay the remainder in (rollout share 0)')
+  if args.server is not None and 'pachs' in names:
+    from pachs_jax import client  # pylint: disable=import-outside-toplevel
+    try:
+      with client.Client(args.server, args.task) as asking:
+        asking.health()
+    except Exception as err:  # pylint: disable=broad-except
+      parser.error(f'--server {args.server!r}: no pachs serve answers there ({err})')
   perturbation = common.checked(parser, lambda: parse_perturbation(args.perturb))
   common.check_out(parser, args.out)
   label = common.task_label(args.task, args.layout)

@@ -81,13 +81,27 @@ def task_instances(task: str, instances: Optional[int] = None,
 
 
 def check_out(parser: argparse.ArgumentParser, path: Optional[str]) -> None:
-  """parser.error unless a results file can be written at path (`cli.check_output_path`;
-  None: the script's default, under experiments/results/), before any work."""
+  """parser.error unless a results JSON can be written at path (`cli.check_output_path`; a
+  .json name, since its .md and plots are written beside it; None: the script's default, under
+  experiments/results/), before any work."""
   if path is not None:
+    if not path.endswith('.json'):
+      parser.error(f'--out {path!r}: a .json file (the .md and plots go beside it)')
     try:
       cli.check_output_path('--out', path)
     except ValueError as err:
       parser.error(str(err))
+
+
+def check_out_folder(parser: argparse.ArgumentParser, path: str) -> None:
+  """parser.error unless path is, or can be made, a folder this process writes to (made now,
+  before any work)."""
+  try:
+    os.makedirs(path, exist_ok=True)
+    if not os.access(path, os.W_OK):
+      raise OSError('not writable')
+  except OSError as err:
+    parser.error(f'--out {path!r}: not a folder that can be written ({err})')
 
 
 def checked(parser: argparse.ArgumentParser, build: Callable[[], Any]) -> Any:

@@ -11,7 +11,6 @@ A layout is meant to need search: the policy alone should solve at most half of 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import time
@@ -20,7 +19,7 @@ import jax
 import numpy as np
 
 import common
-from pachs_jax import planner
+from pachs_jax import argtypes, planner
 from pachs_jax.runtime import programs
 from pachs_jax.envs import pusht
 from pachs_jax.envs import coverage, layouts
@@ -84,10 +83,10 @@ def evaluate(name: str, num: int, backend: str, pachs_budget: int, seed: int) ->
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
   parser.add_argument('--layouts', default=','.join(layouts.NAMES),
                       help=f'comma list of layouts (default: all, {", ".join(layouts.NAMES)})')
-  parser.add_argument('--pachs-budget', type=int, default=0,
+  parser.add_argument('--pachs-budget', type=argtypes.integer(0), default=0,
                       help='also plan each layout with PACHS at this budget (0: no)')
   common.add_common_args(parser, out=None, instances=None, backend=True, seed=True)
   parser.set_defaults(backend='auto')  # MuJoCo C physics on a machine without an accelerator
@@ -98,7 +97,8 @@ def main():
       layouts.layout(name)  # unknown names fail before any work
     except ValueError as err:
       parser.error(str(err))
-  num = common.task_instances(TASK, args.instances)
+  num = common.task_instances(TASK, args.instances, parser)
+  common.check_out(parser, args.out)
   out = args.out or f'experiments/results/eval_layouts_{jax.default_backend()}.json'
   rows = [evaluate(n, num, args.backend, args.pachs_budget, args.seed) for n in names]
   provenance = common.provenance()

@@ -51,7 +51,8 @@ def main() -> None:
   parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
   parser.add_argument('--presets', default='faithful')
   parser.add_argument('--instances', type=argtypes.positive_int, default=16)
-  parser.add_argument('--model', default=None, help='model directory (default: the shipped)')
+  parser.add_argument('--model', default=None, type=argtypes.path('a model directory'),
+                      help='model directory (default: the shipped)')
   common.add_common_args(parser, out='experiments/results/training/policy_physics.json')
   args = parser.parse_args()
   presets = [p for p in args.presets.split(',') if p]
@@ -59,6 +60,9 @@ def main() -> None:
   if not presets or bad:
     parser.error(f'--presets: names of {", ".join(pusht.PHYSICS_PRESETS)}; got {bad}')
   common.check_out(parser, args.out)
+  common.task_instances(args.task, args.instances, parser)
+  if args.model is not None and not os.path.isdir(args.model):
+    parser.error(f'--model {args.model!r}: not a model directory')
   rows = []
   for preset in presets:
     rows.append(rollouts(args.task, preset, args.instances, args.model))

@@ -116,11 +116,11 @@ def overrides(args: argparse.Namespace) -> dict:
   if args.lr is not None:
     out.update(actor_learning_rate=args.lr, critic_learning_rate=args.lr,
                alpha_learning_rate=args.lr)
-  if args.hidden:
+  if args.hidden is not None:
     out['actor_hidden'] = out['critic_hidden'] = _widths(args.hidden, '--hidden')
-  if args.actor_hidden:
+  if args.actor_hidden is not None:
     out['actor_hidden'] = _widths(args.actor_hidden, '--actor-hidden')
-  if args.critic_hidden:
+  if args.critic_hidden is not None:
     out['critic_hidden'] = _widths(args.critic_hidden, '--critic-hidden')
   return out
 

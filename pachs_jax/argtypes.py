@@ -28,8 +28,10 @@ def positive_float(text: str) -> float:
 
 def numbers(text: str, what: str) -> tuple:
   """A comma-separated list of numbers ('' gives ()); what names them in the error."""
+  if not text.strip():
+    return ()
   try:
-    return tuple(float(x) for x in text.split(',') if x.strip())
+    return tuple(float(x) for x in text.split(','))
   except ValueError:
     raise argparse.ArgumentTypeError(f'must be {what}, comma separated, got {text!r}') from None
 

@@ -50,6 +50,13 @@ def _check_image_path(flag: str, path: str) -> None:
                        f'{", ".join(sorted(formats))})')
 
 
+def _check_gif_path(flag: str, path: str) -> None:
+  """ValueError unless path can be written and names a .gif file (animations are GIFs)."""
+  check_output_path(flag, path)
+  if os.path.splitext(path)[1].lower() != '.gif':
+    raise ValueError(f'{flag} {path}: animations are written as GIF; name a .gif file')
+
+
 def _write_outputs(prog: str, outputs) -> int:
   """Runs each (flag, path, write) in turn, also after one fails; a failure prints one line
   '{prog}: error: ...'. Returns 0, or 2 when any failed."""
@@ -67,7 +74,7 @@ def _write_outputs(prog: str, outputs) -> int:
 def _demo(args: argparse.Namespace) -> int:
   _check_image_path('--out', args.out)
   if args.gif:
-    check_output_path('--gif', args.gif)
+    _check_gif_path('--gif', args.gif)
   from pachs_jax import demo  # start-up path: lazy (MuJoCo)
   summary = demo.run_demo(args.task, args.instance, args.out, args.steps, args.gif,
                           progress=True)
@@ -275,9 +282,10 @@ def _loop(args: argparse.Namespace) -> int:
   """`pachs loop`: episodes of canonical instances in MuJoCo C worlds, planned through a
   replanning session (`episodes.run`); a table per episode, then --json and --video."""
   from pachs_jax import outputs  # start-up path: lazy (JAX)
-  for flag, path in (('--json', args.json), ('--video', args.video)):
-    if path:
-      check_output_path(flag, path)
+  if args.json:
+    check_output_path('--json', args.json)
+  if args.video:
+    _check_gif_path('--video', args.video)
   outputs.check_distinct({'--json': args.json, '--video': args.video})
   from pachs_jax import envs, episodes, planner, replan
   num_available = envs.spec(args.task).num_instances
