@@ -26,6 +26,28 @@ def positive_float(text: str) -> float:
   return value
 
 
+def number(low: float = -math.inf, high: float = math.inf, high_open: bool = False,
+           allow_inf: bool = False) -> Callable[[str], float]:
+  """An argument type: a number in [low, high] ([low, high) with high_open), finite unless
+  allow_inf."""
+  if math.isinf(high):
+    words = f'a number >= {low:g}' + (" ('inf' allowed)" if allow_inf else ', finite')
+  else:
+    words = f'a number in [{low:g}, {high:g}' + (')' if high_open else ']')
+
+  def parse(text: str) -> float:
+    try:
+      value = float(text)
+    except ValueError:
+      value = math.nan
+    inside = low <= value and (value < high if high_open else value <= high)
+    if math.isnan(value) or not inside or (math.isinf(value) and not allow_inf):
+      raise argparse.ArgumentTypeError(f'must be {words}, got {text!r}')
+    return value
+
+  return parse
+
+
 def numbers(text: str, what: str) -> tuple:
   """A comma-separated list of numbers ('' gives ()); what names them in the error."""
   if not text.strip():

@@ -341,9 +341,28 @@ def _loop(args: argparse.Namespace) -> int:
   return _write_outputs('pachs loop', writes)
 
 
+def _check_listen(host: str, port: int) -> None:
+  """ValueError naming --host or --port unless a socket can listen there now (the port is
+  given back at once; 0 picks any free one)."""
+  import socket  # pylint: disable=import-outside-toplevel
+  if not 0 <= port < 65536:
+    raise ValueError(f'--port {port}: must be in 0..65535')
+  try:
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+  except OSError as err:
+    raise ValueError(f'--host {host}: not an address of this machine ({err})') from None
+  with socket.socket(family, kind, proto) as probe:
+    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+      probe.bind(address)
+    except OSError as err:
+      raise ValueError(f'--host {host} --port {port}: cannot listen there ({err})') from None
+
+
 def _serve(args: argparse.Namespace) -> int:
   """`pachs serve`: loads and warms the tasks' planners, then answers planning requests over a
   websocket until SIGTERM or SIGINT (docs/serving.md)."""
+  _check_listen(args.host, args.port)  # before the minutes of loading and warming
   from pachs_jax import planner, serve  # start-up path: lazy (JAX)
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,

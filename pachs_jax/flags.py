@@ -14,13 +14,17 @@ AFTER_GOALS = ('stop', 'improve')  # SearchConfig.after_goal
 
 # SearchConfig field -> (flags, add_argument keywords); every default None: the task's
 SEARCH_FLAGS: Dict[str, tuple] = {
-    'weight': (('--weight', '-w'), dict(type=float, help='heuristic weight w')),
-    'num_actions': (('--num-actions', '-N'), dict(type=int, help='actions per expansion')),
-    'pop_size': (('--pop-size', '-K'), dict(type=int, help='edges popped per iteration')),
+    'weight': (('--weight', '-w'), dict(type=argtypes.number(0.0),
+                                        help='heuristic weight w')),
+    'num_actions': (('--num-actions', '-N'), dict(type=argtypes.positive_int,
+                                                 help='actions per expansion')),
+    'pop_size': (('--pop-size', '-K'), dict(type=argtypes.positive_int,
+                                           help='edges popped per iteration')),
     'edge_steps': (('--edge-steps', '-H'), dict(
-        type=int, help="transitions per edge (default: the task's; 1 = one-step edges)")),
+        type=argtypes.positive_int,
+        help="transitions per edge (default: the task's; 1 = one-step edges)")),
     'rollout_share': (('--rollout-share',), dict(
-        type=float, help="the share of the K lanes that extend chains of the actor's edges "
+        type=argtypes.number(0.0, 1.0, high_open=True), help="the share of the K lanes that extend chains of the actor's edges "
         "(default: the task's; 0: none)")),
     'chain_restart': (('--chain-restart',), dict(
         choices=CHAIN_RESTARTS, help="where a chain of the actor's edges restarts: the start, "
@@ -29,11 +33,11 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         choices=AFTER_GOALS, help="what the first goal does: stop the search, or improve the "
         "path with the evaluations that remain (default: the task's)")),
     'improve_allowance': (('--improve-allowance',), dict(
-        type=float, help="with --after-goal improve, the evaluations spent after the first "
+        type=argtypes.number(0.0, allow_inf=True), help="with --after-goal improve, the evaluations spent after the first "
         "goal as a multiple of those spent up to it ('inf': until the budget ends; default: "
         "the task's)")),
     'uniform_share': (('--uniform-share',), dict(
-        type=float, help="the probability that an action the search draws from the actor is "
+        type=argtypes.number(0.0, 1.0), help="the probability that an action the search draws from the actor is "
         "drawn uniformly instead (default: the task's; 0: the actor's alone)")),
     'lattice_resolution': (('--lattice-resolution',), dict(
         type=lambda s: argtypes.numbers(s, 'cell sizes'),

@@ -203,7 +203,7 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (open_loop, ['--budget', '-1'], "--budget: must be a positive integer, got '-1'"),
     (open_loop, ['--copies', '0'], "--copies: must be a positive integer, got '0'"),
     (open_loop, ['--lattice-scale', '0'], "--lattice-scale: must be a positive number"),
-    (open_loop, ['--weight', 'nan'], 'SearchConfig.weight must be a finite number >= 0'),
+    (open_loop, ['--weight', 'nan'], 'argument --weight/-w: must be a number >= 0, finite'),
     (open_loop, ['--rounds', '0'], "--rounds: must be a positive integer, got '0'"),
     (open_loop, ['--instances', '31'], '--instances 31 exceeds the 30 canonical instances'),
     (open_loop, ['--planners', ','], '--planners: none named'),
@@ -220,7 +220,7 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', ''], '--planners: none named'),
     (closed_loop, ['--planners', 'pachs,foo'], '--planners: unknown foo'),
     (closed_loop, ['--candidates', 'policy,x'], '--candidates: unknown x'),
-    (closed_loop, ['--planners', 'pachs', '-K', '0'], 'SearchConfig.pop_size must be a positive'),
+    (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
 ])
 def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message, monkeypatch,
                                                            capsys):
