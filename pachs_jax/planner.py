@@ -217,6 +217,12 @@ class Planner:
       if fn is not None and not callable(fn):  # before the signal handlers
         raise ValueError(f'{name} must be a function or None, got {fn!r}')
     key = jax.random.PRNGKey(check_seed(seed))
+    if not isinstance(shrink, (bool, np.bool_)):
+      raise ValueError(f'shrink must be True or False, got {shrink!r}')
+    if devices is not None and (isinstance(devices, (str, bytes)) or not all(
+        isinstance(d, jax.Device) for d in np.ravel(np.asarray(devices, object)))):
+      raise ValueError(f'devices must be a sequence of jax devices (jax.devices()), got '
+                       f'{devices!r}')
     if start_nodes is None:
       start_nodes = self.canonical(instances)
     if devices is not None and time_limit_s is not None:

@@ -94,6 +94,16 @@ def test_bad_instances_are_refused(small, instances, message):
     small.plan(instances)
 
 
+@pytest.mark.parametrize('kwargs, message', [
+    ({'devices': 'cpu'}, 'devices must be a sequence of jax devices'),
+    ({'devices': ['cpu']}, 'devices must be a sequence of jax devices'),
+    ({'shrink': 'no'}, 'shrink must be True or False'),
+])
+def test_bad_plan_options_are_refused_by_name(small, kwargs, message):
+  with pytest.raises(ValueError, match=message):
+    small.plan([0], **kwargs)
+
+
 @pytest.mark.parametrize('seed,message', [(2**70, 'seed must fit in 64 bits'),
                                           (-2**63 - 1, 'seed must fit in 64 bits'),
                                           (1.5, 'seed must be an integer')])
