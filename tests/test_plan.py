@@ -43,7 +43,7 @@ def test_bad_devices_give_clear_errors(argv, message, capsys):
 @pytest.mark.parametrize('argv, message', [
     (['plan', '--task', 'pusht-fixed', '--instances', '40'], 'instances must lie in 0..29'),
     (['plan', '--task', 'pusht-fixed', '--budget', '0'], 'budget must be a positive'),
-    (['plan', '--task', 'pusht-fixed', '-w', '-1'], 'weight must be a finite number >= 0'),
+    (['plan', '--task', 'pusht-fixed', '-w', '-1'], '--weight/-w: must be a number >= 0, finite'),
     (['plan', '--task', 'pusht-fixed', '--checkpoint', planner.checkpoint_path('shelf')],
      "model of task 'shelf'"),
     (['plan', '--task', 'pusht-fixed', '--checkpoint', '/nonexistent'], 'no checkpoint'),
