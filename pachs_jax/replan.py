@@ -1,6 +1,6 @@
-"""Replanning: a session over E episodes that plans again from their new states and answers
-with the best of the search's path, the last answer's remainder and the policy's rollout
-(docs/closed_loop.md)."""
+"""Replanning: a session over E episodes that plans again from their new states, keeps its last
+answer, and answers with its search's path, or the best of it, the last answer's remainder and
+the policy's rollout (docs/closed_loop.md)."""
 
 from __future__ import annotations
 
@@ -206,7 +206,8 @@ DEFAULT_CANDIDATES = ()
 @dataclasses.dataclass
 class Session:
   """A planner session over E episodes: `plan` plans from their current states and answers
-  with the best candidate (`choose`); the session keeps its last answer between queries.
+  with the best candidate (`choose`; the search's path alone without candidates); the session
+  keeps its last answer between queries.
 
   env, actor_critic, config: as in `programs.plan` (the actor-critic's
     `deterministic_action(obs [B, O]) -> [B, A]` is the policy).
