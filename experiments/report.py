@@ -536,9 +536,11 @@ def cpu_claims(src: Sources) -> Dict[str, str]:
   if placeholder(job):
     out['job'] = placeholder(job)
   else:
-    cold, warm, _ = command_walls(job, 30)
-    out['job'] = (f'{cold:.1f} s cold, {span(warm)} warm ({job["provenance"]["device"]}, '
-                  f'{job["provenance"]["host_cpus"]} CPUs)')
+    cold, warm, summary = command_walls(job, 30)
+    found = re.search(r'found (\d+/\d+)', summary)
+    out['job'] = (f'{cold:.1f} s cold, {span(warm)} warm' + (
+        f', goals found in {found.group(1)} instances at the CPU budget' if found else '')
+        + f' ({job["provenance"]["device"]}, {job["provenance"]["host_cpus"]} CPUs)')
   if placeholder(suite):
     out['suite'] = placeholder(suite)
   else:
