@@ -44,13 +44,6 @@ run() {  # the command line of one run
   echo "$CL --layout $layout ${flags[*]} --out $o/${layout}_$variant.json" \
        "> $o/${layout}_$variant.log 2>&1; echo $1; tail -c 900 $o/${layout}_$variant.log"
 }
-: > /tmp/jobs
-for line in "$@"; do
-  commands=()
-  IFS=',' read -ra names <<< "$line"
-  for name in "${names[@]}"; do commands+=("$(run "$name")"); done
-  (IFS=';'; echo "${commands[*]}") >> /tmp/jobs
-done
-cat /tmp/jobs
-bash experiments/parallel_gpus.sh /tmp/jobs "$o/logs" $((END - SECONDS))
+export -f run; export CL o
+bash experiments/parallel_gpus.sh --lines run "$o/logs" $((END - SECONDS)) "$@"
 cd "$OUT" && tar czf closed_loop.tgz r && rm -rf r

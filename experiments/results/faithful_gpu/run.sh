@@ -29,12 +29,6 @@ job() {  # the command line of one job
             "--out $o/$1.json" ;;
   esac
 }
-: > /tmp/jobs
-for line in "$@"; do
-  commands=()
-  IFS=',' read -ra names <<< "$line"
-  for name in "${names[@]}"; do commands+=("$(job "$name")"); done
-  (IFS=';'; echo "${commands[*]}") >> /tmp/jobs
-done
-bash experiments/parallel_gpus.sh /tmp/jobs "$o/logs" $((END - SECONDS))
+export -f job; export OL o
+bash experiments/parallel_gpus.sh --lines job "$o/logs" $((END - SECONDS)) "$@"
 cd "$OUT" && tar czf faithful.tgz r && rm -rf r
