@@ -117,8 +117,6 @@ class Log:
     return out
 
 
-
-
 def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarray:
   """frames [F, H, W, 3] uint8 of what episode's world did, the plan being executed drawn
   dashed (`render.loop_frames`)."""

@@ -237,9 +237,8 @@ class Session:
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
-    if isinstance(self.candidates, str) or not all(
-        isinstance(c, str) for c in (self.candidates if isinstance(
-            self.candidates, (list, tuple, set, frozenset)) else [None])):
+    if not (isinstance(self.candidates, (list, tuple, set, frozenset))
+            and all(isinstance(c, str) for c in self.candidates)):
       raise ValueError(f'candidates must be a sequence of names from {", ".join(CANDIDATES)} '
                        f'(() for none), got {self.candidates!r}')
     self.candidates = tuple(self.candidates)

@@ -240,24 +240,23 @@ def evaluate(parts: Parts, state: SearchState, expansion: Expansion, lanes: Lane
   q = pool.edge_q[rows, edges.node, jnp.minimum(edges.slot, n - 1)]
   parent, mask = edges.node, edges.mask
   num_instances = parent.shape[0]
-  first, forced, forced_steps = replay_lib.next_edge(state.replay, rules.edges.steps)
-  if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges;
-    tips = state.chain  # the first replays its path while the replay lasts
+  # a search built with room for a replay (static): its first chain lane's next replayed edge
+  replay_edge = (replay_lib.next_edge(state.replay, rules.edges.steps)
+                 if r and parts.sizes.replay else None)
+  if r:  # rollout lanes: the actor's edge at each chain's tip, after the K - R best edges
+    tips = state.chain
     obs = env.observe(phases.flat(pool_lib.gather_nodes(pool, tips), num_instances * r))
     tip_action = segment.actor_samples(parts.actor_critic,
                                        lane_keys(state, 2, r).reshape(-1, 2), obs)
-    first_lane = jnp.arange(num_instances * r) % r == 0
-    tip_action = jnp.where((first_lane & jnp.repeat(forced_steps > 0, r))[:, None],
-                           jnp.repeat(first, r, axis=0), tip_action)
+    if replay_edge is not None:
+      tip_action = replay_lib.with_first_actions(tip_action, replay_edge, r)
     tip_q = cost_to_go(parts.actor_critic.q_values(obs, tip_action[:, None]))
     parent, action, q = (jnp.concatenate(x, axis=1) for x in (
         (parent, tips), (action, tip_action.reshape(num_instances, r, -1)),
         (q, tip_q.reshape(num_instances, r))))
     mask = jnp.concatenate([mask, jnp.broadcast_to(working[:, None], tips.shape)], axis=1)
   mask = rules.after_goal.prune(mask, pool_lib.gather(pool.g, parent), expansion.incumbent)
-  lane = jnp.arange(k) == k - r  # the first chain lane (none without chains)
-  replayed = (jnp.where(lane[None, :, None, None], forced[:, None], 0.0),
-              jnp.where(lane[None], forced_steps[:, None], 0))
+  replayed = () if replay_edge is None else replay_lib.lane_inputs(replay_edge, k - r, k)
   outcome, within, usable, out_of_budget = phases.evaluate(
       rules.edges.simulate, pool_lib.gather_nodes(pool, parent),
       rules.edges.inputs(action, lane_keys(state, 1, k), replayed), mask, state.evaluated,
@@ -305,11 +304,9 @@ def insert(parts: Parts, state: SearchState, expansion: Expansion,
   chain = next_chains(parts, pool, visits, incumbent, lane_keys(state, 3, 1)[:, 0],
                       node[:, k - r:], write[:, k - r:], outcome.is_goal[:, k - r:])
   replay = state.replay
-  if r:  # the replay goes on while its chain goes on from the edge's successor
-    steps_taken = outcome.length[:, k - r] if hasattr(outcome, 'length') else jnp.ones_like(
-        replay.done)
-    replay = replay_lib.advance(replay, steps_taken,
-                                write[:, k - r] & (chain[:, 0] == node[:, k - r]))
+  if r and parts.sizes.replay:  # the replay goes on while its chain goes on from its successor
+    taken = outcome.length[:, k - r] if steps > 1 else jnp.ones_like(replay.done)
+    replay = replay_lib.advance(replay, taken, write[:, k - r] & (chain[:, 0] == node[:, k - r]))
   incumbent = improve.offer(incumbent, pool, *improve.cheapest(
       pool, node, write & outcome.is_goal & rules.after_goal.goal_lanes(chain_lane)))
   dummy_heap = heap_lib.push(expansion.dummy_heap, dummy_key,

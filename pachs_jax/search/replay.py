@@ -61,6 +61,23 @@ def next_edge(replay: Replay, edge_steps: int):
   return actions[:, 0], actions[:, 1:], steps.astype(jnp.int32)
 
 
+def with_first_actions(tip_action: jax.Array, edge, num_chains: int) -> jax.Array:
+  """The chains' actions tip_action [I * R, A] with each instance's first chain lane taking
+  its replayed edge's first action (`next_edge`'s edge) while its replay lasts."""
+  first, _, steps = edge
+  lane = (jnp.arange(tip_action.shape[0]) % num_chains == 0) & jnp.repeat(steps > 0, num_chains)
+  return jnp.where(lane[:, None], jnp.repeat(first, num_chains, axis=0), tip_action)
+
+
+def lane_inputs(edge, lane: int, num_lanes: int):
+  """(forced [I, K, H - 1, A], forced_steps [I, K]): `next_edge`'s edge in lane `lane` of the
+  K, nothing forced in the others (the segment's replay inputs, `segment.make_segment_fn`)."""
+  _, forced, steps = edge
+  at = jnp.arange(num_lanes) == lane
+  return (jnp.where(at[None, :, None, None], forced[:, None], 0.0),
+          jnp.where(at[None], steps[:, None], 0))
+
+
 def advance(replay: Replay, steps: jax.Array, goes_on: jax.Array) -> Replay:
   """replay after its lane's edge: steps [I] int32 the transitions the edge applied, goes_on
   [I] bool the chain goes on from the edge's successor; otherwise the replay ends."""

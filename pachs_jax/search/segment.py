@@ -54,11 +54,8 @@ def make_segment_fn(env: base.Env, actor_critic: ActorCritic, edge_steps: int
   """
 
   def segment(nodes: base.NodeState, inputs) -> SegmentOutcome:
-    first_action, keys = inputs[:2]
+    first_action, keys, replayed = inputs[0], inputs[1], inputs[2:]
     batch = first_action.shape[0]
-    forced, forced_steps = inputs[2:] if len(inputs) > 2 else (
-        jnp.zeros((batch, max(edge_steps - 1, 1), first_action.shape[1]), jnp.float32),
-        jnp.zeros((batch,), jnp.int32))
 
     def body(carry, step):
       node, action, _, cost, length, is_goal, done = carry
@@ -67,12 +64,15 @@ def make_segment_fn(env: base.Env, actor_critic: ActorCritic, edge_steps: int
       node = trees.where(take, out.next_node, node)
       cost = cost + jnp.where(take, out.cost, 0.0)
       is_goal = jnp.where(take, out.is_goal, is_goal)
-      done = done | ~take | is_goal | ((forced_steps > 0) & (step + 1 >= forced_steps))
+      done = done | ~take | is_goal
       obs = env.observe(node)
       step_keys = jax.vmap(jax.random.fold_in, (0, None))(keys, step)
-      given = forced[:, jnp.minimum(step, forced.shape[1] - 1)]
-      next_action = jnp.where((step + 1 < forced_steps)[:, None], given,
-                              actor_samples(actor_critic, step_keys, obs))
+      next_action = actor_samples(actor_critic, step_keys, obs)
+      if replayed:  # (static) the replaying lanes' forced actions, and their end
+        forced, forced_steps = replayed
+        done = done | ((forced_steps > 0) & (step + 1 >= forced_steps))
+        given = forced[:, jnp.minimum(step, forced.shape[1] - 1)]
+        next_action = jnp.where((step + 1 < forced_steps)[:, None], given, next_action)
       carry = (node, next_action, obs, cost, length + take, is_goal, done)
       return carry, (jnp.where(take[:, None], action, 0.0), node)
 
