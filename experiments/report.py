@@ -456,9 +456,7 @@ def answer_counts(row: Dict) -> str:
 # the closed-loop runs on the faithful physics: file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default: the search's path alone, K 64)"),
-    ('pachs-k256', "PACHS, K 256"),
-    ('pachs-remainder-policy', 'PACHS, candidates remainder + policy'),
-    ('pachs-k256-remainder-policy', 'PACHS, K 256, candidates remainder + policy'),
+    ('pachs-k256', "PACHS, the search's path alone, K 256 (gate's default did not run)"),
     ('parallel', 'parallel rollout (256 copies)'),
 )
 
@@ -493,17 +491,13 @@ def closed_loop_sessions(src: Sources) -> str:
       f'all {s["instances"] * s["rounds"]} episodes planned together, {s["query_time"]:g} s per '
       f'query, {s["execute"]} actions executed per query, at most {s["max_queries"]} queries; 95% '
       'intervals over the instances. PACHS replans through `replan.Session` '
-      '(docs/closed_loop.md); with the candidates, each answer is the best of the search\'s path, '
-      'the last answer\'s unexecuted remainder and the policy\'s rollout, both followed in the '
-      'planner\'s physics before the search. Each file is named by what ran (its command '
-      'names the file it was written as). Gate\'s default (K 64, the path alone) did not run.',
+      '(docs/closed_loop.md), answering with its search\'s path. Each file is named by what ran '
+      '(its command names the file it was written as).',
       table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
              'iterations per query', 'candidates followed (s per query)', 'PACHS answers'],
             rows),
-      'Following the candidates over the episode\'s horizon took half of each query on this '
-      'physics (20 physics steps per action), and they won few answers; the search\'s path alone '
-      'solved more episodes, and is the default. Four times the edges per iteration (K 256) '
-      'evaluated twice the edges per query and solved no more.'])
+      'The session\'s candidates and K 256 lost on these runs: '
+      '[measured and not kept](#measured-and-not-kept).'])
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
@@ -685,35 +679,6 @@ def cells_alike(src: Sources) -> str:
           'later at middle budgets')
 
 
-def closed_loop_rate(src: Sources, layout: str, variant: str) -> str:
-  """'92%' of a closed-loop run (closed_loop_gpu/LAYOUT_VARIANT.json)."""
-  p = src.load(f'closed_loop_gpu/{layout}_{variant}.json')
-  return pct(summary_of(p, variant.split('-')[0])['success_rate'])
-
-
-def closed_loop_candidates(src: Sources) -> str:
-  """The candidates against the search's path alone (wall, K 64 and K 256)."""
-  a = summary_of(src.load('closed_loop_gpu/wall_pachs-remainder-policy.json'), 'pachs')
-  won = a['answers']['remainder'] + a['answers']['policy']
-  return (f'wall {closed_loop_rate(src, "wall", "pachs-remainder-policy")} against '
-          f'{closed_loop_rate(src, "wall", "pachs")} alone (K 256: '
-          f'{closed_loop_rate(src, "wall", "pachs-k256-remainder-policy")} against '
-          f'{closed_loop_rate(src, "wall", "pachs-k256")}); following them took '
-          f'{a["follow_s_mean"]:.1f} s of each 3 s query and they won {won} of '
-          f'{sum(a["answers"].values()):,} answers')
-
-
-def closed_loop_k256(src: Sources) -> str:
-  """K 256 against K 64, the search's path alone (wall, detour)."""
-  edges = lambda layout, variant: summary_of(src.load(
-      f'closed_loop_gpu/{layout}_{variant}.json'), 'pachs')['evaluations_per_query_mean']
-  return (f'{edges("wall", "pachs-k256") / edges("wall", "pachs"):.1f}x the edges per query; '
-          f'wall {closed_loop_rate(src, "wall", "pachs-k256")} against '
-          f'{closed_loop_rate(src, "wall", "pachs")}, detour '
-          f'{closed_loop_rate(src, "detour", "pachs-k256")} against '
-          f'{closed_loop_rate(src, "detour", "pachs")}')
-
-
 OPEN_LOOP_FILES = 'in this tree: `open_loop_pusht-obs_<layout>.json`'
 
 # What was measured and not kept: (what it changed, its result: text or a function of the
@@ -750,11 +715,15 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'no lag behind the rollout removed on gate; fewer runs solved on two-gaps and detour',
      '`9e669eb`: `start_share_gpu/`'),
     ('Closed loop: the session\'s candidates (the remainder and the policy\'s rollout, '
-     'followed before each search)', closed_loop_candidates,
-     'in this tree: `closed_loop_gpu/*_pachs-remainder-policy.json`; on the planar physics, '
-     'where they won: `9053f4e`: `closed_loop_gpu/`, `bbc0798`: `closed_loop_gpu/before_table_fix/`'),
-    ('Closed loop: K 256 edges per iteration', closed_loop_k256,
-     'in this tree: `closed_loop_gpu/*_pachs-k256*.json`'),
+     'followed before each search; faithful physics, one H200 per planner)',
+     'wall 78% against 92% for the search\'s path alone (K 256: 80% against 90%), gate 80%, '
+     'detour 2% against 5%; following them took 1.5 s of each 3 s query and they won 17 of '
+     '1,329 answers on wall; on the planar physics they had won',
+     '`19d1b29`: `closed_loop_gpu/*_pachs-remainder-policy.json`, '
+     '`*_pachs-k256-remainder-policy.json`; planar: `9053f4e`: `closed_loop_gpu/`'),
+    ('Closed loop: K 256 edges per iteration (the search\'s path alone)',
+     '2.2x the edges per query; wall 90% against 92%, detour 5% against 5%',
+     '`19d1b29`: `closed_loop_gpu/wall_pachs-k256.json`, `detour_pachs-k256.json`'),
     ('Closed loop on the planar physics (Warp planners, sessions with both candidates)',
      'superseded by the faithful physics\' runs', '`9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop with MJX planners (float32 plans executed in MuJoCo C), also with the plans '
