@@ -24,6 +24,11 @@ import time
 
 import numpy as np
 
+# The server plans on the accelerators; this process only asks (kept off them, so that the two
+# do not share a GPU's memory). The server starts with the environment as given.
+SERVER_ENVIRON = dict(os.environ)
+os.environ.setdefault('JAX_PLATFORMS', 'cpu')
+
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import common  # pylint: disable=wrong-import-position
 
@@ -38,7 +43,7 @@ def start_server(args) -> tuple:
   if args.budget:
     command += ['--budget', str(args.budget)]
   began = time.perf_counter()
-  process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+  process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=SERVER_ENVIRON)
   line = process.stdout.readline()
   found = re.search(r'ws://\S+', line)
   if not found:
@@ -153,7 +158,7 @@ def main() -> None:
     if process is not None:
       process.send_signal(signal.SIGTERM)
       code = process.wait(60)
-  document = {'provenance': common.provenance(), 'settings': vars(args),
+  document = {'provenance': common.provenance(health.get('device')), 'settings': vars(args),
               'server': {'start_to_ready_s': start_s, 'exit_code': code if process else None,
                          'backend': health['backend'], 'buckets': health['buckets'],
                          'budget': health['tasks'][args.task]['budget'],

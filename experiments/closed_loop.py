@@ -414,7 +414,7 @@ def main():
     from pachs_jax import client  # pylint: disable=import-outside-toplevel
     try:
       with client.Client(args.server, args.task) as asking:
-        asking.health()
+        args.server_device = asking.health().get('device')
     except Exception as err:  # pylint: disable=broad-except
       parser.error(f'--server {args.server!r}: no pachs serve answers there ({err})')
   perturbation = common.checked(parser, lambda: parse_perturbation(args.perturb))
@@ -426,7 +426,7 @@ def main():
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)
-  payload = {'provenance': common.provenance(), 'task': args.task, 'env': env.name,
+  payload = {'provenance': common.provenance(getattr(args, 'server_device', None)), 'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
   # SIGINT or SIGTERM (a time limit's `timeout`): the running planner stops before its next

@@ -135,13 +135,14 @@ def command_line() -> str:
   return ' '.join([os.path.basename(argv[0])] + argv[1:])
 
 
-def provenance() -> Dict[str, Any]:
-  """Device, command, revision and versions for a results file."""
+def provenance(device: Optional[str] = None) -> Dict[str, Any]:
+  """Device, command, revision and versions for a results file. device: the planner's device
+  where it is not this process's (a server's, from its health answer)."""
   dev = jax.devices()[0]
   return {
       'command': command_line(),
       'git_revision': git_revision(),
-      'device': f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}',
+      'device': device or f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}',
       'host_cpus': os.cpu_count(),
       'jax': jax.__version__,
       'python': platform.python_version(),

@@ -11,7 +11,7 @@
 #     'wall/parallel,wall/pachs-remainder-policy'
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does
 # (WARM=0 leaves it to each run's first query, before its clock). EXTRA: more closed_loop.py
-# flags for every run.
+# flags for every run. GPU_OFFSET=n: the lines start at GPU n (beside another job script).
 set -u
 if [ "$#" -lt 1 ]; then
   echo "usage: OUT=dir bash $0 RUNS [RUNS ...] (one line per GPU; a run: LAYOUT/VARIANT)" >&2
@@ -20,7 +20,7 @@ fi
 END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp} ${EXTRA:-}"
-[ "${WARM:-1}" = 1 ] && $CL --layout gate --planners pachs --instances 1 --rounds 1 \
+[ "${WARM:-1}" = 1 ] && CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $CL --layout gate --planners pachs --instances 1 --rounds 1 \
   --max-queries 2 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
 run() {  # the command line of one run
   local layout=${1%%/*} variant=${1#*/} flags=()

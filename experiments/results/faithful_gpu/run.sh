@@ -6,16 +6,17 @@
 # first, so that no timed call includes them. A line is a comma-separated list of jobs:
 #   OUT=dir bash experiments/results/faithful_gpu/run.sh 'tasks,agreement' 'gate,wall,detour'
 # (the runs of the results: 2 GPUs; pusht-rand and wall were cut by the limit and ran again alone)
+# GPU_OFFSET=n: the lines start at GPU n (beside another job script); BUDGET_S: the lines' limit.
 set -u
 if [ "$#" -lt 1 ]; then
   echo "usage: OUT=dir bash $0 JOBS [JOBS ...] (one line per GPU; jobs: tasks, agreement," \
        "or a PushT-Obs layout)" >&2
   exit 2
 fi
-END=$((SECONDS + 570))  # the device tool's 600 s, less packing
+END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 OL="python3 experiments/open_loop.py --backend warp"
-$OL --task pusht-obs --layout slot --planners pachs-improve --instances 1 --rounds 1 \
+CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $OL --task pusht-obs --layout slot --planners pachs-improve --instances 1 --rounds 1 \
   --budget 2000 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
 job() {  # the command line of one job
   case $1 in
