@@ -113,7 +113,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = planner.default_config(task, algorithm, budget=args.budget,
                                     **flags.search_overrides(args))
     session = replan.Session(env, model, config, candidates=args.candidates,
-                             replay_remainder=bool(args.replay_remainder),
+                             replay_remainder=(None if args.replay_remainder is None
+                                               else bool(args.replay_remainder)),
                              chunk_iterations=args.chunk_iterations)
 
     def query(nodes, keys, executed, running):
@@ -374,9 +375,10 @@ def main():
                       help="what competes with PACHS's path in each query (replan.Session): "
                       "'remainder' (the last answer's unexecuted actions), 'policy' (the "
                       "policy's rollout); '' (the default) the search's path alone")
-  parser.add_argument('--replay-remainder', type=int, default=0, choices=[0, 1],
+  parser.add_argument('--replay-remainder', type=int, default=None, choices=[0, 1],
                       help="1: each PACHS search's first chain lane replays the last answer's "
-                      'remainder (replan.Session.replay_remainder)')
+                      'remainder (replan.Session.replay_remainder); 0: not; default: where '
+                      'the search has chain lanes')
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--server', default=None,

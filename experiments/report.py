@@ -213,7 +213,7 @@ def open_loop_tasks(src: Sources) -> str:
       table(['task', 'planner', 'success', 'mean cost (solved)', 'mean evaluations',
              'evaluations per expansion', 'wall of the call (s)'], rows)])
 
-FAITHFUL_LAYOUTS = ('gate', 'wall', 'detour')  # the layouts measured on the faithful physics
+FAITHFUL_LAYOUTS = ('gate', 'wall', 'detour', 'slot')  # measured open loop on the faithful physics
 
 
 def faithful(src: Sources) -> str:
@@ -235,7 +235,7 @@ def faithful(src: Sources) -> str:
                 num(parallel['batch_wall_s']) if parallel else '-',
                 cost_ratio(p, 'pachs-improve', 'parallel') if parallel else '-'])
   uniform_rows = []
-  for layout in FAITHFUL_LAYOUTS:
+  for layout in ('gate', 'wall', 'detour'):
     without = src.load(f'uniform_cpu/{layout}_u0.json')
     with_share = src.load(f'uniform_cpu/{layout}_u0.25.json')
     a, b = summary_of(without, 'pachs-improve'), summary_of(with_share, 'pachs-improve')
@@ -276,18 +276,17 @@ def faithful(src: Sources) -> str:
       f'MuJoCo C physics on a 2-core CPU (`--backend mujoco-c`): {solved(cpu_rand)}, '
       f'{num(cpu_rand["evaluated_mean"])} evaluations per run, {num(cpu_rand["batch_wall_s"])} '
       f's for the call.',
-      'PushT-Obs, the PushT-Fixed model (trained without obstacles) on three layouts: PACHS '
-      '(the first goal\'s path improved, every action drawn from the actor) and the parallel '
-      'rollout of 256 copies '
-      '(detour\'s rollout run was cut by the command\'s time limit). Cost: mean per-run ratio '
-      'over the runs both solved:',
+      f'PushT-Obs, the PushT-Fixed model (trained without obstacles) on {len(obs)} layouts: '
+      'PACHS (its default: the first goal\'s path improved, a quarter of its actions drawn '
+      'uniformly from the action box, `uniform_share` 0.25) and the parallel rollout of 256 '
+      'copies. Cost: mean per-run ratio over the runs both solved:',
       table(['layout', 'PACHS', 'parallel rollout', 'PACHS evaluations', 'PACHS wall (s)',
              'parallel wall (s)', 'cost / parallel'], obs),
       'The actor, trained without obstacles, drives the stick against the hard blocks, '
       'where every action it proposes leaves the stick where it is (the original algorithm\'s '
-      'OPEN empties; PACHS\'s chains spend the budget). '
-      'The runs above drew every action from the actor; PushT-Obs\'s default now draws a '
-      'quarter of them uniformly from the action box (`uniform_share` 0.25). On this CPU '
+      'OPEN empties; PACHS\'s chains spend the budget). Hence PushT-Obs\'s uniform draws; '
+      'with every action drawn from the actor, the same GPU runs solved far fewer '
+      '([measured and not kept](#measured-and-not-kept)). On this CPU '
       f'(MuJoCo C), {uniform_settings["instances"]} instances x {uniform_settings["rounds"]} '
       f'seed, {uniform_settings["budget"]:,} evaluations:',
       table(['layout', 'actor only: solved', 'its stops', 'a quarter uniform: solved',
@@ -455,48 +454,59 @@ def answer_counts(row: Dict) -> str:
 
 # the closed-loop runs on the faithful physics: file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
-    ('pachs', "PACHS (the default: the search's path alone, K 64)"),
-    ('pachs-k256', "PACHS, the search's path alone, K 256 (gate's default did not run)"),
+    ('pachs', "PACHS (the default: the search's path, the last answer's remainder replayed in "
+              "the search, K 64)"),
     ('parallel', 'parallel rollout (256 copies)'),
 )
 
 
 def closed_loop_sessions(src: Sources) -> str:
-  """The closed loop on the faithful physics, one GPU per planner, Warp planners: PACHS's
-  variants against the parallel rollout."""
+  """The closed loop on the faithful physics, one GPU per planner, Warp planners: PACHS
+  against the parallel rollout, and each planner's drop from its own physics to MuJoCo C."""
   folder = 'closed_loop_gpu'
-  rows, first = [], None
+  rows, drops, missing, first = [], [], [], None
   for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
     rollout = (summary_of(src.load(f'{folder}/{layout}_parallel.json'), 'parallel')
                if src.exists(f'{folder}/{layout}_parallel.json') else None)
+    if not src.exists(f'{folder}/{layout}_pachs.json'):
+      missing.append(layout)
     for variant, label in CLOSED_LOOP_VARIANTS:
       name = f'{folder}/{layout}_{variant}.json'
       if not src.exists(name):
         continue
       p = src.load(name)
       first = first or p
-      a = summary_of(p, variant.split('-')[0])
+      a = summary_of(p, variant)
       edges = a['evaluations_per_query_mean']
       is_pachs = variant != 'parallel'
       rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
-                   num(a['follow_s_mean'], 2) if is_pachs else '-',
-                   answer_counts(a) if is_pachs else '-'])
+                   str(a['empty_answers']), answer_counts(a) if is_pachs else '-'])
+      own = f'{folder}/{layout}_{variant}-planner-world.json'
+      if src.exists(own):
+        b = summary_of(src.load(own), variant)
+        drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
+                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
   s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
       f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
-      f'worlds, each planner alone on its GPU ({prov["device"]}; `{folder}/run.sh`, two GPUs '
-      f'side by side). {s["instances"]} instances x {s["rounds"]} rounds per layout and planner, '
-      f'all {s["instances"] * s["rounds"]} episodes planned together, {s["query_time"]:g} s per '
-      f'query, {s["execute"]} actions executed per query, at most {s["max_queries"]} queries; 95% '
-      'intervals over the instances. PACHS replans through `replan.Session` '
-      '(docs/closed_loop.md), answering with its search\'s path. Each file is named by what ran '
-      '(its command names the file it was written as).',
+      f'worlds, each planner alone on its GPU ({prov["device"]}; `{folder}/run.sh`, one line '
+      f'of runs per GPU). {s["instances"]} instances x {s["rounds"]} rounds per layout and '
+      f'planner, all {s["instances"] * s["rounds"]} episodes planned together, '
+      f'{s["query_time"]:g} s per query, {s["execute"]} actions executed per query, at most '
+      f'{s["max_queries"]} queries; 95% intervals over the instances. gate-mirror and '
+      'wall-right are the held-out layouts (`heldout_layouts.py`). PACHS replans through '
+      '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
+      'file is named by what ran (its command names the file it was written as).',
       table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
-             'iterations per query', 'candidates followed (s per query)', 'PACHS answers'],
-            rows),
-      'The session\'s candidates and K 256 lost on these runs: '
+             'iterations per query', 'empty answers', 'PACHS answers'], rows),
+      'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
+      'MuJoCo C world, same protocol:',
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      (f'Not run on the faithful physics: {", ".join(missing)}. ' if missing else '')
+      + 'The variants that lost (the session\'s candidates, K 256, no replay): '
       '[measured and not kept](#measured-and-not-kept).'])
 
 
@@ -724,6 +734,17 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('Closed loop: K 256 edges per iteration (the search\'s path alone)',
      '2.2x the edges per query; wall 90% against 92%, detour 5% against 5%',
      '`19d1b29`: `closed_loop_gpu/wall_pachs-k256.json`, `detour_pachs-k256.json`'),
+    ('Closed loop: the search\'s path alone, without the last answer\'s remainder replayed in '
+     'the search (the default before)',
+     'as many episodes solved (wall 92% against 89%, gate 90% against 94%, detour 5% against '
+     '4%), but 57 of wall\'s 1,019 answers empty against none with the replay, which also '
+     'keeps every answer at least as good as the remainder in the planners\' physics',
+     '`39f8ec9`: `closed_loop_gpu/wall_pachs.json`, `detour_pachs.json`, `gate_pachs-k256.json` '
+     '(gate\'s run without replay, at `39f8ec9`, was not committed)'),
+    ('PushT-Obs with every action drawn from the actor (no uniform draws), faithful physics, '
+     'open loop on one H200',
+     'PACHS solved gate 39/150, wall 94/150, detour 5/150, against 143, 149 and 8 with a quarter '
+     'drawn uniformly', '`39f8ec9`: `faithful_gpu/gate.json`, `wall.json`, `detour.json`'),
     ('Closed loop on the planar physics (Warp planners, sessions with both candidates)',
      'superseded by the faithful physics\' runs', '`9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop with MJX planners (float32 plans executed in MuJoCo C), also with the plans '
@@ -983,9 +1004,9 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       f'Open loop: share of runs solved (30 instances x 5 seeds; shelf: 100 targets) within '
       f'{" (shelf: ".join(f"{b:,}" for b in budgets)}) edge evaluations per run, on one '
       f'{" or one ".join(devices)}, each task\'s default, PushT on its default (faithful) '
-      f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved, every '
-      f'action drawn from the actor: its default now draws a quarter uniformly, measured on a '
-      f'CPU so far, [results](docs/results.md#pusht-on-the-faithful-physics-the-default)). Path '
+      f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved, a '
+      f'quarter of the actions drawn uniformly, '
+      f'[results](docs/results.md#pusht-on-the-faithful-physics-the-default)). Path '
       f'cost: mean ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` '
       f'(30 instances, one GPU, Warp, the planar physics; three machines, H200 and H100): '
       f'{span(cold)} cold, {span(warm)} warm. On a '

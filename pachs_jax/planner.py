@@ -246,9 +246,11 @@ class Planner:
   def session(self, horizon: Optional[int] = None,
               candidates: Sequence[str] = replan.DEFAULT_CANDIDATES) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
-    env, model, config and compiled programs, keeping its last answer between queries
-    (horizon and candidates as there)."""
-    return replan.Session(self.env, self.model, self.config, self.search, horizon, candidates)
+    env, model and config, keeping its last answer between queries (horizon and candidates as
+    there). Where the config has chain lanes the session's search replays the last answer's
+    remainder and is built apart from `plan`'s, with room for it; otherwise it shares `plan`'s."""
+    search = None if self.config.rollout_lanes else self.search
+    return replan.Session(self.env, self.model, self.config, search, horizon, candidates)
 
 
 def check_indices(instances, available: int) -> np.ndarray:

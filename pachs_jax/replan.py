@@ -222,7 +222,8 @@ class Session:
     (`sharding.ShardedSearch`; None: one device, `programs.plan` with its lane compaction).
   replay_remainder: the search's first chain lane replays the last answer's remainder from the
     new state inside the search's physics batches (`search.replay`), so the search goes on from
-    where the last answer got without following it first (needs chain lanes; one device).
+    where the last answer got without following it first (needs chain lanes, one device, and a
+    search with room for it); None: wherever it can (a search built here gets the room).
   """
 
   env: base.Env
@@ -233,7 +234,7 @@ class Session:
   candidates: Sequence[str] = DEFAULT_CANDIDATES
   chunk_iterations: Optional[int] = None
   mesh: Optional[object] = None
-  replay_remainder: bool = False
+  replay_remainder: Optional[bool] = None
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -249,14 +250,19 @@ class Session:
     if not hasattr(self.actor_critic, 'deterministic_action'):
       raise ValueError('replanning needs an actor-critic with deterministic_action(obs) (the '
                        'policy candidate)')
-    if self.replay_remainder and not self.config.rollout_lanes:
-      raise ValueError('replay_remainder needs chain lanes (SearchConfig.rollout_share > 0)')
-    if self.replay_remainder and self.mesh is not None:
-      raise ValueError('replay_remainder needs a search on one device (mesh None)')
     if self.horizon is None:
       self.horizon = int(self.env.episode_length)
     if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 1:
       raise ValueError(f'horizon must be a positive int, got {self.horizon!r}')
+    if self.replay_remainder is None:  # wherever the search can
+      self.replay_remainder = bool(self.config.rollout_lanes) and self.mesh is None and (
+          self.search is None or self.search.search.sizes.replay >= self.horizon)
+    if not isinstance(self.replay_remainder, bool):
+      raise ValueError(f'replay_remainder must be a bool or None, got {self.replay_remainder!r}')
+    if self.replay_remainder and not self.config.rollout_lanes:
+      raise ValueError('replay_remainder needs chain lanes (SearchConfig.rollout_share > 0)')
+    if self.replay_remainder and self.mesh is not None:
+      raise ValueError('replay_remainder needs a search on one device (mesh None)')
     if self.search is None:  # with room for the remainder's replay
       from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
       self.search = programs.Programs(make_search(

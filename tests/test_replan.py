@@ -208,12 +208,26 @@ def test_a_replayed_remainder_is_the_search_s_own_goal(env):
   np.testing.assert_allclose(answer.states.qpos[:, 7], goals, atol=1e-5)
 
 
+def test_sessions_replay_wherever_their_search_can(env):
+  # chain lanes and one device: the session builds its search with room for the remainder;
+  # no chain lanes, or a given search without room: no replay
+  from pachs_jax.runtime import programs  # pylint: disable=import-outside-toplevel
+  from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
+  chains = SearchConfig(budget=16, rollout_share=0.5)
+  session = replan.Session(env, TowardGoal(DIM), chains, horizon=8)
+  assert session.replay_remainder and session.search.search.sizes.replay == 8
+  assert not replan.Session(env, TowardGoal(DIM), SearchConfig(budget=16)).replay_remainder
+  shared = programs.Programs(make_search(env, TowardGoal(DIM), chains))
+  assert not replan.Session(env, TowardGoal(DIM), chains, shared, horizon=8).replay_remainder
+
+
 @pytest.mark.parametrize('kwargs, message', [
     ({'candidates': ('remainder', 'previous')}, "unknown replanning candidate 'previous'"),
     ({'horizon': 0}, 'horizon must be a positive int'),
     ({'candidates': 'policy'}, 'candidates must be a sequence of names'),
     ({'candidates': None}, 'candidates must be a sequence of names'),
     ({'replay_remainder': True}, 'replay_remainder needs chain lanes'),
+    ({'replay_remainder': 1}, 'replay_remainder must be a bool or None'),
     ({'replay_remainder': True, 'config': SearchConfig(budget=16, rollout_share=0.5),
       'mesh': object()}, 'replay_remainder needs a search on one'),
 ])

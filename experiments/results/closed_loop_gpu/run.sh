@@ -3,10 +3,10 @@
 # otherwise), one line of runs per GPU of the host, each line alone on its GPU, one run after
 # another, all within one device command (570 s): 20 instances x 5 rounds per run.
 # A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, the search's path
-# alone by default) or parallel (the parallel rollout), then options joined by '-': remainder,
-# policy (the session's candidates), replay (the remainder replayed in the search), k<N>
+# and the last answer's remainder replayed in its search, by default) or parallel (the parallel
+# rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
 # (N edges per iteration), planner-world (the plans executed in the planners' own physics).
-# A line is a comma-separated list of runs (the results' runs: 2 GPUs, three commands):
+# A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does
@@ -34,7 +34,6 @@ run() {  # the command line of one run
   for opt in ${opts//-/ }; do
     case $opt in
       remainder|policy) candidates+=("$opt") ;;
-      replay) flags+=(--replay-remainder 1) ;;
       k[0-9]*) flags+=(-K "${opt#k}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       *) echo "echo unknown option $opt"; return ;;
