@@ -222,8 +222,8 @@ class Session:
     (`sharding.ShardedSearch`; None: one device, `programs.plan` with its lane compaction).
   replay_remainder: the search's first chain lane replays the last answer's remainder from the
     new state inside the search's physics batches (`search.replay`), so the search goes on from
-    where the last answer got without following it first (needs chain lanes, one device, and a
-    search with room for it); None: wherever it can (a search built here gets the room).
+    where the last answer got without following it first (needs chain lanes and a search with
+    room for it); None: wherever it can (a search built here gets the room).
   """
 
   env: base.Env
@@ -255,14 +255,12 @@ class Session:
     if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 1:
       raise ValueError(f'horizon must be a positive int, got {self.horizon!r}')
     if self.replay_remainder is None:  # wherever the search can
-      self.replay_remainder = bool(self.config.rollout_lanes) and self.mesh is None and (
+      self.replay_remainder = bool(self.config.rollout_lanes) and (
           self.search is None or self.search.search.sizes.replay >= self.horizon)
     if not isinstance(self.replay_remainder, bool):
       raise ValueError(f'replay_remainder must be a bool or None, got {self.replay_remainder!r}')
     if self.replay_remainder and not self.config.rollout_lanes:
       raise ValueError('replay_remainder needs chain lanes (SearchConfig.rollout_share > 0)')
-    if self.replay_remainder and self.mesh is not None:
-      raise ValueError('replay_remainder needs a search on one device (mesh None)')
     if self.search is None:  # with room for the remainder's replay
       from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
       self.search = programs.Programs(make_search(
@@ -364,7 +362,8 @@ class Session:
       left = max(time_limit_s - (time.perf_counter() - began)
                  - self.timing.get('choose_s', 0.0), 1e-3)
     if self._sharded is not None:
-      result = self._sharded.plan(states, key, time_limit_s=left, min_bucket=bucket)
+      result = self._sharded.plan(states, key, time_limit_s=left, min_bucket=bucket,
+                                  replay=replay)
       # on the default device, as one device's search leaves it: the follow and the choice
       # are compiled for one device
       result = jax.device_put(result, jax.devices()[0])

@@ -168,8 +168,8 @@ class Server:
     self.mesh = (None if config.devices == 1
                  else sharding.instance_mesh(jax.devices()[:config.devices]))
     for name, planner in planners.items():
-      # one device and chain lanes: the session's own search, which replays remainders
-      replays = self.mesh is None and planner.config.rollout_lanes
+      # chain lanes: the session's own search, which replays remainders
+      replays = planner.config.rollout_lanes
       session = replan.Session(planner.env, planner.model, planner.config,
                                None if replays else getattr(planner, 'search', None),
                                mesh=self.mesh)

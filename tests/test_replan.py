@@ -228,8 +228,6 @@ def test_sessions_replay_wherever_their_search_can(env):
     ({'candidates': None}, 'candidates must be a sequence of names'),
     ({'replay_remainder': True}, 'replay_remainder needs chain lanes'),
     ({'replay_remainder': 1}, 'replay_remainder must be a bool or None'),
-    ({'replay_remainder': True, 'config': SearchConfig(budget=16, rollout_share=0.5),
-      'mesh': object()}, 'replay_remainder needs a search on one'),
 ])
 def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):

@@ -120,6 +120,7 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
     def session_over_the_mesh():
       # a replanning session (and a server) whose search splits its episodes over the devices
       # answers as the one-device session does
+      import dataclasses
       import types
       from pachs_jax import replan, serve
       from pachs_jax.runtime import programs
@@ -133,6 +134,17 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
         assert np.array_equal(np.asarray(getattr(want, name)), np.asarray(getattr(got, name))), name
       later = split.plan(NODES, executed=np.full(6, 2), key=key, time_limit_s=5.0)
       assert later.actions.shape[0] == 6 and np.all(np.asarray(later.length) >= 0)
+      # with chain lanes each session builds its own search and replays the last answer's
+      # remainder in it, split over the devices as on one
+      chains = dataclasses.replace(CONFIG, rollout_share=0.5)
+      replaying = [replan.Session(ENV, policy, chains, horizon=16, mesh=m) for m in (None, mesh)]
+      assert all(r.replay_remainder for r in replaying)
+      for r in replaying:
+        r.plan(NODES, key=key)
+      want, got = [r.plan(NODES, executed=np.full(6, 1), key=key) for r in replaying]
+      assert np.asarray(want.length).max() > 0
+      for name in fields:
+        assert np.array_equal(np.asarray(getattr(want, name)), np.asarray(getattr(got, name))), name
       task = types.SimpleNamespace(env=ENV, model=policy, config=CONFIG,
                                    search=programs.Programs(SEARCH))
       try:

@@ -199,12 +199,13 @@ def pachs_shard_fn(search: pachs.Search) -> ShardFn:
 @functools.lru_cache(maxsize=32)
 def pachs_shard_programs(search: pachs.Search, mesh: Mesh):
   """PACHS's jitted programs sharded over mesh, for a search in chunks: init(start_nodes [P],
-  keys [P, 2]) -> state; loop(state, iterations) -> state after at most that many more
-  iterations (every lane simulated; state donated); result(state) -> SearchResult [P] (its
-  wall_time_s [P] NaN). Cached per (search, mesh)."""
+  keys [P, 2], replay) -> state, replay None or the paths its first chain lanes replay
+  ((actions [P, T, A], length [P]), `search.replay`); loop(state, iterations) -> state after at
+  most that many more iterations (every lane simulated; state donated); result(state) ->
+  SearchResult [P] (its wall_time_s [P] NaN). Cached per (search, mesh)."""
   spec = PartitionSpec(AXIS)
-  init = jax.jit(_shard_map(lambda nodes, keys: search.init(nodes, keys), mesh, (spec, spec),
-                            spec))
+  init = jax.jit(_shard_map(lambda nodes, keys, replay: search.init(nodes, keys, None, replay),
+                            mesh, (spec, spec, spec), spec))
   loop = jax.jit(_shard_map(lambda state, count: search.loop(state, count, None, False), mesh,
                             (spec, PartitionSpec()), spec), donate_argnums=0)
 
@@ -236,26 +237,33 @@ class ShardedSearch:
   def plan(self, start_nodes: base.NodeState, key: jax.Array,
            time_limit_s: Optional[float] = None, stop: Optional[Callable[[], bool]] = None,
            started: Optional[Callable[[], object]] = None,
-           min_bucket: Optional[int] = None) -> SearchResult:
+           min_bucket: Optional[int] = None, replay=None) -> SearchResult:
     """SearchResult [I] from start_nodes [I] in jitted chunks (`anytime.ChunkSizes`); wall_time_s
     leaves compiling out. time_limit_s: the instances still searching when it would pass report
     TIME_LIMIT; stop: checked between chunks (INTERRUPTED); started: called as the chunks
-    begin; key: one PRNG key or per-instance keys [I, 2]."""
+    begin; key: one PRNG key or per-instance keys [I, 2]; replay: paths from the starts
+    (actions [I, T, A], length [I]) that the first chain lanes replay (a search built with
+    room for them, `Capacities.replay`; None: none)."""
     num_instances = _num_instances(start_nodes)
     keys = instance_keys(key, num_instances)
     padded = self.padded(num_instances, min_bucket)
     sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
     start_nodes = jax.tree.map(lambda x: _put_global(x, sharding), _pad(start_nodes, padded))
     keys = _put_global(_pad(keys, padded), sharding)
-    if padded not in self._compiled:
+    if replay is not None:
+      replay = jax.tree.map(lambda x: _put_global(x, sharding),
+                            _pad(tuple(jnp.asarray(x) for x in replay), padded))
+    compiled_key = (padded, None if replay is None else replay[0].shape[1:])
+    if compiled_key not in self._compiled:
       init_jit, loop_jit, result_jit = pachs_shard_programs(self.search, self.mesh)
-      shape = jax.eval_shape(init_jit, start_nodes, keys)
-      self._compiled[padded] = (init_jit.lower(start_nodes, keys).compile(),
-                                loop_jit.lower(shape, jax.device_put(np.int32(1))).compile(),
-                                result_jit.lower(shape).compile())
-    init, loop, result = self._compiled[padded]
+      shape = jax.eval_shape(init_jit, start_nodes, keys, replay)
+      self._compiled[compiled_key] = (
+          init_jit.lower(start_nodes, keys, replay).compile(),
+          loop_jit.lower(shape, jax.device_put(np.int32(1))).compile(),
+          result_jit.lower(shape).compile())
+    init, loop, result = self._compiled[compiled_key]
     begin = time.perf_counter()
-    state = init(start_nodes, keys)
+    state = init(start_nodes, keys, replay)
     if started is not None:
       started()
     out = anytime.timed_result(lambda s, n: loop(s, jax.device_put(np.int32(n))), state, result,
