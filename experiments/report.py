@@ -1014,8 +1014,30 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       f'{claims["job"]}. '
       f'Tests: {claims["suite"]}. Every table, its device, command and revision: '
       f'[docs/results.md](docs/results.md).',
+      '',
+      closed_loop_headline(src),
   ]
   return '\n'.join(lines), src.cited
+
+
+def closed_loop_headline(src: Sources) -> str:
+  """The README's closed-loop sentence: PACHS against the rollout on each layout run."""
+  folder, pairs, devices = 'closed_loop_gpu', [], set()
+  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
+    names = [f'{folder}/{layout}_{planner}.json' for planner in ('pachs', 'parallel')]
+    if all(src.exists(n) for n in names):
+      devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
+                  for n in names}
+      settings = src.load(names[0])['settings']
+      pachs, rollout = (summary_of(src.load(n), planner)
+                        for n, planner in zip(names, ('pachs', 'parallel')))
+      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
+  return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
+          f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
+          f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
+          'episodes per layout, each planner alone on '
+          f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: ' + ', '.join(pairs) + ' (gate-mirror and '
+          'wall-right held out; [results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:
