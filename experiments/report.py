@@ -745,6 +745,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'open loop on one H200',
      'PACHS solved gate 39/150, wall 94/150, detour 5/150, against 143, 149 and 8 with a quarter '
      'drawn uniformly', '`39f8ec9`: `faithful_gpu/gate.json`, `wall.json`, `detour.json`'),
+    ('Harder block impedance against penetration (block solimp 0.999-0.9999, also with a 1 mm '
+     'margin), the faithful 2.5 ms step',
+     'the stick-block maximum unchanged on every layout (gate 4.45, wall 2.38, two-gaps 3.61 mm) '
+     'and the T-block maximum 2.1-3.6 mm (0.2-4.3 mm with the margin): at the 2.5 ms step\'s '
+     'stiffness limit only a shorter step lowers both (1.25 ms x 40, above)',
+     '`57c2f98`: `physics/penetration_impedance.json`'),
     ('Closed loop on the planar physics (Warp planners, sessions with both candidates)',
      'superseded by the faithful physics\' runs', '`9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop with MJX planners (float32 plans executed in MuJoCo C), also with the plans '
