@@ -188,17 +188,17 @@ def policy_per_layout(src: Sources) -> str:
   rows = [[r['layout'], r['kind'], r['start_region'], f'{r["policy_solved"]}/{r["instances"]}']
           for r in p['rows']]
   return '\n\n'.join([
-      'One deterministic rollout of the PushT-Fixed policy per canonical instance, MuJoCo C physics:',
+      'One deterministic rollout of the PushT-Fixed policy per canonical instance, the default '
+      '(faithful) physics in MuJoCo C:',
       table(['layout', 'the T must', 'start region', 'policy alone'], rows)])
 
 
 def open_loop_tasks(src: Sources) -> str:
-  """PushT-Fixed, PushT-Rand and Panda-Shelf: every planner's success, cost, effort and time."""
+  """Panda-Shelf: every planner's success, cost, effort and time (PushT's: the faithful
+  physics' section)."""
   rows = []
   notes = []
-  for task, name in (('PushT-Fixed', 'open_loop_pusht-fixed.json'),
-                     ('PushT-Rand', 'open_loop_pusht-rand.json'),
-                     ('Panda-Shelf', 'open_loop_shelf.json')):
+  for task, name in (('Panda-Shelf', 'open_loop_shelf.json'),):
     p = src.load(name)
     s = p['settings']
     notes.append(f'{task}: {s["instances"]} instances x {s["rounds"]} '
@@ -335,111 +335,6 @@ def paired_ratio(a: Dict, a_planner: str, b: Dict, b_planner: str) -> str:
   ratios = stats.cost_ratios({'a': a['runs'][a_planner], 'b': b['runs'][b_planner]})
   ratio = ratios['a']['b']['mean_ratio']
   return '-' if ratio is None else f'{ratio:.2f}'
-
-
-# The suite's calls at the default: (label, file stem in suite_gpu/)
-SUITE_CALLS = tuple((layout, layout) for layout in LAYOUTS) + (
-    ('gate, seed 1', 'gate_seed1'), ('gate, seed 2', 'gate_seed2'))
-
-
-def suite(src: Sources) -> str:
-  """PushT-Obs's default and the parallel rollout on the five suite layouts, one call each on
-  one GPU with Warp physics (the README's headline reads these files)."""
-  rows, effort = [], []
-  settings = src.load('suite_gpu/gate.json')['settings']
-  for layout, name in SUITE_CALLS:
-    p = src.load(f'suite_gpu/{name}.json')
-    pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
-    lead = 100 * (pachs['success_rate'] - parallel['success_rate'])
-    rows.append([layout, solved(pachs), solved(parallel), f'{lead:+.1f}',
-                 most_behind(p, 'pachs-improve', p, 'parallel'),
-                 cost_ratio(p, 'pachs-improve', 'parallel')])
-    if layout not in LAYOUTS:  # a repeat with another seed: its wall may hold Warp's compile
-      continue
-    effort.append([layout, num(pachs['first_goal_evaluated_mean']),
-                   num(pachs['evaluated_success_mean']), num(parallel['evaluated_success_mean']),
-                   num(pachs['first_goal_time_s_mean'], 2), num(pachs['time_s_success_mean'], 2),
-                   num(pachs['batch_wall_s'], 3), num(parallel['batch_wall_s'], 3)])
-  return '\n\n'.join([
-      'PACHS\'s PushT-Obs default (edges of 8 transitions, 56 of 64 lanes extending chains of '
-      'the actor\'s edges that restart at rarely visited cells, the first goal\'s path improved '
-      'with up to 3 times the evaluations it took; docs/task_defaults.md) and the parallel '
-      'rollout of 256 copies, one call per layout, the calls one after another on one GPU with '
-      'MuJoCo Warp physics (Warp\'s kernels compiled before the first): '
-      f'{settings["instances"]} instances x {settings["rounds"]} seeds = '
-      f'{settings["instances"] * settings["rounds"]} runs each, {settings["budget"]:,} '
-      'evaluations; gate again with the search seeds 1 and 2 (`--seed`). With Warp physics a '
-      'run\'s outcome varies from call to call, so differences of a few runs are within that '
-      'variation. Lead: points of success over the rollout. Behind: the most runs by which '
-      'PACHS\'s success curve trails the rollout\'s at any budget from 3,000 evaluations, with '
-      'the exact McNemar p of the paired runs there (`stats.most_behind`; it treats the seeds of '
-      'an instance as independent, so it understates the uncertainty). Cost: mean of the '
-      'per-run ratios over the runs both solved:',
-      table(['layout', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows),
-      'Evaluations to the first goal and to the returned path (means over solved runs), the '
-      'time a run took, estimated from its batch\'s iterations (s), and each call\'s batch '
-      'wall (s):',
-      table(['layout', 'evaluations to the first goal', 'to the returned path',
-             'parallel: to its goal', 'time to the first goal', 'to the returned path',
-             'PACHS wall', 'parallel wall'], effort)])
-
-
-# The default on the second instance set and the held-out layouts: (label, file stem in
-# novelty_power_gpu/); `<stem>_power05` holds the default's runs, `<stem>` the rollout's and
-# those of novel restarts drawing every coarse cell alike, of the same command line
-OTHER_CALLS = (
-    ('detour, instance set 1, seed 1', 'detour_set1_seed1'),
-    ('wall, instance set 1, seed 1', 'wall_set1_seed1'),
-    ('gate-mirror (held out), seed 0', 'gate-mirror'),
-    ('wall-right (held out), seed 1', 'wall-right_seed1'))
-
-
-def other_sets(src: Sources) -> str:
-  """The default against the rollout on the second instance set and the held-out layouts."""
-  rows = []
-  for label, name in OTHER_CALLS:
-    v = src.load(f'novelty_power_gpu/{name}_power05.json')
-    p = src.load(f'novelty_power_gpu/{name}.json')
-    default, parallel = summary_of(v, 'pachs-improve'), summary_of(p, 'parallel')
-    lead = 100 * (default['success_rate'] - parallel['success_rate'])
-    rows.append([label, solved(default), solved(parallel), f'{lead:+.1f}',
-                 most_behind(v, 'pachs-improve', p, 'parallel'),
-                 paired_ratio(v, 'pachs-improve', p, 'parallel')])
-  settings = src.load(f'novelty_power_gpu/{OTHER_CALLS[0][1]}.json')['settings']
-  return '\n\n'.join([
-      'The default of the section above on instances drawn by the same rules with another seed '
-      '(`--instance-seed 1`) and on two layouts held out from every choice of defaults (the '
-      'gate mirrored, the wall moved right): one call of the default and one of the rollout '
-      'per row, on one GPU with Warp physics, '
-      f'{settings["instances"] * settings["rounds"]} runs each at {settings["budget"]:,} '
-      'evaluations. The default\'s calls chose its cell weights with an option '
-      '(`--novelty-power 0.5`, the weights scaled to integers a little differently) before '
-      'they became the default. Lead, behind and cost as above:',
-      table(['call', 'PACHS', 'parallel rollout', 'lead', 'behind', 'cost / parallel'], rows)])
-
-
-OPEN_PLANNERS = (('pachs', 'PACHS (the default then)'), ('parallel', 'parallel rollout (256)'),
-                 ('single', 'policy alone'), ('beam', 'beam search (64 x 16)'),
-                 ('pachs-original', 'original PACHS'))
-
-
-def paper_open_loop(src: Sources) -> str:
-  """The original paper's planners on the PushT-Obs layouts, MJX physics."""
-  payloads = {layout: src.load(f'open_loop_pusht-obs_{layout}.json') for layout in LAYOUTS}
-  first = payloads['gate']['settings']
-  success = [[layout] + [solved(summary_of(p, name)) for name, _ in OPEN_PLANNERS]
-             + [cost_ratio(p, 'pachs', 'parallel')] for layout, p in payloads.items()]
-  return '\n\n'.join([
-      'The original PACHS (one-step edges, best f), the policy alone, beam search and the '
-      'parallel rollout beside PACHS as its default was before the first goal\'s path was '
-      'improved and before novel restarts weighed cells by 1 / sqrt(nodes) (the first goal '
-      'ended the search), MJX physics on one GPU. '
-      f'{first["instances"]} canonical instances x {first["rounds"]} seeds = '
-      f'{first["instances"] * first["rounds"]} runs per planner and layout, '
-      f'{first["budget"]:,} edge evaluations per run, each planner\'s runs in one batched call; '
-      'cost ratio over the runs both solved:',
-      table(['layout'] + [label for _, label in OPEN_PLANNERS] + ['PACHS / parallel cost'],
-            success)])
 
 
 def answer_counts(row: Dict) -> str:
@@ -667,41 +562,26 @@ def engines(src: Sources) -> str:
       f'{cpu["mjx (cpu)"]["median_s"]:.1f} s ({cpu["speed-up"]["edges_per_s"]:,.0f}x).'])
 
 
-def variant_total(src: Sources, planner: str) -> str:
-  """A PACHS variant's runs solved over the five MJX layout files, against the default then."""
-  payloads = [src.load(f'open_loop_pusht-obs_{layout}.json') for layout in LAYOUTS]
-  rows = [(summary_of(p, planner), summary_of(p, 'pachs')) for p in payloads]
-  runs = sum(v['runs'] for v, _ in rows)
-  return (f'{sum(v["successes"] for v, _ in rows):,}/{runs:,} solved against '
-          f'{sum(d["successes"] for _, d in rows):,}/{runs:,} for the default then')
-
-
-def cells_alike(src: Sources) -> str:
-  """Every coarse cell drawn alike against the default's 1 / sqrt(n) on the calls of the second
-  instance set and the held-out layouts."""
-  alike = root = runs = 0
-  for _, name in OTHER_CALLS:
-    a = summary_of(src.load(f'novelty_power_gpu/{name}.json'), 'pachs-improve')
-    b = summary_of(src.load(f'novelty_power_gpu/{name}_power05.json'), 'pachs-improve')
-    alike, root, runs = alike + a['successes'], root + b['successes'], runs + a['runs']
-  return (f'{alike:,}/{runs:,} solved against {root:,}/{runs:,} for 1 / sqrt(n) on the '
-          f'{len(OTHER_CALLS)} calls of "other instances"; over ten calls it reached goals '
-          'later at middle budgets')
-
-
-OPEN_LOOP_FILES = 'in this tree: `open_loop_pusht-obs_<layout>.json`'
-
 # What was measured and not kept: (what it changed, its result: text or a function of the
 # files, the commit whose tree holds its result files and where they are under experiments/results)
 LEDGER: Tuple[Tuple[str, object, str], ...] = (
+    ('Open loop on the planar physics (planar T, soft blocks): the suite with Warp, the second '
+     'instance set and the held-out layouts, PushT-Fixed and -Rand with every planner, the '
+     'original paper\'s planners on the layouts (MJX), the policy alone per layout',
+     'PACHS ahead of or level with the rollout on every layout (detour 122 against 86 of 150); '
+     'superseded by the faithful physics\' runs',
+     '`c5c1a4f`: `suite_gpu/`, `novelty_power_gpu/`, `open_loop_pusht-*.json`, '
+     '`eval_layouts_cpu.json`'),
     ('Chains restart at the start, not at novel cells (MJX)',
-     lambda src: variant_total(src, 'pachs-start'), OPEN_LOOP_FILES),
+     '648/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
     ('Rollout share 0.5: half the lanes extend chains (MJX)',
-     lambda src: variant_total(src, 'pachs-share0.5'), OPEN_LOOP_FILES),
+     '616/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
     ('Edges of 8 transitions without chain lanes (MJX)',
-     lambda src: variant_total(src, 'pachs-h8'), OPEN_LOOP_FILES),
+     '556/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
     ('Novel restarts draw every coarse cell alike (each node 1 / n for the n nodes of its cell)',
-     cells_alike, '`faabee8`: `novelty_power_gpu/` (ten calls)'),
+     '571/600 solved against 579/600 for 1 / sqrt(n) on the 4 calls of the other instance set '
+     'and the held-out layouts; over ten calls it reached goals later at middle budgets',
+     '`faabee8`: `novelty_power_gpu/` (ten calls)'),
     ('After the first goal, stop: the first goal\'s path is the answer',
      'as many runs solved within the call-to-call variation; its paths cost more than the '
      'rollout\'s on every layout and instance set, the default\'s less',
@@ -762,7 +642,7 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`f10a75b`: `closed_loop_pusht-obs_*_answer-*`'),
     ('The default before the first goal\'s path was improved, on the second instance set and '
      'the held-out layouts (MJX), and on the suite with Warp physics',
-     'superseded by the default\'s runs above',
+     'superseded by the default\'s planar runs (the first ledger row)',
      '`9212aa1`: `instance_set1/`, `heldout_gpu/`, `engines/open_loop_*_warp.json`'),
     ('The first transfer to the GPU in a thread beside the imports',
      'saved nothing measurable in warm runs', '`787deab`: `engines/plan_startup_first_transfer.json`'),
@@ -918,11 +798,8 @@ def _learner_move(src: Sources) -> str:
 
 SECTIONS: Tuple[Tuple[str, Callable[[Sources], str]], ...] = (
     ('PushT on the faithful physics (the default)', faithful),
-    ('Open loop: PushT-Obs layouts', suite),
-    ('Open loop: other instances and held-out layouts', other_sets),
     ('The layouts: the policy alone', policy_per_layout),
-    ('Open loop: PushT-Fixed, PushT-Rand, Panda-Shelf', open_loop_tasks),
-    ('Open loop: the original paper\'s planners on the layouts', paper_open_loop),
+    ('Open loop: Panda-Shelf', open_loop_tasks),
     ('Closed loop on the faithful physics', closed_loop_sessions),
     ('Speed and start-up', speed),
     ('Physics engines: MuJoCo Warp, MJX and MuJoCo C', engines),

@@ -159,16 +159,17 @@ def test_every_experiment_script_is_used():
 
 def test_the_ledger_reads_its_numbers_from_the_files(copy_root):
   """A ledger row computed from the files follows them; a row of removed files names a commit."""
-  def fewer(payload):
-    report.summary_of(payload, 'pachs-start')['successes'] -= 100
+  def slower(payload):
+    run = next(r for r in payload['runs'] if r['name'] == 'height, failure cost 25, scratch')
+    run['env_steps'] += 5e6
 
   before = report.generate(str(copy_root))['docs/results.md']
-  rewrite(copy_root, 'open_loop_pusht-obs_gate.json', fewer)
+  rewrite(copy_root, 'training/runs.json', slower)
   after = report.generate(str(copy_root))['docs/results.md']
   row = lambda text: next(line for line in text.splitlines()
-                          if line.startswith('| Chains restart at the start, not at novel'))
-  solved = lambda line: int(re.search(r'\| (\d+)/750 solved', line).group(1))
-  assert solved(row(before)) - solved(row(after)) == 100
+                          if line.startswith('| SAC on the free T with a failed end charged 25'))
+  steps = lambda line: float(re.search(r'after ([0-9.]+) M env steps', line).group(1))
+  assert steps(row(after)) - steps(row(before)) == pytest.approx(5.0)
   for what, result, where in report.LEDGER:
     assert where.startswith('in this tree') or re.match(r'`[0-9a-f]{7}`: ', where), what
 
@@ -201,16 +202,16 @@ def test_formats():
 
 
 @pytest.mark.parametrize('damage, message', [
-    ('truncate', r'open_loop_pusht-fixed.json: not valid JSON'),
-    ('delete', r'open_loop_pusht-fixed.json: missing \(the report reads it\)'),
-    ('list', r'open_loop_pusht-fixed.json: not a result \(a JSON object\), got list'),
-    ('no summary', r"section '.*' \(last read .*open_loop_pusht-fixed.json\): KeyError 'summary'"),
+    ('truncate', r'open_loop_shelf.json: not valid JSON'),
+    ('delete', r'open_loop_shelf.json: missing \(the report reads it\)'),
+    ('list', r'open_loop_shelf.json: not a result \(a JSON object\), got list'),
+    ('no summary', r"section '.*' \(last read .*open_loop_shelf.json\): KeyError 'summary'"),
 ])
 def test_a_damaged_result_file_is_named_in_one_line(tmp_path, damage, message):
   shutil.copytree(os.path.join(ROOT, 'experiments', 'results'),
                   tmp_path / 'experiments' / 'results')
   shutil.copy(os.path.join(ROOT, 'README.md'), tmp_path / 'README.md')
-  target = tmp_path / 'experiments' / 'results' / 'open_loop_pusht-fixed.json'
+  target = tmp_path / 'experiments' / 'results' / 'open_loop_shelf.json'
   payload = json.loads(target.read_text())
   if damage == 'truncate':
     target.write_text(target.read_text()[:100])
