@@ -352,6 +352,8 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default: the search's path, the last answer's remainder replayed in "
               "the search, K 64)"),
     ('parallel', 'parallel rollout (256 copies)'),
+    ('pachs-q1', 'PACHS, 1 s per query'),
+    ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
 
 
@@ -361,8 +363,6 @@ def closed_loop_sessions(src: Sources) -> str:
   folder = 'closed_loop_gpu'
   rows, drops, missing, first = [], [], [], None
   for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
-    rollout = (summary_of(src.load(f'{folder}/{layout}_parallel.json'), 'parallel')
-               if src.exists(f'{folder}/{layout}_parallel.json') else None)
     if not src.exists(f'{folder}/{layout}_pachs.json'):
       missing.append(layout)
     for variant, label in CLOSED_LOOP_VARIANTS:
@@ -371,16 +371,19 @@ def closed_loop_sessions(src: Sources) -> str:
         continue
       p = src.load(name)
       first = first or p
-      a = summary_of(p, variant)
+      planner = variant.split('-')[0]
+      same = f'{folder}/{layout}_parallel{variant[len(planner):]}.json'  # the rollout's run
+      rollout = summary_of(src.load(same), 'parallel') if src.exists(same) else None
+      a = summary_of(p, planner)
       edges = a['evaluations_per_query_mean']
-      is_pachs = variant != 'parallel'
+      is_pachs = planner == 'pachs'
       rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
                    str(a['empty_answers']), answer_counts(a) if is_pachs else '-'])
       own = f'{folder}/{layout}_{variant}-planner-world.json'
       if src.exists(own):
-        b = summary_of(src.load(own), variant)
+        b = summary_of(src.load(own), planner)
         drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
                       f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                       f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
