@@ -15,7 +15,7 @@ from pachs_jax import envs, replan
 from pachs_jax.runtime import compile_cache, programs, sharding, signals
 from pachs_jax.envs import backends, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
-from pachs_jax.search import pachs
+from pachs_jax.search import capacity, pachs
 from pachs_jax.search.config import SearchConfig
 from pachs_jax.search.result import SearchResult, StopReason
 
@@ -179,6 +179,7 @@ class Planner:
     self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
                                     prefetch=prefetch)
     self._canonical = None
+    self._replaying = {}  # horizon -> the sessions' search, with room to replay that many actions
 
   @property
   def num_instances(self) -> int:
@@ -248,8 +249,15 @@ class Planner:
     """A `replan.Session` that replans many episodes from their new states with this planner's
     env, model and config, keeping its last answer between queries (horizon and candidates as
     there). Where the config has chain lanes the session's search replays the last answer's
-    remainder and is built apart from `plan`'s, with room for it; otherwise it shares `plan`'s."""
-    search = None if self.config.rollout_lanes else self.search
+    remainder and is built apart from `plan`'s, with room for it (once per horizon, shared by
+    the sessions of that horizon); otherwise it shares `plan`'s."""
+    search = self.search
+    if self.config.rollout_lanes:
+      rows = int(self.env.episode_length) if horizon is None else horizon
+      if rows not in self._replaying:
+        self._replaying[rows] = programs.Programs(pachs.make_search(
+            self.env, self.model, self.config, capacities=capacity.Capacities(replay=rows)))
+      search = self._replaying[rows]
     return replan.Session(self.env, self.model, self.config, search, horizon, candidates)
 
 

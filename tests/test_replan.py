@@ -270,3 +270,18 @@ def test_executed_must_match_the_episodes(env, session):
     session.plan(nodes, executed=[1, 2])
   with pytest.raises(ValueError, match='the session plans 3 episodes, got 2'):
     session.plan(jax.tree.map(lambda x: x[:2], nodes), executed=[1, 1])
+
+
+def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
+  # PushT-Obs has chain lanes: its sessions replay, in a search apart from `plan`'s, built
+  # once per horizon; PushT-Fixed has none: its sessions share `plan`'s search
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
+  obs = planner.Planner('pusht-obs', backend='mujoco-c', budget=400, cache=False)
+  first, second, short = obs.session(), obs.session(), obs.session(horizon=8)
+  assert first.replay_remainder and first.search is second.search
+  assert first.search is not obs.search and obs.search.search.sizes.replay == 0
+  assert first.search.search.sizes.replay == obs.env.episode_length
+  assert short.search.search.sizes.replay == 8
+  fixed = planner.Planner('pusht-fixed', backend='mujoco-c', budget=400, cache=False)
+  session = fixed.session()
+  assert not session.replay_remainder and session.search is fixed.search
