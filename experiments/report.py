@@ -380,7 +380,9 @@ def closed_loop_sessions(src: Sources) -> str:
       rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
-                   str(a['empty_answers']), answer_counts(a) if is_pachs else '-'])
+                   str(a['empty_answers']),
+                   '-' if a.get('failures') is None else str(a['failures']),
+                   answer_counts(a) if is_pachs else '-'])
       own = f'{folder}/{layout}_{variant}-planner-world.json'
       if src.exists(own):
         b = summary_of(src.load(own), planner)
@@ -399,10 +401,13 @@ def closed_loop_sessions(src: Sources) -> str:
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
       'file is named by what ran (its command names the file it was written as).',
       table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
-             'iterations per query', 'empty answers', 'PACHS answers'], rows),
+             'iterations per query', 'empty answers', 'T tipped (failed)', 'PACHS answers'],
+            rows),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
+      '"-": a run from before the count).',
       (f'Not run on the faithful physics: {", ".join(missing)}. ' if missing else '')
       + 'The variants that lost (the session\'s candidates, K 256, no replay): '
       '[measured and not kept](#measured-and-not-kept).'])
