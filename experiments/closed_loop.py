@@ -14,25 +14,80 @@ import sys
 import time
 from typing import Dict, List
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import common
-import stats
-from pachs_jax import argtypes, flags, planner, replan, trees
-from pachs_jax.runtime import anytime, signals
-from pachs_jax import episodes as episodes_lib
-from pachs_jax.episodes import Worlds
-from pachs_jax.envs import pusht, world as world_lib
-from pachs_jax.search import baselines as bl
-from pachs_jax.search import compact
-from pachs_jax.search.result import StopReason
+from pachs_jax import argtypes, flags
 
 PLANNERS = ('single', 'parallel', 'pachs', 'pachs-original', 'mppi')
 # physics batches of PACHS and the parallel rollout: the lanes of the episodes still running,
 # gathered, once they fit one of these fractions of the full batch
 COMPACT_FRACTIONS = (0.75, 0.5, 0.25, 0.125)
+WORLDS = ('mujoco-c', 'planner')
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-fixed',
+                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
+  parser.add_argument('--planners', default=','.join(PLANNERS))
+  parser.add_argument('--rounds', type=argtypes.positive_int, default=5)
+  parser.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
+                      help='s per planning query')
+  parser.add_argument('--execute', type=argtypes.positive_int, default=10,
+                      help='actions executed per query')
+  parser.add_argument('--max-queries', type=argtypes.positive_int, default=30)
+  parser.add_argument('--fill-with-policy', type=int, default=1, choices=[0, 1],
+                      help='1: a path shorter than --execute is followed by policy actions up '
+                      'to --execute world steps per query')
+  parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
+                      help='evaluation budget per query and episode')
+  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
+                      help='parallel-rollout copies')
+  flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
+                                 'compact_fractions'],
+                         defaults={'compact_fractions': COMPACT_FRACTIONS})
+  parser.add_argument('--candidates', default=None,
+                      type=lambda text: tuple(c for c in text.split(',') if c),
+                      help="what competes with PACHS's path in each query (replan.Session): "
+                      "'remainder' (the last answer's unexecuted actions), 'policy' (the "
+                      "policy's rollout); '' (the default) the search's path alone")
+  parser.add_argument('--replay-remainder', type=int, default=None, choices=[0, 1],
+                      help="1: each PACHS search's first chain lane replays the last answer's "
+                      'remainder (replan.Session.replay_remainder); 0: not; default: where '
+                      'the search has chain lanes')
+  parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
+                      help='PACHS / parallel-rollout iterations between wall-clock checks')
+  parser.add_argument('--server', default=None,
+                      help="plan 'pachs' through a running `pachs serve` at this URL (its task, "
+                      'budget and settings; docs/serving.md)')
+  parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
+                      "'friction=1.2,t_mass=0.8'")
+  parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
+                      help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
+                      "planners' own edge physics (--backend), so that plans transfer")
+  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True)
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import stats  # noqa: E402
+from pachs_jax import planner, replan, trees  # noqa: E402
+from pachs_jax.runtime import anytime, signals  # noqa: E402
+from pachs_jax import episodes as episodes_lib  # noqa: E402
+from pachs_jax.episodes import Worlds  # noqa: E402
+from pachs_jax.envs import pusht, world as world_lib  # noqa: E402
+from pachs_jax.search import baselines as bl  # noqa: E402
+from pachs_jax.search import compact  # noqa: E402
+from pachs_jax.search.result import StopReason  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def parse_perturbation(text: str) -> world_lib.Perturbation:
@@ -50,8 +105,6 @@ def parse_perturbation(text: str) -> world_lib.Perturbation:
       raise ValueError(f'--perturb {name}: a number, got {value!r}') from None
   return world_lib.Perturbation(**values)
 
-
-WORLDS = ('mujoco-c', 'planner')
 
 
 class PlannerWorldEpisodes(Worlds):
@@ -350,47 +403,10 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           **answers.summary()}
 
 def main():
-  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--task', default='pusht-fixed',
-                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
-  parser.add_argument('--planners', default=','.join(PLANNERS))
-  parser.add_argument('--rounds', type=argtypes.positive_int, default=5)
-  parser.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
-                      help='s per planning query')
-  parser.add_argument('--execute', type=argtypes.positive_int, default=10,
-                      help='actions executed per query')
-  parser.add_argument('--max-queries', type=argtypes.positive_int, default=30)
-  parser.add_argument('--fill-with-policy', type=int, default=1, choices=[0, 1],
-                      help='1: a path shorter than --execute is followed by policy actions up '
-                      'to --execute world steps per query')
-  parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
-                      help='evaluation budget per query and episode')
-  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
-                      help='parallel-rollout copies')
-  flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
-                                 'compact_fractions'],
-                         defaults={'compact_fractions': COMPACT_FRACTIONS})
-  parser.add_argument('--candidates', default=','.join(replan.DEFAULT_CANDIDATES),
-                      type=lambda text: tuple(c for c in text.split(',') if c),
-                      help="what competes with PACHS's path in each query (replan.Session): "
-                      "'remainder' (the last answer's unexecuted actions), 'policy' (the "
-                      "policy's rollout); '' (the default) the search's path alone")
-  parser.add_argument('--replay-remainder', type=int, default=None, choices=[0, 1],
-                      help="1: each PACHS search's first chain lane replays the last answer's "
-                      'remainder (replan.Session.replay_remainder); 0: not; default: where '
-                      'the search has chain lanes')
-  parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
-                      help='PACHS / parallel-rollout iterations between wall-clock checks')
-  parser.add_argument('--server', default=None,
-                      help="plan 'pachs' through a running `pachs serve` at this URL (its task, "
-                      'budget and settings; docs/serving.md)')
-  parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
-                      "'friction=1.2,t_mass=0.8'")
-  parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
-                      help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
-                      "planners' own edge physics (--backend), so that plans transfer")
-  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True)
+  parser = build_parser()
   args = parser.parse_args()
+  if args.candidates is None:
+    args.candidates = replan.DEFAULT_CANDIDATES
   if args.world == 'planner' and args.perturb:
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   common.check_layout(parser, args.task, args.layout)

@@ -1,4 +1,5 @@
-"""Shared helpers of the experiment scripts: flags, provenance, timing, result files."""
+"""Shared helpers of the experiment scripts: flags, provenance, timing, result files. Light to
+import (JAX loads where a helper needs it), so that a script can check its flags first."""
 
 from __future__ import annotations
 
@@ -12,11 +13,10 @@ import sys
 import time
 from typing import Any, Callable, Dict, List, Optional, Union
 
-import jax
 import numpy as np
 
 from pachs_jax import argtypes, cli, envs
-from pachs_jax.envs import backends, layouts
+from pachs_jax.envs import layouts, registry
 
 
 def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
@@ -40,7 +40,7 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                         help='the first N canonical instances, 0..N-1 (default: '
                         f'{instances or "the task set: 30 PushT, 100 shelf"})')
   if backend:
-    parser.add_argument('--backend', default='mjx', choices=backends.BACKENDS,
+    parser.add_argument('--backend', default='mjx', choices=registry.BACKENDS,
                         help="edge physics (mujoco-c: MuJoCo C on the CPU threads; warp: MuJoCo "
                         "Warp; auto: warp or mjx on an accelerator, mujoco-c without one)")
   if seed:
@@ -138,6 +138,7 @@ def command_line() -> str:
 def provenance(device: Optional[str] = None) -> Dict[str, Any]:
   """Device, command, revision and versions for a results file. device: the planner's device
   where it is not this process's (a server's, from its health answer)."""
+  import jax  # pylint: disable=import-outside-toplevel
   dev = jax.devices()[0]
   return {
       'command': command_line(),
@@ -152,6 +153,7 @@ def provenance(device: Optional[str] = None) -> Dict[str, Any]:
 
 def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1) -> Dict[str, float]:
   """Median and min wall time (s) of fn() with its outputs blocked on; compile excluded."""
+  import jax  # pylint: disable=import-outside-toplevel
   for _ in range(warmup):
     jax.block_until_ready(fn())
   times: List[float] = []

@@ -11,17 +11,10 @@ import os
 import time
 from typing import Dict, List
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import common
-import stats
-from pachs_jax import argtypes, envs, flags, planner
-from pachs_jax.runtime import programs, sharding
-from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
-from pachs_jax.search.result import StopReason
+from pachs_jax import argtypes, flags
 
 PUSHT_PLANNERS = ('pachs', 'pachs-original', 'single', 'parallel', 'beam')
 # PACHS with the first goal ending the search, or with an improvement phase after it
@@ -35,6 +28,56 @@ ORIGINAL = {
     'pusht-obs': {'pachs': 'far above both rollouts'},
     'shelf': {'pachs': '100%', 'epase': '100%'},
 }
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='pusht-obs',
+                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
+  parser.add_argument('--planners', default=None, help='comma list (default: all of the task)')
+  parser.add_argument('--rounds', type=argtypes.positive_int, default=None,
+                      help='runs per instance (default: 5 PushT, 1 shelf)')
+  parser.add_argument('--budget', type=argtypes.positive_int, default=None,
+                      help='evaluations per run (default: 100,000 PushT, 20,000 shelf)')
+  parser.add_argument('--time-limit', type=argtypes.positive_float, default=None,
+                      help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
+  flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
+                                 'rollout_share', 'chain_restart', 'compact_fractions',
+                                 'after_goal', 'improve_allowance', 'uniform_share'])
+  parser.add_argument('--lattice-scale', type=argtypes.positive_float, default=None,
+                      help='PACHS lattice resolution = this x the default (default: 1)')
+  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
+                      help='parallel-rollout copies')
+  parser.add_argument('--instance-seed', type=int, default=0,
+                      help='the seed of the instance set (default 0: the canonical set; another '
+                      'seed draws a new set from the same start region, by the same rules)')
+  parser.add_argument('--beam-width', type=argtypes.positive_int, default=64)
+  parser.add_argument('--epase-weight', type=argtypes.positive_float, default=20.0,
+                      help='w of ePA*SE (chosen by a sweep: commit f3cad6e, results/tune_epase.md)')
+  parser.add_argument('--epase-budget', type=argtypes.positive_int, default=200_000)
+  parser.add_argument('--epase-spread', type=argtypes.integer(0), default=3,
+                      help='cells the BFS-3D distances extend into blocked cells')
+  parser.add_argument('--devices', type=argtypes.positive_int, default=1,
+                      help='shard the runs over this many local devices (no PACHS time limit)')
+  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import stats  # noqa: E402
+from pachs_jax import envs, planner  # noqa: E402
+from pachs_jax.runtime import programs, sharding  # noqa: E402
+from pachs_jax.search import baselines as bl  # noqa: E402
+from pachs_jax.search import pachs  # noqa: E402
+from pachs_jax.search.result import StopReason  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def run_keys(seed: int, num_instances: int, rounds: int) -> jax.Array:
@@ -234,35 +277,7 @@ def write_markdown(task: str, payload: Dict, path: str) -> None:
 
 
 def main():
-  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--task', default='pusht-obs',
-                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs', 'shelf'])
-  parser.add_argument('--planners', default=None, help='comma list (default: all of the task)')
-  parser.add_argument('--rounds', type=argtypes.positive_int, default=None,
-                      help='runs per instance (default: 5 PushT, 1 shelf)')
-  parser.add_argument('--budget', type=argtypes.positive_int, default=None,
-                      help='evaluations per run (default: 100,000 PushT, 20,000 shelf)')
-  parser.add_argument('--time-limit', type=argtypes.positive_float, default=None,
-                      help='PACHS wall-clock limit of the batch (s; default: none PushT, 60 shelf)')
-  flags.add_search_flags(parser, ['pop_size', 'num_actions', 'weight', 'edge_steps',
-                                 'rollout_share', 'chain_restart', 'compact_fractions',
-                                 'after_goal', 'improve_allowance', 'uniform_share'])
-  parser.add_argument('--lattice-scale', type=argtypes.positive_float, default=None,
-                      help='PACHS lattice resolution = this x the default (default: 1)')
-  parser.add_argument('--copies', type=argtypes.positive_int, default=256,
-                      help='parallel-rollout copies')
-  parser.add_argument('--instance-seed', type=int, default=0,
-                      help='the seed of the instance set (default 0: the canonical set; another '
-                      'seed draws a new set from the same start region, by the same rules)')
-  parser.add_argument('--beam-width', type=argtypes.positive_int, default=64)
-  parser.add_argument('--epase-weight', type=argtypes.positive_float, default=20.0,
-                      help='w of ePA*SE (chosen by a sweep: commit f3cad6e, results/tune_epase.md)')
-  parser.add_argument('--epase-budget', type=argtypes.positive_int, default=200_000)
-  parser.add_argument('--epase-spread', type=argtypes.integer(0), default=3,
-                      help='cells the BFS-3D distances extend into blocked cells')
-  parser.add_argument('--devices', type=argtypes.positive_int, default=1,
-                      help='shard the runs over this many local devices (no PACHS time limit)')
-  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
+  parser = build_parser()
   args = parser.parse_args()
   common.check_layout(parser, args.task, args.layout)
   shelf = args.task == 'shelf'
