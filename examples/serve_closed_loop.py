@@ -15,7 +15,7 @@ import argparse
 import jax
 import numpy as np
 
-from pachs_jax import client, envs, episodes, planner
+from pachs_jax import argtypes, client, envs, episodes, planner
 
 
 def main() -> None:
@@ -29,7 +29,7 @@ def main() -> None:
   parser.add_argument('--max-queries', type=int, default=30)
   args = parser.parse_args()
   env = envs.make(args.task, layout=args.layout)
-  instances = planner.parse_instances(args.instances, envs.spec(args.task).num_instances)
+  instances = argtypes.instance_indices(args.instances, envs.spec(args.task).num_instances)
   starts = planner.canonical_instances(env, envs.spec(args.task).num_instances)
   worlds = episodes.Worlds(env, jax.tree.map(lambda x: np.asarray(x)[instances], starts))
   with client.Client(args.url, args.task) as asking:

@@ -28,7 +28,7 @@ import bench_engines
 import common
 import open_loop
 import stats
-from pachs_jax import envs, planner
+from pachs_jax import argtypes, envs, planner
 from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import backends
 from pachs_jax.sac import actor_critic as ac_lib
@@ -344,7 +344,7 @@ def chunked(argv):
   parser.add_argument('--out', default='experiments/results/bench_chunked_search_cpu')
   args = parser.parse_args(argv)
   plans = planner.Planner(args.task, budget=args.budget, cache=False)
-  instances = planner.parse_instances(args.instances, 30)
+  instances = argtypes.instance_indices(args.instances, 30)
   starts = plans.canonical(instances)
   chunks = {'one call': 2**30, 'adaptive chunks': None}
   times = {name: [] for name in chunks}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable, Optional
+from typing import Callable, List, Optional
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -94,3 +94,25 @@ def path(what: str) -> Callable[[str], str]:
     return text
 
   return parse
+
+
+def instance_indices(text: str, available: int) -> List[int]:
+  """'0-29' or '0,3,5' or '7' -> sorted instance indices, checked against `available`."""
+  ranges = []
+  try:
+    for part in text.split(','):
+      if '-' in part:
+        lo, hi = (int(x) for x in part.split('-'))
+      else:
+        lo = hi = int(part)
+      ranges.append((lo, hi))
+  except ValueError:
+    raise ValueError(f"instances must look like '0-29' or '0,3,5', got {text!r}") from None
+  # bounds first: no range is built beyond the available instances
+  if not ranges or any(not 0 <= lo < available or not 0 <= hi < available
+                       for lo, hi in ranges):
+    raise ValueError(f'instances must lie in 0..{available - 1}, got {text!r}')
+  empty = [f'{lo}-{hi}' for lo, hi in ranges if lo > hi]
+  if empty:
+    raise ValueError(f'instances: the range {empty[0]} is empty (write low-high), got {text!r}')
+  return sorted({i for lo, hi in ranges for i in range(lo, hi + 1)})

@@ -145,12 +145,14 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     _check_image_path('--render', args.render)
   if args.animate:
     check_output_path('--animate', args.animate)
+  from pachs_jax.envs import registry
+  if args.instances not in (None, 'all') and args.task in registry.SPECS:  # before JAX's work
+    argtypes.instance_indices(args.instances, registry.spec(args.task).num_instances)
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
 
   import jax  # start-up path: lazy, after the outputs' checks
 
   from pachs_jax import planner
-  from pachs_jax.envs import registry
   from pachs_jax.runtime import programs, progress
   from pachs_jax.sac import checkpoint as checkpoint_lib
 
@@ -173,7 +175,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     args.instances = cpu.instances if on_cpu else 'all'
   if args.instances == 'all':
     args.instances = f'0-{num_available - 1}'
-  instances = planner.parse_instances(args.instances, num_available)
+  instances = argtypes.instance_indices(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
   if on_cpu:
     physics = ('MuJoCo C on all CPU threads' if env.physics == 'mujoco-c'
@@ -289,7 +291,7 @@ def _loop(args: argparse.Namespace) -> int:
   outputs.check_distinct({'--json': args.json, '--video': args.video})
   from pachs_jax import envs, episodes, planner, replan
   num_available = envs.spec(args.task).num_instances
-  instances = planner.parse_instances(args.instances, num_available)
+  instances = argtypes.instance_indices(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
   with warnings.catch_warnings():  # (its physics note is said below, as a note)
     warnings.simplefilter('ignore', UserWarning)

@@ -263,7 +263,7 @@ class Planner:
 
 def check_indices(instances, available: int) -> np.ndarray:
   """[I] int64 canonical indices; ValueError unless instances is a non-empty sequence of
-  integers in 0..available - 1 (no wrap-around of negative indices)."""
+  distinct integers in 0..available - 1 (no wrap-around of negative indices)."""
   shown = repr(instances) if len(repr(instances)) < 60 else repr(instances)[:56] + ' ...'
   try:
     values = np.asarray(instances)
@@ -278,6 +278,10 @@ def check_indices(instances, available: int) -> np.ndarray:
   bad = values[(values < 0) | (values >= available)]
   if bad.size:
     raise ValueError(f'instances must lie in 0..{available - 1}, got {int(bad[0])} in {shown}')
+  unique, counts = np.unique(values, return_counts=True)
+  if np.any(counts > 1):
+    raise ValueError(f'instances must not repeat: {int(unique[counts > 1][0])} is listed '
+                     f'{int(counts.max())} times in {shown} (plan it again with another seed)')
   return values.astype(np.int64)
 
 
@@ -289,28 +293,6 @@ def check_seed(seed) -> int:
   if not -2**63 <= int(seed) < 2**63:
     raise ValueError(f'seed must fit in 64 bits (-2**63 .. 2**63 - 1), got {seed}')
   return int(seed)
-
-
-def parse_instances(text: str, available: int) -> List[int]:
-  """'0-29' or '0,3,5' or '7' -> sorted instance indices, checked against `available`."""
-  ranges = []
-  try:
-    for part in text.split(','):
-      if '-' in part:
-        lo, hi = (int(x) for x in part.split('-'))
-      else:
-        lo = hi = int(part)
-      ranges.append((lo, hi))
-  except ValueError:
-    raise ValueError(f"instances must look like '0-29' or '0,3,5', got {text!r}") from None
-  # bounds first: no range is built beyond the available instances
-  if not ranges or any(not 0 <= lo < available or not 0 <= hi < available
-                       for lo, hi in ranges):
-    raise ValueError(f'instances must lie in 0..{available - 1}, got {text!r}')
-  empty = [f'{lo}-{hi}' for lo, hi in ranges if lo > hi]
-  if empty:
-    raise ValueError(f'instances: the range {empty[0]} is empty (write low-high), got {text!r}')
-  return sorted({i for lo, hi in ranges for i in range(lo, hi + 1)})
 
 
 def result_rows(result: SearchResult, instances: Sequence[int]) -> List[dict]:

@@ -19,10 +19,10 @@ from pachs_jax.search.result import StopReason
 
 def test_an_instance_range_is_bounded_before_it_is_built():
   with pytest.raises(ValueError, match=r"instances must lie in 0\.\.29, got '0-99999999999'"):
-    planner.parse_instances('0-99999999999', 30)
+    argtypes.instance_indices('0-99999999999', 30)
   with pytest.raises(ValueError, match='the range 5-3 is empty'):
-    planner.parse_instances('5-3', 30)
-  assert planner.parse_instances('3,0-2,2', 30) == [0, 1, 2, 3]
+    argtypes.instance_indices('5-3', 30)
+  assert argtypes.instance_indices('3,0-2,2', 30) == [0, 1, 2, 3]
 
 
 @pytest.mark.parametrize('flag', ['--json', '--render', '--animate', '--checkpoint'])

@@ -88,6 +88,7 @@ def test_a_stop_before_the_search_raises(small):
     ([], 'instances must be a non-empty list'),
     ([0.5], 'instances must be integers'),
     ([True], 'instances must be integers'),
+    ((0, 3, 0), 'instances must not repeat: 0 is listed 2 times'),
 ])
 def test_bad_instances_are_refused(small, instances, message):
   with pytest.raises(ValueError, match=message.replace('.', r'\.')):

@@ -101,7 +101,7 @@ TASKS = tuple(SPECS)
 @dataclasses.dataclass(frozen=True)
 class CpuPlanning:
   """What `pachs plan` and `Planner` plan on a CPU-only machine when no budget is given:
-  instances ('all' or a `planner.parse_instances` text; `pachs plan` only) and budget (edge
+  instances ('all' or a `argtypes.instance_indices` text; `pachs plan` only) and budget (edge
   evaluations per instance)."""
 
   instances: str
