@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
@@ -59,7 +60,42 @@ def read_result(root: str, path: str) -> Dict:
     raise ReportError(f'{path}: not valid JSON ({err})') from None
   if not isinstance(payload, dict):
     raise ReportError(f'{path}: not a result (a JSON object), got {type(payload).__name__}')
+  check_numbers(path, payload)
   return payload
+
+
+RATES = ('success_rate', 'ci95_low', 'ci95_high', 'instance_ci95_low', 'instance_ci95_high')
+COUNTS = ('runs', 'successes', 'episodes', 'failures', 'empty_answers', 'goal_answers')
+
+
+def check_numbers(path: str, payload: Dict) -> None:
+  """ReportError naming the file, row and field where a summary row holds a number no run can
+  give: a rate outside [0, 1], a count that is negative, fractional or above the runs, or a
+  value that is not finite."""
+  rows = payload.get('summary')
+  if not isinstance(rows, list):
+    return
+  for row in rows:
+    if not isinstance(row, dict):
+      continue
+    name = row.get('planner', '?')
+    for field, value in row.items():
+      if isinstance(value, float) and not math.isfinite(value):
+        raise ReportError(f'{path}: {name} {field} is {value} (not a finite number)')
+    for field in RATES:
+      value = row.get(field)
+      if value is not None and not (isinstance(value, (int, float)) and 0 <= value <= 1):
+        raise ReportError(f'{path}: {name} {field} must lie in [0, 1], got {value!r}')
+    for field in COUNTS:
+      value = row.get(field)
+      if value is not None and not (isinstance(value, int) and not isinstance(value, bool)
+                                    and value >= 0):
+        raise ReportError(f'{path}: {name} {field} must be a count (an int >= 0), got '
+                          f'{value!r}')
+    total = row.get('runs', row.get('episodes'))
+    if isinstance(total, int) and isinstance(row.get('successes'), int) and (
+        row['successes'] > total):
+      raise ReportError(f'{path}: {name} successes {row["successes"]} exceed its {total} runs')
 
 
 def read_section(title: str, section: Callable, src: 'Sources'):

@@ -208,6 +208,21 @@ def test_formats():
     ('no summary', r"section '.*' \(last read .*open_loop_shelf.json\): KeyError 'summary'"),
 ])
 def test_a_damaged_result_file_is_named_in_one_line(tmp_path, damage, message):
+  _damage_and_check(tmp_path, damage, message)
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'success_rate': 2.5}, r'open_loop_shelf.json: pachs success_rate must lie in \[0, 1\], got 2.5'),
+    ({'successes': -1}, r'pachs successes must be a count \(an int >= 0\), got -1'),
+    ({'successes': 7.5}, r'pachs successes must be a count'),
+    ({'successes': 101}, r'pachs successes 101 exceed its 100 runs'),
+    ({'cost_success_mean': float('nan')}, r'pachs cost_success_mean is nan \(not a finite'),
+])
+def test_impossible_numbers_in_a_result_file_are_named(tmp_path, change, message):
+  _damage_and_check(tmp_path, change, message)
+
+
+def _damage_and_check(tmp_path, damage, message):
   shutil.copytree(os.path.join(ROOT, 'experiments', 'results'),
                   tmp_path / 'experiments' / 'results')
   shutil.copy(os.path.join(ROOT, 'README.md'), tmp_path / 'README.md')
@@ -219,6 +234,10 @@ def test_a_damaged_result_file_is_named_in_one_line(tmp_path, damage, message):
     target.unlink()
   elif damage == 'list':
     target.write_text('[]')
+  elif isinstance(damage, dict):
+    row = next(r for r in payload['summary'] if r['planner'] == 'pachs')
+    row.update(damage)
+    target.write_text(json.dumps(payload))
   else:
     target.write_text(json.dumps({k: v for k, v in payload.items() if k != 'summary'}))
   with pytest.raises(report.ReportError, match=message):
