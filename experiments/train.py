@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import signal
 import sys
 import threading
@@ -100,6 +101,31 @@ def _widths(text: str, flag: str) -> tuple:
   except ValueError:
     raise SystemExit(f'{flag} must be comma-separated integers, got {text!r}') from None
   return widths
+
+
+# SACConfig field -> the flag that sets it (`overrides`), so that a refused value is named as typed
+FLAG_OF = {'num_envs': '--num-envs', 'batch_size': '--batch-size',
+           'grad_updates_per_step': '--grad-updates', 'steps_per_epoch': '--steps-per-epoch',
+           'discount': '--discount', 'reward_scaling': '--reward-scaling',
+           'replay_capacity': '--replay-capacity', 'min_replay_size': '--min-replay',
+           'init_alpha': '--init-alpha', 'eval_instances': '--eval-instances', 'seed': '--seed',
+           'failure_cost': '--failure-cost', 'absorbing_failure': '--absorbing-failure',
+           'actor_learning_rate': '--lr', 'critic_learning_rate': '--lr',
+           'alpha_learning_rate': '--lr', 'actor_hidden': '--actor-hidden',
+           'critic_hidden': '--critic-hidden'}
+
+
+def with_flags(message: str, changes: dict, args: argparse.Namespace) -> str:
+  """A SACConfig refusal with each field the flags set (changes) named by its flag."""
+  flag_of = dict(FLAG_OF)
+  for side in ('actor', 'critic'):  # widths set by --hidden alone
+    if args.hidden is not None and getattr(args, f'{side}_hidden') is None:
+      flag_of[f'{side}_hidden'] = '--hidden'
+  for field in sorted(changes, key=len, reverse=True):
+    flag = flag_of.get(field)
+    if flag is not None:
+      message = re.sub(rf'\b(SACConfig\.)?{field}\b', flag, message)
+  return message
 
 
 def overrides(args: argparse.Namespace) -> dict:
@@ -216,6 +242,7 @@ def _main(args: argparse.Namespace) -> int:
   from pachs_jax.sac.trainer import make_trainer  # pylint: disable=import-outside-toplevel
   from pachs_jax.envs import backends  # pylint: disable=import-outside-toplevel
 
+  created = not os.path.exists(args.out)
   try:
     train.check_run_dir(args.out)  # every output path writable, before any work
     meta = train.read_run_config(args.out)
@@ -251,7 +278,9 @@ def _main(args: argparse.Namespace) -> int:
     try:
       config = dataclasses.replace(base, **changes)
     except ValueError as e:
-      raise SystemExit(str(e)) from None
+      if created and not os.listdir(args.out):  # nothing left of a refused run
+        os.rmdir(args.out)
+      raise SystemExit(f'train.py: error: {with_flags(str(e), changes, args)}') from None
   try:
     env = backends.make_backend(env, args.physics)
   except ValueError as e:

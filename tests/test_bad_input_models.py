@@ -243,6 +243,13 @@ def test_train_cli_argument_errors(cli, capsys, tmp_path):
        '--start-if-missing only goes with --resume'),
       (['--steps', '100', '--out', out, '--resume'], 1,
        '--resume: .* holds no training run .*--start-if-missing'),
+      # config values are named by the flags that set them
+      (['--steps', '100', '--out', out, '--batch-size', '0'], 1,
+       r'^train.py: error: --batch-size must be > 0, got 0$'),
+      (['--steps', '100', '--out', out, '--min-replay', '5', '--replay-capacity', '2'], 1,
+       r'--replay-capacity \(2\) must hold .* --min-replay \(5\)'),
+      (['--steps', '100', '--out', out, '--hidden', '0,4'], 1,
+       r'--hidden must be non-empty positive widths'),
   ]
   for args, want_code, pattern in cases:
     code, err = _cli_error(cli, capsys, args)
