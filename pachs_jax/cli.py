@@ -178,8 +178,10 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   instances = argtypes.instance_indices(args.instances, num_available)
   shown = outputs.check_show_instance(args.show_instance, instances)
   if on_cpu:
-    physics = ('MuJoCo C on all CPU threads' if env.physics == 'mujoco-c'
-               else 'MJX on the CPU (slow: milliseconds per world and step)')
+    physics = {'mujoco-c': 'MuJoCo C on all CPU threads',
+               'warp': 'MuJoCo Warp on the CPU (slow: its kernels are made for CUDA GPUs; '
+                       '--backend auto picks MuJoCo C here)'}.get(
+                           env.physics, 'MJX on the CPU (slow: milliseconds per world and step)')
     gpu = planner.command_config(args.task, False, False)
     say(f'note: JAX has no accelerator here; edges are simulated by {physics}. A GPU plans '
         f'{num_available} instances x {gpu.budget:,} evaluations in seconds: pip '
