@@ -18,9 +18,8 @@ import sys
 import threading
 import time
 
-import xla_cpu
 from pachs_jax import argtypes
-from pachs_jax.runtime import files
+from pachs_jax.runtime import files, xla_cpu
 
 SEED_LIMIT = 2**32  # pachs_jax.sac.config.SEED_LIMIT (not imported: no JAX before the checks)
 TRAIN_SEED = argtypes.integer(0, SEED_LIMIT, f'must be in [0, 2**32) = [0, {SEED_LIMIT - 1}]')

@@ -7,8 +7,7 @@ import textwrap
 
 import pytest
 
-
-import xla_cpu  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax.runtime import xla_cpu
 
 
 # Two independent chains of batched Cholesky factorizations (2048 10x10 matrices: big enough for
@@ -18,8 +17,7 @@ PROGRAM = textwrap.dedent('''
     import os, sys
     os.sched_setaffinity(0, {cpus!r})  # before JAX sizes its thread pool: 2 threads
     sys.path.insert(0, {root!r})
-    sys.path.insert(0, {root!r} + '/experiments')
-    import xla_cpu
+    from pachs_jax.runtime import xla_cpu
     if {fix}:
       xla_cpu.configure(os.environ)
     import jax, jax.numpy as jnp
