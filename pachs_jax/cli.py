@@ -145,7 +145,7 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
     _check_image_path('--render', args.render)
   if args.animate:
     check_output_path('--animate', args.animate)
-  from pachs_jax.envs import registry
+  from pachs_jax.envs import registry  # start-up path: light (no physics, no JAX work)
   if args.instances not in (None, 'all') and args.task in registry.SPECS:  # before JAX's work
     argtypes.instance_indices(args.instances, registry.spec(args.task).num_instances)
   devices = _plan_devices(args)  # first: a multi-host job must be joined before other JAX calls
