@@ -199,21 +199,20 @@ def main():
   result['ratios'] = ratios
   if args.search_backends:
     result['search'] = search_rates(args)
-  common.write_json(args.out, result)
-  md = [f"# PushT-Obs physics engines, env steps/s (one env step = "
-        f"{pusht.PushTConfig().substeps} physics steps)\n\n{result['provenance']}\n\n"
-        f"Command settings: {vars(args)}\n\nStates: policy rollouts, only states in contact:\n",
-        common.markdown_table(result['states'], list(result['states'][0])), '',
-        common.markdown_table(result['rows'], [
-            'layout', 'engine', 'worlds', 'env_steps_per_s', 'physics_steps_per_s',
-            'ms_per_env_step', 'compile_s', 'threads', 'invalid_edges']),
-        '\n## Over MuJoCo C on all threads, same run\n',
-        common.markdown_table(ratios, ['layout', 'worlds', 'engine', 'over_mujoco_c'])]
+  md = common.markdown_header(
+      'PushT-Obs physics engines, env steps/s (one env step = '
+      f'{pusht.PushTConfig().substeps} physics steps)', result['provenance'],
+      f'Command settings: {vars(args)}', 'States: policy rollouts, only states in contact:')
+  md += [common.markdown_table(result['states'], list(result['states'][0])), '',
+         common.markdown_table(result['rows'], [
+             'layout', 'engine', 'worlds', 'env_steps_per_s', 'physics_steps_per_s',
+             'ms_per_env_step', 'compile_s', 'threads', 'invalid_edges']),
+         '\n## Over MuJoCo C on all threads, same run\n',
+         common.markdown_table(ratios, ['layout', 'worlds', 'engine', 'over_mujoco_c'])]
   if result['search']:
     md += ['\n## PACHS run to budget (edges/s) over the same backend\'s raw rate\n',
            common.markdown_table(result['search'], list(result['search'][0]))]
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write('\n'.join(md) + '\n')
+  common.write_result(args.out, result, md)
 
 
 if __name__ == '__main__':

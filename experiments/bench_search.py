@@ -147,18 +147,17 @@ def throughput(argv):
     print(row, flush=True)
     result['rows'].append(row)
     common.write_json(args.out, result)
-  md = [f"# PACHS search throughput ({args.task}, model: {model_name}, env: "
-        f"{result['backend']}"
-        f"{', run to budget (goals never accepted)' if args.run_to_budget else ''})\n\n"
-        f"{result['provenance']}\n",
-        common.markdown_table(result['rows'], [
-            'instances', 'K', 'N', 'budget', 'wall_s', 'first_call_s_incl_compile',
-            'evaluated', 'iterations', 'found', 'edges_per_s', 'raw_env_steps_per_s_same_batch',
-            'search_over_raw',
-            'lane_utilization_mean', 'evaluated_per_iteration_per_instance',
-            'state_bytes_per_instance', 'device_peak_bytes_so_far'])]
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write('\n'.join(md) + '\n')
+  md = common.markdown_header(
+      f"PACHS search throughput ({args.task}, model: {model_name}, env: {result['backend']}"
+      f"{', run to budget (goals never accepted)' if args.run_to_budget else ''})",
+      result['provenance'])
+  md.append(common.markdown_table(result['rows'], [
+      'instances', 'K', 'N', 'budget', 'wall_s', 'first_call_s_incl_compile',
+      'evaluated', 'iterations', 'found', 'edges_per_s', 'raw_env_steps_per_s_same_batch',
+      'search_over_raw',
+      'lane_utilization_mean', 'evaluated_per_iteration_per_instance',
+      'state_bytes_per_instance', 'device_peak_bytes_so_far']))
+  common.write_result(args.out, result, md)
 
 
 def scale(argv):
@@ -250,18 +249,17 @@ def scale(argv):
     row['speedup'] = one['wall_s'] / row['wall_s'] if one else None
     row['efficiency'] = row['speedup'] / row['devices'] if one else None
   result['all_identical_found_cost'] = all(r['identical_found_cost'] for r in result['rows'])
-  common.write_json(args.out, result)
-  skipped = ''.join(f"\nskipped: {s['devices']} devices at K={s['K']} ({s['reason']})"
-                    for s in result['skipped'])
-  md = [f"# PACHS over devices ({args.task}, {num_runs} runs = {args.instances} instances x "
-        f"{args.seeds} seeds, budget {args.budget}, env {result['backend']})\n\n"
-        f"{result['provenance']}\n{skipped}\n",
-        common.markdown_table(result['rows'], [
-            'K', 'devices', 'runs_per_device', 'wall_s', 'iterations_max', 'evaluated',
-            'edges_per_s', 'found', 'speedup', 'efficiency', 'identical_found_cost',
-            'identical_all_fields'])]
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write('\n'.join(md) + '\n')
+  skipped = '\n'.join(f"skipped: {s['devices']} devices at K={s['K']} ({s['reason']})"
+                     for s in result['skipped'])
+  md = common.markdown_header(
+      f"PACHS over devices ({args.task}, {num_runs} runs = {args.instances} instances x "
+      f"{args.seeds} seeds, budget {args.budget}, env {result['backend']})",
+      result['provenance'], *([skipped] if skipped else []))
+  md.append(common.markdown_table(result['rows'], [
+      'K', 'devices', 'runs_per_device', 'wall_s', 'iterations_max', 'evaluated',
+      'edges_per_s', 'found', 'speedup', 'efficiency', 'identical_found_cost',
+      'identical_all_fields']))
+  common.write_result(args.out, result, md)
   plot_speedup(result['rows'], os.path.splitext(args.out)[0] + '.png',
                f'{args.task}, {num_runs} runs')
   print('\n'.join(md))
@@ -332,6 +330,14 @@ def compare(host, ref_count, ref):
           'differing_runs': differing.tolist()[:20]}
 
 
+def run_lines(title: str, provenance: dict, settings: str) -> list:
+  """The first markdown lines of a result that keeps its provenance at its top level: the
+  title, the command, then device, revision and date with the settings in one sentence."""
+  return [f'# {title}', '', provenance['command'], '',
+          f'device {provenance["device"]}, revision {provenance["git_revision"]}, '
+          f'{provenance["date_utc"]} UTC; {settings}', '']
+
+
 def chunked(argv):
   """Does planning in chunks (a stop check and a progress report every ~0.3 s) slow the
   search? Programs compiled once, the same search run alternately in one call and in adaptive
@@ -369,15 +375,12 @@ def chunked(argv):
   payload = dict(common.provenance(), task=args.task, instances=args.instances,
                  budget=args.budget, rounds=args.rounds, identical_results=bool(same),
                  times_s=times, rows=rows)
-  common.write_json(args.out + '.json', payload)
   table = common.markdown_table(rows, ['mode', 'median_search_s', 'min_search_s', 'chunks',
                                        'evaluations', 'found'])
-  with open(args.out + '.md', 'w') as f:
-    f.write(f'# Search in one call vs adaptive chunks\n\n{payload["command"]}\n\n'
-            f'device {payload["device"]}, revision {payload["git_revision"]}, '
-            f'{payload["date_utc"]} UTC; {args.task} instances {args.instances}, budget '
-            f'{args.budget}, {args.rounds} alternating rounds after a warm-up; results '
-            f'identical: {same}\n\n{table}\n')
+  common.write_result(args.out + '.json', payload, run_lines(
+      'Search in one call vs adaptive chunks', payload,
+      f'{args.task} instances {args.instances}, budget {args.budget}, {args.rounds} alternating '
+      f'rounds after a warm-up; results identical: {same}') + [table])
   print(table)
   print('identical results:', same)
 
@@ -410,15 +413,13 @@ def buckets(argv):
                  'stop': planner.StopReason.name(np.asarray(out.stop_reason)[0])})
   payload = dict(common.provenance(), task=args.task, budget=args.budget, instance=0,
                  rows=rows)
-  common.write_json(args.out + '.json', payload)
   table = common.markdown_table(rows, ['bucket', 'first_call_s', 'search_s_median',
                                        'evaluated', 'stop'])
-  with open(args.out + '.md', 'w') as f:
-    f.write(f'# One instance planned in buckets of several sizes\n\n{payload["command"]}\n\n'
-            f'device {payload["device"]}, revision {payload["git_revision"]}, '
-            f'{payload["date_utc"]} UTC; {args.task} instance 0, budget {args.budget}, cache '
-            f'off; first_call_s: the first plan of a bucket, compilation included; '
-            f'search_s_median: 3 later plans, compilation excluded\n\n{table}\n')
+  common.write_result(args.out + '.json', payload, run_lines(
+      'One instance planned in buckets of several sizes', payload,
+      f'{args.task} instance 0, budget {args.budget}, cache off; first_call_s: the first plan '
+      'of a bucket, compilation included; search_s_median: 3 later plans, compilation '
+      'excluded') + [table])
   print(table)
 
 
@@ -494,18 +495,16 @@ def live_lanes(argv):
                              'wall_s': sum(r['ms'] for r in rows) / 1e3,
                              'summary': live_summary(rows, num)}
     print(mode, result['modes'][mode]['wall_s'], result['modes'][mode]['summary'], flush=True)
-  common.write_json(args.out, result)
-  md = [f'# PACHS iteration time against live instances ({env.name}, {num} runs, '
-        f'{type(env).__name__})\n', str(result['provenance']), '',
-        f'Config: {result["config"]}', '']
+  md = common.markdown_header(
+      f'PACHS iteration time against live instances ({env.name}, {num} runs, '
+      f'{type(env).__name__})', result['provenance'], f'Config: {result["config"]}')
   for mode, m in result['modes'].items():
     md += [f'## {mode}: {m["wall_s"]:.2f} s over {len(m["iterations"])} iterations '
            f'(compile {m["compile_s"]})\n',
            common.markdown_table(m['summary'], ['live_fraction', 'iterations',
                                                 'ms_per_iteration_median', 'share_of_wall',
                                                 'lanes_used']), '']
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write('\n'.join(md) + '\n')
+  common.write_result(args.out, result, md)
 
 
 MODES = {'scale': scale, 'chunked': chunked, 'buckets': buckets, 'live-lanes': live_lanes}

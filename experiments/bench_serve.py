@@ -165,8 +165,6 @@ def main() -> None:
                          'physics': health['tasks'][args.task]['physics'],
                          'counters': health['counters']},
               'clients': runs, 'big_request': big}
-  os.makedirs(args.out, exist_ok=True)
-  common.write_json(os.path.join(args.out, 'bench_serve.json'), document)
   columns = ['clients', 'answers', 'answers_per_s', 'speedup_vs_alone', 'latency_median_s',
              'latency_p90_s', 'search_median_s', 'overhead_median_s', 'mean_requests_per_batch']
   lines = [f'# pachs serve: latency and answers per second ({args.task})', '',
@@ -175,14 +173,13 @@ def main() -> None:
            f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.',
            f'Command: `{document["provenance"]["command"]}` at '
            f'{document["provenance"]["git_revision"]}.', '',
-           common.markdown_table(runs, columns) if runs else '', '']
+           common.markdown_table(runs, columns) if runs else '']
   for b in big:
-    lines += [f'One request of {b["instances"]} episodes (median of {b["repeats"]}): '
+    lines += ['', f'One request of {b["instances"]} episodes (median of {b["repeats"]}): '
               f'latency {b["latency_median_s"]:.3f} s, search {b["search_median_s"]:.3f} s, '
               f'overhead {b["overhead_median_s"]:.3f} s, reaching the goal '
-              f'{b["reaching_goal_median"]:g}.', '']
-  with open(os.path.join(args.out, 'bench_serve.md'), 'w') as f:
-    f.write('\n'.join(lines))
+              f'{b["reaching_goal_median"]:g}.']
+  common.write_result(os.path.join(args.out, 'bench_serve.json'), document, lines)
   print('\n'.join(lines))
 
 

@@ -179,8 +179,7 @@ def main():
       print(json.dumps(commands[-1]), flush=True)
   result = {'provenance': common.provenance(), 'task': args.task, 'rows': rows,
              'commands': commands}
-  common.write_json(args.out, result)
-  write_markdown(result, os.path.splitext(args.out)[0] + '.md')
+  common.write_result(args.out, result, markdown(result))
 
 
 def test_suite() -> dict:
@@ -217,11 +216,11 @@ def merge(paths: list, out: str):
             'task': parts[0]['task'],
             'rows': [row for p in parts for row in p['rows']],
             'commands': [c for p in parts for c in p['commands']]}
-  common.write_json(out, result)
-  write_markdown(result, os.path.splitext(out)[0] + '.md')
+  common.write_result(out, result, markdown(result))
 
 
-def write_markdown(result: dict, path: str):
+def markdown(result: dict) -> list:
+  """The markdown lines of a result: its rows' phases and the real commands' process walls."""
   import common
   rows, commands = result['rows'], result['commands']
   phases = list(rows[0]['phases_s']) if rows else []
@@ -229,13 +228,14 @@ def write_markdown(result: dict, path: str):
                 programs=r['programs_compiled'],
                 cache_hits=r['persistent_cache_hits'], found=r['found'],
                 **{p: r['phases_s'][p] for p in phases}) for r in rows]
-  with open(path, 'w') as f:
-    f.write(f"# Start-up of `pachs plan --task {result['task']}`\n\n{result['provenance']}\n\n")
-    if table:
-      f.write(common.markdown_table(table, list(table[0])) + '\n')
-    if commands:
-      f.write('\n## The real command (process wall, s)\n\n'
-              + common.markdown_table(commands, list(commands[0])) + '\n')
+  lines = common.markdown_header(f"Start-up of `pachs plan --task {result['task']}`",
+                                 result['provenance'])
+  if table:
+    lines.append(common.markdown_table(table, list(table[0])))
+  if commands:
+    lines += ['', '## The real command (process wall, s)', '',
+              common.markdown_table(commands, list(commands[0]))]
+  return lines
 
 
 # ---- profile: one command in this process, its phases

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
 
 import jax
@@ -52,11 +51,9 @@ def write(args: argparse.Namespace, config, rows: list) -> dict:
              for k in ('physics_env_steps_per_s', 'training_env_steps_per_s')}
   payload = {'provenance': common.provenance(), 'task': args.task, 'preset': args.preset,
              'sac_config': dataclasses.asdict(config), 'rows': rows, 'warp_over_mjx': ratio}
-  common.write_json(args.out, payload)
   columns = ['engine', 'num_envs', 'physics_env_steps_per_s', 'training_env_steps_per_s',
              'epoch_s', 'init_s', 'physics_compile_s']
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write(common.markdown_table(rows, columns) + '\n')
+  common.write_result(args.out, payload, [common.markdown_table(rows, columns)])
   return ratio
 
 

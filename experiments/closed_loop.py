@@ -486,29 +486,30 @@ def run_one(name, args, env, model, starts, perturbation, payload, out, stop) ->
                                'failed': episodes.failed.tolist(),
                                'success_step': episodes.success_step.tolist(),
                                'steps': episodes.steps.tolist()}
-  common.write_json(out, payload)
-  write_markdown(payload, os.path.splitext(out)[0] + '.md')
+  common.write_result(out, payload, markdown(payload))
 
 
-def write_markdown(payload: Dict, path: str) -> None:
+def markdown(payload: Dict) -> List[str]:
+  """The markdown lines of a closed-loop result: settings, perturbation and the planners'
+  summary rows."""
   rows = []
   for s in payload['summary']:
     rows.append(dict(s, success=f'{s["successes"]}/{s["episodes"]} = '
                      f'{100 * s["success_rate"]:.0f}% [{100 * s["ci95_low"]:.0f}, '
                      f'{100 * s["ci95_high"]:.0f}]'))
-  with open(path, 'w') as f:
-    world = ('MuJoCo C worlds' if payload['settings'].get('world', 'mujoco-c') == 'mujoco-c'
-             else "the planners' own physics")
-    f.write(f'# Closed loop in {world}, {payload["task"]}\n\n'
-            f'{payload["provenance"]}\n\nSettings: {payload["settings"]}\n\n'
-            f'World perturbation: {payload["perturbation"]}\n\n')
-    f.write(common.markdown_table(rows, [
-        'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
-        'queries_per_episode_mean', 'empty_answers', 'goal_answers', 'actions_per_query_mean',
-        'evaluations_per_query_mean', 'iterations_per_query_mean', 'policy_fill_steps',
-        'answers', 'query_time_s_mean', 'query_time_s_max', 'total_s']) + '\n')
-    f.write('\nSuccess: 95% interval with the instances resampled (cluster bootstrap over the '
-            'instances; the rounds of an instance are not independent).\n')
+  world = ('MuJoCo C worlds' if payload['settings'].get('world', 'mujoco-c') == 'mujoco-c'
+           else "the planners' own physics")
+  return common.markdown_header(
+      f'Closed loop in {world}, {payload["task"]}', payload['provenance'],
+      f'Settings: {payload["settings"]}', f'World perturbation: {payload["perturbation"]}') + [
+          common.markdown_table(rows, [
+              'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
+              'queries_per_episode_mean', 'empty_answers', 'goal_answers',
+              'actions_per_query_mean', 'evaluations_per_query_mean',
+              'iterations_per_query_mean', 'policy_fill_steps', 'answers',
+              'query_time_s_mean', 'query_time_s_max', 'total_s']), '',
+          'Success: 95% interval with the instances resampled (cluster bootstrap over the '
+          'instances; the rounds of an instance are not independent).']
 
 
 def plot(payload: Dict, path: str) -> None:

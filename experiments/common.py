@@ -11,7 +11,7 @@ import platform
 import subprocess
 import sys
 import time
-from typing import Any, Callable, Dict, List, Optional, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -173,9 +173,27 @@ def config_record(config: Any) -> Any:
 
 
 def write_json(path: str, payload: Dict[str, Any]) -> None:
+  """Writes payload as indented JSON at path (its folder made; numpy scalars as floats)."""
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   with open(path, 'w') as f:
     json.dump(payload, f, indent=1, default=float)
+
+
+def markdown_header(title: str, provenance: Dict[str, Any], *paragraphs: str) -> List[str]:
+  """The first lines of a result's markdown: '# title', the provenance record as Python prints
+  it, then paragraphs (such as 'Settings: ...'), each followed by a blank line."""
+  lines = []
+  for block in (f'# {title}', str(provenance)) + paragraphs:
+    lines += [block, '']
+  return lines
+
+
+def write_result(path: str, document: Dict[str, Any], markdown: Sequence[str]) -> None:
+  """Writes a result: document as the JSON at path (a .json name) and the markdown lines,
+  joined by newlines and ending in one, beside it (path with .md for .json)."""
+  write_json(path, document)
+  with open(os.path.splitext(path)[0] + '.md', 'w') as f:
+    f.write('\n'.join(markdown) + '\n')
 
 
 def markdown_table(rows: List[Dict[str, Any]], columns: List[str]) -> str:

@@ -12,7 +12,6 @@ A layout is meant to need search: the policy alone should solve at most half of 
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 
 import jax
@@ -102,17 +101,17 @@ def main():
   out = args.out or f'experiments/results/eval_layouts_{jax.default_backend()}.json'
   rows = [evaluate(n, num, args.backend, args.pachs_budget, args.seed) for n in names]
   provenance = common.provenance()
-  common.write_json(out, {'provenance': provenance, 'task': TASK, 'model': 'pusht-fixed',
-                          'max_policy_success': MAX_POLICY_SUCCESS, 'rows': rows})
   columns = ['layout', 'kind', 'blocks', 'start_region', 'policy_solved', 'instances',
              'policy_success', 'policy_invalid', 'policy_final_coverage_mean', 'at_most_half']
   if args.pachs_budget:
     columns += ['pachs_budget', 'pachs_solved', 'pachs_search_s']
-  with open(os.path.splitext(out)[0] + '.md', 'w') as f:
-    f.write('# PushT-Obs layouts: single-rollout policy success (shipped PushT-Fixed model, '
-            'deterministic action, 100-step episodes)\n\n'
-            f'{provenance}\n\nCommand: `{provenance["command"]}`\n\n')
-    f.write(common.markdown_table(rows, columns) + '\n')
+  common.write_result(
+      out, {'provenance': provenance, 'task': TASK, 'model': 'pusht-fixed',
+            'max_policy_success': MAX_POLICY_SUCCESS, 'rows': rows},
+      common.markdown_header(
+          'PushT-Obs layouts: single-rollout policy success (shipped PushT-Fixed model, '
+          'deterministic action, 100-step episodes)', provenance,
+          f'Command: `{provenance["command"]}`') + [common.markdown_table(rows, columns)])
   print(out)
 
 

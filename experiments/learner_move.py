@@ -58,11 +58,10 @@ def main() -> None:
   mean = lambda run, key: float(np.mean([r[run][key] for r in rows]))
   summary = {run: {key: mean(run, key) for key in ('success', 'cost')}
              for run in ('straight', 'moved')}
-  common.write_json(args.out, {'provenance': common.provenance(), 'settings': vars(args),
-                               'rows': rows, 'summary': summary})
   table = [{'run': run, **values} for run, values in summary.items()]
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write(common.markdown_table(table, ['run', 'success', 'cost']) + '\n')
+  common.write_result(args.out, {'provenance': common.provenance(), 'settings': vars(args),
+                                 'rows': rows, 'summary': summary},
+                      [common.markdown_table(table, ['run', 'success', 'cost'])])
   print(summary)
 
 

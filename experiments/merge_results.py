@@ -131,13 +131,11 @@ def main():
   stem = os.path.splitext(args.out)[0]
   if args.kind == 'closed':
     merged = merge_closed(payloads)
-    common.write_json(args.out, merged)
-    closed_loop.write_markdown(merged, stem + '.md')
+    common.write_result(args.out, merged, closed_loop.markdown(merged))
     closed_loop.plot(merged, stem + '.png')
   else:
     merged = merge_open(payloads)
-    common.write_json(args.out, merged)
-    open_loop.write_markdown(merged['task'], merged, stem + '.md')
+    common.write_result(args.out, merged, open_loop.markdown(merged['task'], merged))
     open_loop.plot(merged['task'], merged, stem + '.png')
   with open(stem + '.md') as f:
     print(f.read())

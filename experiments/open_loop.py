@@ -239,9 +239,11 @@ def plot(task: str, payload: Dict, path: str) -> None:
   plt.close(fig)
 
 
-def write_markdown(task: str, payload: Dict, path: str) -> None:
-  lines = [f'# Open loop, {task}\n', f'{payload["provenance"]}\n',
-           f'Settings: {payload["settings"]}\n']
+def markdown(task: str, payload: Dict) -> List[str]:
+  """The markdown lines of an open-loop result: the planners' summary rows, the pairwise cost
+  ratios and the stop reasons."""
+  lines = common.markdown_header(f'Open loop, {task}', payload['provenance'],
+                                 f'Settings: {payload["settings"]}')
   rows = []
   for s in payload['summary']:
     row = dict(s)
@@ -272,8 +274,7 @@ def write_markdown(task: str, payload: Dict, path: str) -> None:
     lines.append(common.markdown_table(table, ['planner'] + names))
   lines.append('\nStop reasons: ' + '; '.join(f'{s["planner"]}: {s["stop_reasons"]}'
                                              for s in payload['summary']))
-  with open(path, 'w') as f:
-    f.write('\n'.join(lines) + '\n')
+  return lines
 
 
 def main():
@@ -345,8 +346,7 @@ def main():
     payload['runs'][name] = rows
     payload['success_curve'][name] = stats.success_curve(first_goal_rows(rows), budgets)
     payload['cost_ratios'] = stats.cost_ratios(payload['runs'])
-    common.write_json(out, payload)
-    write_markdown(args.task, payload, os.path.splitext(out)[0] + '.md')
+    common.write_result(out, payload, markdown(args.task, payload))
   plot(args.task, payload, os.path.splitext(out)[0] + '.png')
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
 
 import jax
@@ -332,19 +331,16 @@ def main():
              'physics': {k: {f: list(v) if isinstance(v, tuple) else v for f, v in d.items()}
                          for k, d in tables.items()},
              'rows': rows, 'costs': costs}
-  common.write_json(out, payload)
-  with open(os.path.splitext(out)[0] + '.md', 'w') as f:
-    f.write(f'# PushT physics: {args.part}\n\n{payload["provenance"]}\n\n'
-            f'Settings: {settings}\n\nPhysics (PushTConfig fields over the planar preset): '
-            f'{payload["physics"]}\n\n')
-    columns = list(dict.fromkeys(k for r in rows for k in r))
-    f.write(common.markdown_table([{k: r.get(k, '') for k in columns} for r in rows], columns)
-            + '\n')
-    if costs:
-      cols = sorted({k for c in costs for k in c}, key=lambda k: (k != 'physics', k))
-      f.write('\nStep cost (MuJoCo C one thread; MJX a vmapped batch) and world facts:\n\n'
-              + common.markdown_table([{k: c.get(k, '') for k in cols} for c in costs], cols)
-              + '\n')
+  columns = list(dict.fromkeys(k for r in rows for k in r))
+  lines = common.markdown_header(
+      f'PushT physics: {args.part}', payload['provenance'], f'Settings: {settings}',
+      f'Physics (PushTConfig fields over the planar preset): {payload["physics"]}')
+  lines.append(common.markdown_table([{k: r.get(k, '') for k in columns} for r in rows], columns))
+  if costs:
+    cols = sorted({k for c in costs for k in c}, key=lambda k: (k != 'physics', k))
+    lines += ['', 'Step cost (MuJoCo C one thread; MJX a vmapped batch) and world facts:', '',
+              common.markdown_table([{k: c.get(k, '') for k in cols} for c in costs], cols)]
+  common.write_result(out, payload, lines)
 
 
 if __name__ == '__main__':

@@ -110,7 +110,6 @@ def main(argv=None) -> int:
                                           __file__)))),
              'summaries': summaries, 'rows': per_planner,
              'pachs_over_single_cost_ratio': ratio, 'instances_both_solved': len(both)}
-  common.write_json(out, payload)
   prov = payload['provenance']
   columns = ['planner', 'config', 'solved', 'success_rate', 'mean_cost_solved',
              'mean_path_length_solved', 'mean_evaluated', 'wall_s', 'compile_s']
@@ -125,9 +124,8 @@ def main(argv=None) -> int:
            f'{ratio if ratio is None else round(ratio, 3)}', '',
            f'Device: {prov["device"]} ({prov["host_cpus"]} host CPUs); command: '
            f'`{prov["command"]}`; revision {prov["git_revision"]}; JAX {prov["jax"]}; '
-           f'{prov["date_utc"]} UTC.', '']
-  with open(os.path.splitext(out)[0] + '.md', 'w') as f:
-    f.write('\n'.join(lines))
+           f'{prov["date_utc"]} UTC.']
+  common.write_result(out, payload, lines)
   print(f'wrote {out} and .md')
   return 0
 

@@ -67,10 +67,9 @@ def main() -> None:
   for preset in presets:
     rows.append(rollouts(args.task, preset, args.instances, args.model))
     print(rows[-1], flush=True)
-  common.write_json(args.out, {'provenance': common.provenance(),
-                               'model': args.model or 'shipped', 'rows': rows})
-  with open(os.path.splitext(args.out)[0] + '.md', 'w') as f:
-    f.write(common.markdown_table(rows, list(rows[0])) + '\n')
+  common.write_result(args.out, {'provenance': common.provenance(),
+                                 'model': args.model or 'shipped', 'rows': rows},
+                      [common.markdown_table(rows, list(rows[0]))])
 
 
 if __name__ == '__main__':
