@@ -211,8 +211,9 @@ def merge(paths: list, out: str):
   for path in paths:
     with open(path) as f:
       parts.append(json.load(f))
-  result = {'provenance': dict(parts[0]['provenance'], merged_from=[
-      dict(p['provenance'], file=os.path.basename(path)) for p, path in zip(parts, paths)]),
+  result = {'provenance': common.merged_provenance(
+      [dict(p['provenance'], file=os.path.basename(path)) for p, path in zip(parts, paths)],
+      **parts[0]['provenance']),
             'task': parts[0]['task'],
             'rows': [row for p in parts for row in p['rows']],
             'commands': [c for p in parts for c in p['commands']]}

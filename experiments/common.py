@@ -151,6 +151,16 @@ def provenance(device: Optional[str] = None) -> Dict[str, Any]:
   }
 
 
+def merged_provenance(sources: Sequence[Dict[str, Any]], **fields: Any) -> Dict[str, Any]:
+  """The provenance of a result merged from others: fields (such as the merging command) and
+  'merged_from', the sources' provenance records in order, an earlier merge's own sources in
+  its place (one flat list)."""
+  runs: List[Dict[str, Any]] = []
+  for source in sources:
+    runs.extend(source.get('merged_from') or [source])
+  return dict(fields, merged_from=runs)
+
+
 def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1) -> Dict[str, float]:
   """Median and min wall time (s) of fn() with its outputs blocked on; compile excluded."""
   import jax  # pylint: disable=import-outside-toplevel

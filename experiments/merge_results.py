@@ -36,7 +36,7 @@ def merge_closed(payloads: List[Dict]) -> Dict:
                          f'vs {p["settings"].get(name)!r}')
     if p['perturbation'] != first['perturbation']:
       raise ValueError('the sources ran different world perturbations')
-  merged = {'provenance': {'merged_from': [p['provenance'] for p in payloads]},
+  merged = {'provenance': common.merged_provenance([p['provenance'] for p in payloads]),
             'task': first['task'],
             'settings': {name: first['settings'].get(name) for name in PROTOCOL},
             'settings_per_source': [p['settings'] for p in payloads],
@@ -70,21 +70,21 @@ def merge_open(payloads: List[Dict]) -> Dict:
       if _setting(p, name) != _setting(first, name):
         raise ValueError(f'the sources disagree on {name}: {_setting(first, name)!r} '
                          f'vs {_setting(p, name)!r}')
-  merged = {'provenance': {'merged_from': []}, 'task': first['task'], 'model': first['model'],
+  sources = []
+  for p in payloads:
+    source = {k: v for k, v in p['provenance'].items() if k != 'renamed'}
+    if 'merged_from' not in source:
+      source['planners'] = [s['planner'] for s in p['summary']]
+    sources.append(source)
+  merged = {'provenance': common.merged_provenance(sources), 'task': first['task'],
+            'model': first['model'],
             'settings': {name: _setting(first, name) for name in OPEN_PROTOCOL},
             'settings_per_planner': {}, 'configs': {}, 'summary': [], 'runs': {},
             'curve_budgets': first['curve_budgets'], 'success_curve': {}}
   summary = {}
   for p in payloads:
-    provenance = dict(p['provenance'])
-    renamed = provenance.pop('renamed', None)
-    if 'merged_from' in provenance:  # an earlier merge: its sources, flat
-      merged['provenance']['merged_from'].extend(provenance['merged_from'])
-    else:
-      merged['provenance']['merged_from'].append(
-          dict(provenance, planners=[s['planner'] for s in p['summary']]))
-    if renamed:
-      merged['provenance'].setdefault('renamed', {}).update(renamed)
+    if p['provenance'].get('renamed'):
+      merged['provenance'].setdefault('renamed', {}).update(p['provenance']['renamed'])
     for row in p['summary']:
       name = row['planner']
       summary[name] = row

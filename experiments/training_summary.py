@@ -85,8 +85,9 @@ def main(argv: List[str]) -> int:
                        note=current['note']))
   merged = [{'device': r['device'], 'git_revision': r['git_revision'],
              'command': r['run_command']} for r in runs]
-  payload = {'provenance': {'command': common.command_line(), 'git_revision':
-                            common.git_revision(), 'merged_from': merged}, 'runs': runs}
+  payload = {'provenance': common.merged_provenance(merged, command=common.command_line(),
+                                                   git_revision=common.git_revision()),
+             'runs': runs}
   common.write_json(args.out, payload)
   return 0
 
