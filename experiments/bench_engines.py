@@ -28,30 +28,6 @@ from pachs_jax.envs import mujoco_c, panda, pusht, warp_import, warp_physics
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def jax_throughput(env, worlds: int, steps: int, repeats: int, nodes=None) -> dict:
-  """Env steps/s of `steps` `env.evaluate` calls of `worlds` edges (uniform random actions)
-  in one jitted scan, from nodes [worlds] (None: the env's initial nodes)."""
-  if nodes is None:
-    nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), worlds))
-
-  @jax.jit
-  def run(nodes, key):
-    def body(nodes, k):
-      actions = jax.random.uniform(k, (worlds, env.action_size), minval=-1.0, maxval=1.0)
-      out = env.evaluate(nodes, actions)
-      return trees.where(out.is_valid, out.next_node, nodes), jnp.sum(~out.is_valid)
-    return jax.lax.scan(body, nodes, jax.random.split(key, steps))
-
-  start = time.perf_counter()
-  _, invalid = jax.block_until_ready(run(nodes, jax.random.PRNGKey(1)))
-  compile_s = time.perf_counter() - start
-  t = common.time_call(lambda: run(nodes, jax.random.PRNGKey(2)), repeats=repeats, warmup=0)
-  return {'worlds': worlds, 'steps': steps, 'compile_s': compile_s, **t,
-          'invalid_edges': int(np.sum(invalid)),
-          'env_steps_per_s': worlds * steps / t['median_s'],
-          'ms_per_env_step': 1e3 * t['median_s'] / steps}
-
-
 def mujoco_c_throughput(env, nodes, steps: int, nthread: int, repeats: int) -> dict:
   """Env steps/s of MuJoCo C (`mujoco.rollout`, nthread threads, one call) from nodes [W]
   with random joint-target walks held for `substeps` physics steps each."""
@@ -181,7 +157,7 @@ def main():
         if engine == 'mujoco-c':
           row = mujoco_c_throughput(base_env, nodes, args.steps, args.threads, args.repeats)
         else:
-          row = jax_throughput(per_engine[engine], w, args.steps, args.repeats, nodes)
+          row = common.env_throughput(per_engine[engine], w, args.steps, args.repeats, nodes)
         row = {'layout': layout, 'engine': engine, **row,
                'physics_steps_per_s': row['env_steps_per_s'] * config.substeps}
         print(row, flush=True)

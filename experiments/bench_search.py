@@ -24,7 +24,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import bench_engines
 import common
 import open_loop
 import stats
@@ -123,7 +122,7 @@ def throughput(argv):
     wall = float(out.wall_time_s)
     evaluated = int(np.sum(out.evaluated))
     iterations = int(np.max(out.iterations))
-    raw = bench_engines.jax_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
+    raw = common.env_throughput(env, num_instances * k, steps=args.raw_steps, repeats=3)
     state_shape = jax.eval_shape(search.search.init, starts, instance_keys(
         jax.random.PRNGKey(0), num_instances))
     row = {

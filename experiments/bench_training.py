@@ -14,7 +14,6 @@ import time
 
 import jax
 
-import bench_engines
 import common
 from pachs_jax import argtypes
 from pachs_jax.envs import backends, pusht, registry
@@ -82,7 +81,7 @@ def main() -> None:
   rows = []
   for engine in engines:
     env = backends.make_backend(registry.make(args.task, physics=args.preset), engine)
-    physics = bench_engines.jax_throughput(env, args.num_envs, args.physics_steps, repeats=3)
+    physics = common.env_throughput(env, args.num_envs, args.physics_steps, repeats=3)
     epochs = epoch_throughput(env, config, args.epochs)
     row = {'engine': engine, 'preset': args.preset, 'num_envs': args.num_envs,
            'physics_env_steps_per_s': physics['env_steps_per_s'],

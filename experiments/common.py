@@ -174,6 +174,34 @@ def time_call(fn: Callable[[], Any], repeats: int = 3, warmup: int = 1) -> Dict[
   return {'median_s': float(np.median(times)), 'min_s': float(np.min(times))}
 
 
+def env_throughput(env, worlds: int, steps: int, repeats: int, nodes=None) -> dict:
+  """Env steps/s of a JAX env: `steps` `env.evaluate` calls of `worlds` edges (uniform random
+  actions) in one jitted scan, from nodes [worlds] (None: the env's initial nodes); the compile
+  time, the median and min wall time (s) of `repeats` timed scans, the invalid edges."""
+  import jax  # pylint: disable=import-outside-toplevel
+  import jax.numpy as jnp  # pylint: disable=import-outside-toplevel
+  from pachs_jax import trees  # pylint: disable=import-outside-toplevel
+  if nodes is None:
+    nodes = env.initial_nodes(jax.random.split(jax.random.PRNGKey(0), worlds))
+
+  @jax.jit
+  def run(nodes, key):
+    def body(nodes, k):
+      actions = jax.random.uniform(k, (worlds, env.action_size), minval=-1.0, maxval=1.0)
+      out = env.evaluate(nodes, actions)
+      return trees.where(out.is_valid, out.next_node, nodes), jnp.sum(~out.is_valid)
+    return jax.lax.scan(body, nodes, jax.random.split(key, steps))
+
+  start = time.perf_counter()
+  _, invalid = jax.block_until_ready(run(nodes, jax.random.PRNGKey(1)))
+  compile_s = time.perf_counter() - start
+  t = time_call(lambda: run(nodes, jax.random.PRNGKey(2)), repeats=repeats, warmup=0)
+  return {'worlds': worlds, 'steps': steps, 'compile_s': compile_s, **t,
+          'invalid_edges': int(np.sum(invalid)),
+          'env_steps_per_s': worlds * steps / t['median_s'],
+          'ms_per_env_step': 1e3 * t['median_s'] / steps}
+
+
 def config_record(config: Any) -> Any:
   """A planner's config as a result file keeps it: a dataclass as {'type': its class name,
   **its fields}, anything else as its repr."""
