@@ -24,18 +24,13 @@ import time
 
 import numpy as np
 
-# The server plans on the accelerators; this process only asks (kept off them, so that the two
-# do not share a GPU's memory). The server starts with the environment as given.
-SERVER_ENVIRON = dict(os.environ)
-os.environ.setdefault('JAX_PLATFORMS', 'cpu')
-
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import common  # pylint: disable=wrong-import-position
 
 from pachs_jax import argtypes, client  # pylint: disable=wrong-import-position
 
 
-def start_server(args) -> tuple:
+def start_server(args, environ: dict) -> tuple:
   """(process, url) of `pachs serve` with the benchmark's settings, once it says it is ready."""
   command = [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', args.task, '--port', '0',
              '--max-batch', str(max([args.max_batch] + args.big_sizes)), '--window-ms', str(args.window_ms),
@@ -43,7 +38,7 @@ def start_server(args) -> tuple:
   if args.budget:
     command += ['--budget', str(args.budget)]
   began = time.perf_counter()
-  process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=SERVER_ENVIRON)
+  process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=environ)
   line = process.stdout.readline()
   found = re.search(r'ws://\S+', line)
   if not found:
@@ -129,6 +124,10 @@ def main() -> None:
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()
+  # the server plans on the accelerators, with the environment as given; this process only asks
+  # and stays off them, so that the two do not share a GPU's memory
+  environ = dict(os.environ)
+  os.environ.setdefault('JAX_PLATFORMS', 'cpu')
   common.check_out_folder(parser, args.out)
   if args.url is not None and not args.url.startswith(('ws://', 'wss://')):
     parser.error(f'--url {args.url!r}: a ws:// or wss:// address of a running pachs serve')
@@ -138,14 +137,15 @@ def main() -> None:
   except ValueError:
     parser.error(f'--big and --clients: comma-separated integers, got {args.big!r}, '
                  f'{args.clients!r}')
-  if any(c < 0 for c in counts) or any(b < 0 for b in big_sizes):
-    parser.error('--big and --clients: counts must not be negative')
-  counts = [c for c in counts if c > 0]
+  if any(c < 1 for c in counts):
+    parser.error(f'--clients: client counts must be >= 1, got {args.clients!r}')
+  if any(b < 0 for b in big_sizes):
+    parser.error(f'--big: episode counts must not be negative, got {args.big!r}')
   args.big_sizes = big_sizes = [b for b in big_sizes if b > 0]
   process, start_s = None, None
   url = args.url
   if url is None:
-    process, url, start_s = start_server(args)
+    process, url, start_s = start_server(args, environ)
   try:
     runs = [run_clients(url, args.task, c, args.requests, args.time_limit) for c in counts]
     alone = next((r for r in runs if r['clients'] == 1), None)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 
+import bench_serve  # noqa: E402  pylint: disable=wrong-import-position
 import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
 import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
@@ -221,6 +222,8 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', 'pachs,foo'], '--planners: unknown foo'),
     (closed_loop, ['--candidates', 'policy,x'], '--candidates: unknown x'),
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
+    (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
+    (bench_serve, ['--out', '/tmp', '--big', '-1'], "--big: episode counts must not be negative"),
 ])
 def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message, monkeypatch,
                                                            capsys):
