@@ -14,18 +14,39 @@ from __future__ import annotations
 import dataclasses
 import time
 
-import jax
 import numpy as np
 
 import common
-from pachs_jax import argtypes, planner
-from pachs_jax.runtime import programs
-from pachs_jax.envs import pusht
-from pachs_jax.envs import coverage, layouts
-from pachs_jax.search import baselines as bl
+from pachs_jax import argtypes
+from pachs_jax.envs import layouts
 
 TASK = 'pusht-obs'
 MAX_POLICY_SUCCESS = 0.5
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--layouts', default=','.join(layouts.NAMES),
+                      help=f'comma list of layouts (default: all, {", ".join(layouts.NAMES)})')
+  parser.add_argument('--pachs-budget', type=argtypes.integer(0), default=0,
+                      help='also plan each layout with PACHS at this budget (0: no)')
+  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True)
+  parser.set_defaults(backend='auto')  # MuJoCo C physics on a machine without an accelerator
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+
+from pachs_jax import planner  # noqa: E402
+from pachs_jax.runtime import programs  # noqa: E402
+from pachs_jax.envs import coverage, pusht  # noqa: E402
+from pachs_jax.search import baselines as bl  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def region_text(layout: layouts.Layout) -> str:
@@ -82,13 +103,7 @@ def evaluate(name: str, num: int, backend: str, pachs_budget: int, seed: int) ->
 
 
 def main():
-  parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--layouts', default=','.join(layouts.NAMES),
-                      help=f'comma list of layouts (default: all, {", ".join(layouts.NAMES)})')
-  parser.add_argument('--pachs-budget', type=argtypes.integer(0), default=0,
-                      help='also plan each layout with PACHS at this budget (0: no)')
-  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True)
-  parser.set_defaults(backend='auto')  # MuJoCo C physics on a machine without an accelerator
+  parser = build_parser()
   args = parser.parse_args()
   names = args.layouts.split(',')
   for name in names:
