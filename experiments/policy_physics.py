@@ -9,12 +9,33 @@ from __future__ import annotations
 
 import os
 
-import jax
 import numpy as np
 
 import common
-from pachs_jax import argtypes, planner
-from pachs_jax.envs import backends, pusht
+from pachs_jax import argtypes
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
+  parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
+  parser.add_argument('--presets', default='faithful')
+  parser.add_argument('--instances', type=argtypes.positive_int, default=16)
+  parser.add_argument('--model', default=None, type=argtypes.path('a model directory'),
+                      help='model directory (default: the shipped)')
+  common.add_common_args(parser, out='experiments/results/training/policy_physics.json')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+
+from pachs_jax import planner  # noqa: E402
+from pachs_jax.envs import backends, pusht  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
@@ -47,13 +68,7 @@ def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
 
 
 def main() -> None:
-  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
-  parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
-  parser.add_argument('--presets', default='faithful')
-  parser.add_argument('--instances', type=argtypes.positive_int, default=16)
-  parser.add_argument('--model', default=None, type=argtypes.path('a model directory'),
-                      help='model directory (default: the shipped)')
-  common.add_common_args(parser, out='experiments/results/training/policy_physics.json')
+  parser = build_parser()
   args = parser.parse_args()
   presets = [p for p in args.presets.split(',') if p]
   bad = sorted(set(presets) - set(pusht.PHYSICS_PRESETS))
