@@ -444,7 +444,8 @@ def main():
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)
-  payload = {'provenance': common.provenance(getattr(args, 'server_device', None)), 'task': args.task, 'env': env.name,
+  payload = {'provenance': common.provenance(getattr(args, 'server_device', None)),
+             'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
              'perturbation': dataclasses.asdict(perturbation), 'summary': [], 'episodes': {}}
   # SIGINT or SIGTERM (a time limit's `timeout`): the running planner stops before its next

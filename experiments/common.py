@@ -140,10 +140,11 @@ def provenance(device: Optional[str] = None) -> Dict[str, Any]:
   where it is not this process's (a server's, from its health answer)."""
   import jax  # pylint: disable=import-outside-toplevel
   dev = jax.devices()[0]
+  device = device or f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}'
   return {
       'command': command_line(),
       'git_revision': git_revision(),
-      'device': device or f'{dev.platform}: {getattr(dev, "device_kind", str(dev))} x{jax.device_count()}',
+      'device': device,
       'host_cpus': os.cpu_count(),
       'jax': jax.__version__,
       'python': platform.python_version(),

@@ -606,6 +606,9 @@ def engines(src: Sources) -> str:
       f'{cpu["mjx (cpu)"]["median_s"]:.1f} s ({cpu["speed-up"]["edges_per_s"]:,.0f}x).'])
 
 
+# the planar physics' open-loop files of the variants below (MJX, five layouts)
+PLANAR_OPEN_LOOP = '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'
+
 # What was measured and not kept: (what it changed, its result: text or a function of the
 # files, the commit whose tree holds its result files and where they are under experiments/results)
 LEDGER: Tuple[Tuple[str, object, str], ...] = (
@@ -617,11 +620,11 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`c5c1a4f`: `suite_gpu/`, `novelty_power_gpu/`, `open_loop_pusht-*.json`, '
      '`eval_layouts_cpu.json`'),
     ('Chains restart at the start, not at novel cells (MJX)',
-     '648/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
+     '648/750 solved against 706/750 for the default then', PLANAR_OPEN_LOOP),
     ('Rollout share 0.5: half the lanes extend chains (MJX)',
-     '616/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
+     '616/750 solved against 706/750 for the default then', PLANAR_OPEN_LOOP),
     ('Edges of 8 transitions without chain lanes (MJX)',
-     '556/750 solved against 706/750 for the default then', '`c5c1a4f`: `open_loop_pusht-obs_<layout>.json`'),
+     '556/750 solved against 706/750 for the default then', PLANAR_OPEN_LOOP),
     ('Novel restarts draw every coarse cell alike (each node 1 / n for the n nodes of its cell)',
      '571/600 solved against 579/600 for 1 / sqrt(n) on the 4 calls of the other instance set '
      'and the held-out layouts; over ten calls it reached goals later at middle budgets',
@@ -963,7 +966,8 @@ def closed_loop_headline(src: Sources) -> str:
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
-          f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: ' + ', '.join(pairs) + ' (gate-mirror and '
+          f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
+          + ', '.join(pairs) + ' (gate-mirror and '
           'wall-right held out; [results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 

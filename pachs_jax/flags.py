@@ -24,7 +24,8 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         type=argtypes.positive_int,
         help="transitions per edge (default: the task's; 1 = one-step edges)")),
     'rollout_share': (('--rollout-share',), dict(
-        type=argtypes.number(0.0, 1.0, high_open=True), help="the share of the K lanes that extend chains of the actor's edges "
+        type=argtypes.number(0.0, 1.0, high_open=True),
+        help="the share of the K lanes that extend chains of the actor's edges "
         "(default: the task's; 0: none)")),
     'chain_restart': (('--chain-restart',), dict(
         choices=CHAIN_RESTARTS, help="where a chain of the actor's edges restarts: the start, "
@@ -33,11 +34,13 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         choices=AFTER_GOALS, help="what the first goal does: stop the search, or improve the "
         "path with the evaluations that remain (default: the task's)")),
     'improve_allowance': (('--improve-allowance',), dict(
-        type=argtypes.number(0.0, allow_inf=True), help="with --after-goal improve, the evaluations spent after the first "
+        type=argtypes.number(0.0, allow_inf=True),
+        help="with --after-goal improve, the evaluations spent after the first "
         "goal as a multiple of those spent up to it ('inf': until the budget ends; default: "
         "the task's)")),
     'uniform_share': (('--uniform-share',), dict(
-        type=argtypes.number(0.0, 1.0), help="the probability that an action the search draws from the actor is "
+        type=argtypes.number(0.0, 1.0),
+        help="the probability that an action the search draws from the actor is "
         "drawn uniformly instead (default: the task's; 0: the actor's alone)")),
     'lattice_resolution': (('--lattice-resolution',), dict(
         type=lambda s: argtypes.numbers(s, 'cell sizes'),

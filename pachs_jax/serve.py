@@ -238,7 +238,8 @@ class Server:
             'draining': self.draining,
             'tasks': {name: t.describe() for name, t in self.tasks.items()},
             'backend': jax.default_backend(), 'devices': self.config.devices,
-            'device': f'{jax.default_backend()}: {jax.devices()[0].device_kind} x{self.config.devices}',
+            'device': (f'{jax.default_backend()}: {jax.devices()[0].device_kind} '
+                       f'x{self.config.devices}'),
             'buckets': list(self.buckets),
             'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
             'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
