@@ -6,15 +6,20 @@
 #          --server: 20 instances x 5 rounds, 3 s queries, MuJoCo C worlds), to set beside the
 #          in-process closed loop of closed_loop_gpu.
 #   OUT=dir bash experiments/results/serve_gpu/run.sh [LAYOUT]   (GPU_OFFSET=n: a = n, b = n + 1)
+# On a host of one GPU, a = b: the benchmark runs first (at most BENCH_S, 270 s), then the
+# server and its closed loop.
 set -u
 layout=${1:-wall}
 END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 a=${GPU_OFFSET:-0}; b=$((a + 1))
-CUDA_VISIBLE_DEVICES=$a timeout $((END - SECONDS)) python3 experiments/bench_serve.py \
+limit=$((END - SECONDS))
+if [ "$b" -ge "$(nvidia-smi -L | wc -l)" ]; then b=$a; limit=${BENCH_S:-270}; fi
+CUDA_VISIBLE_DEVICES=$a timeout $limit python3 experiments/bench_serve.py \
   --task pusht-obs --backend warp --budget 10000 --clients 1,16 --requests 20 --max-batch 16 \
   --big 30,150 --out "$o/bench" > "$o/bench.log" 2>&1 &
 bench=$!
+[ "$b" = "$a" ] && wait $bench
 CUDA_VISIBLE_DEVICES=$b python3 -m pachs_jax.cli serve --task pusht-obs --layout "$layout" \
   --backend warp --port 0 --max-batch 128 > "$o/server.log" 2>&1 &
 server=$!
