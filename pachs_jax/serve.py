@@ -45,8 +45,8 @@ class ServeConfig:
   max_sessions: client sessions kept (the least recently used are forgotten beyond it).
   buckets: the padded batch sizes, powers of two whose largest holds max_batch (None: one
     bucket of max_batch's power of two on an accelerator, where padded lanes cost little; every
-    power of two up to it on a CPU, where they cost their physics). Each bucket, and each
-    episode count up to max_batch, is warmed at start-up, so a warm server compiles nothing.
+    power of two up to it on a CPU, where they cost their physics). Each bucket is warmed at
+    start-up; a batch is padded to its bucket on the host, so a warm server compiles nothing.
   warm_time_s: the time limit of each warm-up query (s).
   devices: the first this many of `jax.devices()` share each batch's search, its episodes split
     over them (`sharding.ShardedSearch`; 1: one device, with lane compaction).
@@ -198,14 +198,11 @@ class Server:
         task.planner.canonical([0])  # the canonical instances, generated once
       keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
       nodes = jax.jit(task.session.env.initial_nodes)(keys)
-      # each bucket's programs, then each episode count's small ones (padding, slicing)
-      counts = list(self.buckets) + [n for n in range(1, self.config.max_batch + 1)
-                                     if n not in self.buckets]
-      for num in counts:
-        states = {k: np.asarray(getattr(nodes, k))[:num] for k in task.fields}
-        bucket = next(b for b in self.buckets if b >= num)
-        self._answer(task, [(states, None, None, None)], keys[:num], self.config.warm_time_s,
-                     bucket)
+      for bucket in self.buckets:  # every episode count is padded to a bucket on the host
+        states = {k: np.asarray(getattr(nodes, k))[:bucket] for k in task.fields}
+        self._answer(task, [(states, None, None, None)], keys[:bucket],
+                     self.config.warm_time_s, bucket)
+        say(f'{task.name}: batch size {bucket} warm after {time.perf_counter() - began:.1f} s')
       task.warm = True
       say(f'{task.name}: warm ({len(self.buckets)} batch size(s) '
           f'{",".join(map(str, self.buckets))}) in {time.perf_counter() - began:.1f} s')
@@ -512,15 +509,20 @@ class Server:
       row += n
     actions, length = task.remainder(jnp.asarray(last_actions), jnp.asarray(last_length),
                                      jnp.asarray(executed))
-    fields = {k: np.concatenate([p[0][k] for p in parts]) for k in task.fields}
+    # every array at the bucket's size, padded on the host with copies of the last episode that
+    # do not search (`active`): one set of compiled programs serves every episode count
+    pad = lambda x: np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)])
+    fields = {k: pad(np.concatenate([p[0][k] for p in parts])) for k in task.fields}
     states = type(session.env.node_spec)(**{k: jnp.asarray(v) for k, v in fields.items()})
-    answer = session.answer(states, actions[:num], length[:num], keys, time_limit_s, bucket)
-    return {'actions': np.asarray(answer.actions), 'length': np.asarray(answer.length),
-            'kind': np.asarray(answer.kind), 'reaches_goal': np.asarray(answer.reaches_goal),
-            'cost': np.asarray(answer.cost), 'evaluated': np.asarray(answer.search.evaluated),
-            'search': {k: np.asarray(getattr(answer.search, k)) for k in SEARCH_FIELDS},
-            'remainder': {'steps': np.asarray(session.followed['remainder'].steps),
-                          'reaches_goal': np.asarray(session.followed['remainder'].reached_goal)},
+    answer = session.answer(states, actions, length, jnp.asarray(pad(np.asarray(keys))),
+                            time_limit_s, bucket, active=np.arange(bucket) < num)
+    first = lambda x: np.asarray(x)[:num]
+    return {'actions': first(answer.actions), 'length': first(answer.length),
+            'kind': first(answer.kind), 'reaches_goal': first(answer.reaches_goal),
+            'cost': first(answer.cost), 'evaluated': first(answer.search.evaluated),
+            'search': {k: first(getattr(answer.search, k)) for k in SEARCH_FIELDS},
+            'remainder': {'steps': first(session.followed['remainder'].steps),
+                          'reaches_goal': first(session.followed['remainder'].reached_goal)},
             'follow_s': float(session.timing['follow_s'])}
 
   # -- the websocket -------------------------------------------------------------------------
