@@ -65,7 +65,7 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
       latency[c].append(time.perf_counter() - began)
       search[c].append(answer.search_s)
       batch[c].append(answer.batch['requests'])
-  threads = [threading.Thread(target=ask, args=(c,)) for c in range(clients)]
+  threads = [threading.Thread(target=ask, args=(c,), daemon=True) for c in range(clients)]
   for t in threads:
     t.start()
   go.wait()
@@ -142,24 +142,53 @@ def main() -> None:
   if any(b < 0 for b in big_sizes):
     parser.error(f'--big: episode counts must not be negative, got {args.big!r}')
   args.big_sizes = big_sizes = [b for b in big_sizes if b > 0]
-  process, start_s = None, None
+  process, start_s, code = None, None, None
   url = args.url
   if url is None:
     process, url, start_s = start_server(args, environ)
+  # a time limit's SIGTERM ends the benchmark like Ctrl-C: the server is stopped, and the
+  # phases that finished were written as they finished
+  signal.signal(signal.SIGTERM, signal.default_int_handler)
+  runs, big, health = [], [], None
   try:
-    runs = [run_clients(url, args.task, c, args.requests, args.time_limit) for c in counts]
-    alone = next((r for r in runs if r['clients'] == 1), None)
-    for r in runs:
-      r['speedup_vs_alone'] = alone and r['answers_per_s'] / alone['answers_per_s']
-    big = [run_big(url, args.task, b, args.time_limit, args.big_repeats) for b in big_sizes]
     with client.Client(url, args.task) as asking:
       health = asking.health()
+    save(args, health, start_s, None, runs, big, finished=False)
+    for c in counts:
+      runs.append(run_clients(url, args.task, c, args.requests, args.time_limit))
+      alone = next((r for r in runs if r['clients'] == 1), None)
+      for r in runs:
+        r['speedup_vs_alone'] = alone and r['answers_per_s'] / alone['answers_per_s']
+      say(f'{c} client(s): {runs[-1]["answers"]} answers in {runs[-1]["wall_s"]:.1f} s')
+      save(args, health, start_s, None, runs, big, finished=False)
+    for b in big_sizes:
+      big.append(run_big(url, args.task, b, args.time_limit, args.big_repeats))
+      say(f'{args.big_repeats} requests of {b} episodes: latency {big[-1]["latency_median_s"]:.2f} s')
+      save(args, health, start_s, None, runs, big, finished=False)
+    with client.Client(url, args.task) as asking:
+      health = asking.health()
+  except KeyboardInterrupt:
+    say('interrupted: the phases that finished are written')
   finally:
     if process is not None:
       process.send_signal(signal.SIGTERM)
       code = process.wait(60)
+  if health is None:
+    raise SystemExit('bench_serve: interrupted before the server answered; nothing written')
+  finished = len(runs) == len(counts) and len(big) == len(big_sizes)
+  print('\n'.join(save(args, health, start_s, code, runs, big, finished)))
+
+
+def say(text: str) -> None:
+  print(f'bench_serve: {text}', file=sys.stderr, flush=True)
+
+
+def save(args, health: dict, start_s, code, runs: list, big: list, finished: bool) -> list:
+  """Writes bench_serve.json and .md of the phases so far (finished: all of them ran); returns
+  the markdown lines."""
   document = {'provenance': common.provenance(health.get('device')), 'settings': vars(args),
-              'server': {'start_to_ready_s': start_s, 'exit_code': code if process else None,
+              'finished': finished,
+              'server': {'start_to_ready_s': start_s, 'exit_code': code,
                          'backend': health['backend'], 'buckets': health['buckets'],
                          'budget': health['tasks'][args.task]['budget'],
                          'physics': health['tasks'][args.task]['physics'],
@@ -179,9 +208,10 @@ def main() -> None:
               f'latency {b["latency_median_s"]:.3f} s, search {b["search_median_s"]:.3f} s, '
               f'overhead {b["overhead_median_s"]:.3f} s, reaching the goal '
               f'{b["reaching_goal_median"]:g}.']
+  if not finished:
+    lines += ['', 'Not finished: the phases above are those that ran.']
   common.write_result(os.path.join(args.out, 'bench_serve.json'), document, lines)
-  print('\n'.join(lines))
-
+  return lines
 
 if __name__ == '__main__':
   main()
