@@ -64,9 +64,6 @@ def build_parser() -> argtypes.OneLineParser:
                       'budget and settings; docs/serving.md)')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
-  parser.add_argument('--tilt-limit', type=argtypes.number(1, 30), default=None,
-                      help="degrees: the planners' edges may not tilt the T further "
-                      '(PushTConfig.tilt_limit; default: the task\'s)')
   parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
                       help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
                       "planners' own edge physics (--backend), so that plans transfer")
@@ -443,9 +440,7 @@ def main():
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
-  options = {} if args.tilt_limit is None else {'tilt_limit': np.radians(args.tilt_limit)}
-  env, model = common.checked(parser, lambda: planner.load_model(
-      args.task, backend=args.backend, layout=args.layout, options=options))
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)

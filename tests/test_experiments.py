@@ -221,7 +221,6 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', ''], '--planners: none named'),
     (closed_loop, ['--planners', 'pachs,foo'], '--planners: unknown foo'),
     (closed_loop, ['--candidates', 'policy,x'], '--candidates: unknown x'),
-    (closed_loop, ['--tilt-limit', '45'], "--tilt-limit: must be a number in [1, 30], got '45'"),
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
     (bench_serve, ['--out', '/tmp', '--big', '-1'], "--big: episode counts must not be negative"),

@@ -25,7 +25,7 @@ class TaskSpec:
     edges, as published; None: search_defaults with edge_steps 1).
   cpu_overrides: SearchConfig field values that replace either at the CPU budget of `pachs plan`.
   options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`; PushT:
-    'physics', a name of `pusht.PHYSICS_PRESETS`; 'tilt_limit', `pusht.PushTConfig`'s).
+    'physics', a name of `pusht.PHYSICS_PRESETS`).
   """
 
   name: str
@@ -84,14 +84,14 @@ _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,
-             options=('physics', 'tilt_limit')),
+             options=('physics',)),
     TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _PUSHT, _SEARCH,
-             options=('physics', 'tilt_limit')),
+             options=('physics',)),
     TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30, _PUSHT_OBS,
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout', 'physics', 'tilt_limit')),
+             options=('layout', 'physics')),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}

@@ -5,8 +5,8 @@
 # A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, the search's path
 # and the last answer's remainder replayed in its search, by default) or parallel (the parallel
 # rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
-# (N edges per iteration), q<S> (S seconds per query), tilt<D> (the planners' edges tilt the T
-# at most D degrees), planner-world (the plans executed in the planners' own physics).
+# (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
+# planners' own physics).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -37,7 +37,6 @@ run() {  # the command line of one run
       remainder|policy) candidates+=("$opt") ;;
       k[0-9]*) flags+=(-K "${opt#k}") ;;
       q[0-9]*) flags+=(--query-time "${opt#q}") ;;
-      tilt[0-9]*) flags+=(--tilt-limit "${opt#tilt}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
