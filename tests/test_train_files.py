@@ -4,6 +4,7 @@ while XLA computes (real subprocesses), and the time-budget bookkeeping."""
 import errno
 import json
 import os
+import shutil
 import re
 import signal
 import subprocess
@@ -73,6 +74,21 @@ def test_training_save_on_a_full_disk_is_one_line_and_leaves_no_partial_step(tmp
                      'no space left on device')
   assert sorted(os.listdir(ckpts.directory)) == ['1']
   assert ckpts.latest_epoch() == 1
+  ckpts.close()
+
+
+def test_a_training_save_that_cannot_fit_is_refused_before_orbax_writes(tmp_path, monkeypatch):
+  ckpts = checkpoint.TrainingCheckpoints(str(tmp_path / 'state'))
+  state = {'w': np.zeros(2**18, np.float32)}  # 1 MiB
+  monkeypatch.setattr(ckpts._manager, 'save', lambda *a, **k: pytest.fail('orbax was called'))
+  usage = shutil.disk_usage(str(tmp_path))
+  monkeypatch.setattr(shutil, 'disk_usage', lambda path: usage._replace(free=2**19))
+  with pytest.raises(checkpoint.CheckpointError) as info:
+    ckpts.save(1, state, {'epoch': 1})
+  assert str(info.value) == (f'cannot save training checkpoint {os.path.join(ckpts.directory, "1")}'
+                             ': no space left on device (0.5 MiB free, the state needs about '
+                             '1.0 MiB)')
+  assert os.listdir(ckpts.directory) == [] and ckpts.latest_epoch() is None
   ckpts.close()
 
 

@@ -79,9 +79,11 @@ def _orbax_call(fn: Callable[[], Any]) -> Tuple[Any, Optional[str]]:
       old_hook(unraisable)
 
   sys.unraisablehook = hook
-  absl_logger = logging.getLogger('absl')  # its warnings would add lines before the error
-  absl_level = absl_logger.level
-  absl_logger.setLevel(logging.CRITICAL)
+  # absl's warnings and asyncio's reports of failed writes would add lines before the error
+  loggers = [logging.getLogger(name) for name in ('absl', 'asyncio')]
+  levels = [logger.level for logger in loggers]
+  for logger in loggers:
+    logger.setLevel(logging.CRITICAL)
   try:
     try:
       return fn(), None
@@ -91,7 +93,8 @@ def _orbax_call(fn: Callable[[], Any]) -> Tuple[Any, Optional[str]]:
     return None, reason
   finally:
     sys.unraisablehook = old_hook
-    absl_logger.setLevel(absl_level)
+    for logger, level in zip(loggers, levels):
+      logger.setLevel(level)
 
 
 def _reason(error: BaseException, limit: int = 200) -> str:
@@ -478,6 +481,14 @@ class TrainingCheckpoints:
     A failed save (a full disk) raises a one-line CheckpointError and leaves no partial step
     behind; the earlier checkpoints stay."""
     meta = dict(meta, **{STATE_HASH_KEY: params_hash(state)})
+    # a disk that cannot hold the state is named before orbax starts writing: a write that
+    # fails midway leaves TensorStore's callbacks printing into a closed event loop
+    need = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state))
+    free = shutil.disk_usage(self.directory).free
+    if free < need:
+      raise CheckpointError(f'cannot save {self._where(epoch)}: no space left on device '
+                            f'({free / 2**20:.1f} MiB free, the state needs about '
+                            f'{need / 2**20:.1f} MiB)')
 
     def save():
       self._manager.save(int(epoch), args=ocp.args.Composite(
