@@ -398,6 +398,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'first_query_s_incl_compile': compile_s[0], 'empty_answers': empty_answers[0],
           'goal_answers': sum(goals for _, goals in by_query), 'goal_answers_by_query': by_query,
           'policy_fill_steps': int(log.policy_steps.sum()) - empty_answers[0],
+          'failures_on_policy_steps': int(log.failed_on_policy.sum()),
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}

@@ -393,6 +393,15 @@ CLOSED_LOOP_VARIANTS = (
 )
 
 
+def failures(summary: Dict) -> str:
+  """A closed-loop run's failed episodes, and how many failed on the policy's steps where the
+  run counted them ('-': a run from before the count)."""
+  if summary.get('failures') is None:
+    return '-'
+  on_policy = summary.get('failures_on_policy_steps')
+  return str(summary['failures']) + ('' if on_policy is None else f' ({on_policy} on policy steps)')
+
+
 def closed_loop_sessions(src: Sources) -> str:
   """The closed loop on the faithful physics, one GPU per planner, Warp planners: PACHS
   against the parallel rollout, and each planner's drop from its own physics to MuJoCo C."""
@@ -417,7 +426,7 @@ def closed_loop_sessions(src: Sources) -> str:
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
                    str(a['empty_answers']),
-                   '-' if a.get('failures') is None else str(a['failures']),
+                   failures(a),
                    answer_counts(a) if is_pachs else '-'])
       own = f'{folder}/{layout}_{variant}-planner-world.json'
       if src.exists(own):

@@ -89,6 +89,7 @@ class Log:
     whose answers have no kind: zeros).
   policy_steps: [E] int world steps the policy took: after a short answer, and one for an empty
     answer.
+  failed_on_policy: [E] bool the episode failed (`Worlds.failed`) on a step the policy took.
   plans: per query, (the world step of each episode when it was asked [E], the answer's
     states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]);
     for answers that carry their states.
@@ -98,6 +99,7 @@ class Log:
   queries: np.ndarray
   answers: np.ndarray
   policy_steps: np.ndarray
+  failed_on_policy: np.ndarray
   plans: list = dataclasses.field(default_factory=list)
   interrupted_at_query: Optional[int] = None
 
@@ -166,7 +168,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   num = worlds.num
   log = Log(queries=np.zeros(num, np.int64),
             answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
-            policy_steps=np.zeros(num, np.int64))
+            policy_steps=np.zeros(num, np.int64), failed_on_policy=np.zeros(num, bool))
   key = jax.random.PRNGKey(0) if key is None else key
   executed = np.zeros(num, np.int64)
   for number in range(max_queries):
@@ -195,7 +197,9 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
       actions[empty, 0] = np.asarray(policy(nodes))[empty]
       lengths = np.where(empty, 1, lengths)
       log.policy_steps += empty
+    failed = worlds.failed.copy()
     worlds.execute(actions, lengths)
+    log.failed_on_policy |= empty & worlds.failed & ~failed
     # the answer's actions executed; an episode the policy moves next diverges from it
     short = lengths < execute
     executed = np.where(short & fill_with_policy, replan.DIVERGED, lengths)
@@ -205,5 +209,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
         if not need.any():
           continue
         log.policy_steps += need
+        failed = worlds.failed.copy()
         worlds.execute(np.asarray(policy(worlds.batch()))[:, None], need.astype(np.int64))
+        log.failed_on_policy |= worlds.failed & ~failed
   return log

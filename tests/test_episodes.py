@@ -40,9 +40,45 @@ def test_an_episode_whose_t_tipped_over_has_failed_and_stops():
   assert worlds.steps.tolist() == [2, 0]  # the failed episode does not move
 
 
+class _FailOnOne:
+  """Worlds of E episodes at integer positions; an action of 1 fails its episode."""
+
+  def __init__(self, num):
+    self.num, self.steps = num, np.zeros(num, np.int64)
+    self.success, self.failed = np.zeros(num, bool), np.zeros(num, bool)
+
+  @property
+  def active(self):
+    return ~self.success & ~self.failed
+
+  def batch(self):
+    return self.steps.astype(np.float32)
+
+  def execute(self, actions, lengths):
+    for j in range(actions.shape[1]):
+      moving = self.active & (lengths > j)
+      self.steps += moving
+      self.failed |= moving & (actions[:, j, 0] == 1)
+
+
+def test_a_failure_on_a_policy_step_is_told_from_one_on_a_planned_step():
+  """Episode 0 gets an empty answer and fails on the policy's action; 1 fails on its plan's
+  second action; 2 plans 1 action, then the policy fills and fails; 3 never fails."""
+  plan = np.zeros((4, 3, 1), np.float32)
+  plan[1, 1] = 1.0
+  answer = type('Answer', (), {'actions': plan, 'length': np.array([0, 3, 1, 3])})
+  fails = np.array([True, False, True, False])  # the policy's action fails 0 and 2
+  policy = lambda nodes: np.where(fails, 1.0, 0.0)[:, None].astype(np.float32)
+  worlds = _FailOnOne(4)
+  log = episodes.run(lambda *args: answer, worlds, execute=3, max_queries=1, policy=policy)
+  assert worlds.failed.tolist() == [True, True, True, False]
+  assert log.failed_on_policy.tolist() == [True, False, True, False]
+
+
 def test_executed_plans_follow_the_queries_of_an_episode():
   states = lambda value: jax.tree.map(lambda x: np.full((2, 5), value), {'q': 0})
-  log = episodes.Log(queries=np.zeros(2), answers=np.zeros((2, 5)), policy_steps=np.zeros(2))
+  log = episodes.Log(queries=np.zeros(2), answers=np.zeros((2, 5)), policy_steps=np.zeros(2),
+                     failed_on_policy=np.zeros(2, bool))
   # episode 0 asked at world steps 0 and 3; episode 1 only at 0 (then it had finished)
   log.plans = [(np.array([0, 0]), states(1.0), np.array([4, 2])),
                (np.array([3, -1]), states(2.0), np.array([1, 0]))]
