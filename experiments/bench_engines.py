@@ -15,17 +15,45 @@ import sys
 import tempfile
 import time
 
-import jax
-import jax.numpy as jnp
-import mujoco
 import numpy as np
-from mujoco import rollout
 
 import common
-from pachs_jax import planner, trees
-from pachs_jax.envs import mujoco_c, panda, pusht, warp_import, warp_physics
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--layouts', default='gate,two-gaps', help='PushT-Obs layouts')
+  parser.add_argument('--worlds', default='1024,4096,16384,65536')
+  parser.add_argument('--engines', default='mjx,warp,mujoco-c')
+  parser.add_argument('--steps', type=int, default=20, help='control steps per timed call')
+  parser.add_argument('--repeats', type=int, default=3)
+  parser.add_argument('--threads', type=int, default=os.cpu_count(), help='MuJoCo C threads')
+  parser.add_argument('--rollout-copies', type=int, default=1024)
+  parser.add_argument('--rollout-steps', type=int, default=60)
+  parser.add_argument('--search-backends', default='',
+                      help="comma list ('warp,mjx,mujoco-c'): also PACHS's edges/s per backend")
+  parser.add_argument('--search-instances', type=int, default=30)
+  parser.add_argument('--search-pop-sizes', default='64')
+  parser.add_argument('--search-budget', type=int, default=20_000)
+  common.add_common_args(parser, out='experiments/results/engines/bench_engines.json')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+from mujoco import rollout  # noqa: E402
+
+from pachs_jax import planner, trees  # noqa: E402
+from pachs_jax.envs import mujoco_c, panda, pusht, warp_import, warp_physics  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def mujoco_c_throughput(env, nodes, steps: int, nthread: int, repeats: int) -> dict:
@@ -116,21 +144,7 @@ def search_rates(args) -> list:
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--layouts', default='gate,two-gaps', help='PushT-Obs layouts')
-  parser.add_argument('--worlds', default='1024,4096,16384,65536')
-  parser.add_argument('--engines', default='mjx,warp,mujoco-c')
-  parser.add_argument('--steps', type=int, default=20, help='control steps per timed call')
-  parser.add_argument('--repeats', type=int, default=3)
-  parser.add_argument('--threads', type=int, default=os.cpu_count(), help='MuJoCo C threads')
-  parser.add_argument('--rollout-copies', type=int, default=1024)
-  parser.add_argument('--rollout-steps', type=int, default=60)
-  parser.add_argument('--search-backends', default='',
-                      help="comma list ('warp,mjx,mujoco-c'): also PACHS's edges/s per backend")
-  parser.add_argument('--search-instances', type=int, default=30)
-  parser.add_argument('--search-pop-sizes', default='64')
-  parser.add_argument('--search-budget', type=int, default=20_000)
-  common.add_common_args(parser, out='experiments/results/engines/bench_engines.json')
+  parser = build_parser()
   args = parser.parse_args()
   engines = args.engines.split(',')
   if 'warp' in engines:

@@ -12,13 +12,40 @@ import argparse
 import dataclasses
 import time
 
-import jax
-
 import common
 from pachs_jax import argtypes
-from pachs_jax.envs import backends, pusht, registry
-from pachs_jax.sac import presets, train
-from pachs_jax.sac.trainer import make_trainer
+
+# sorted(pusht.PHYSICS_PRESETS), spelled out: pusht loads MuJoCo (main checks they agree)
+PHYSICS_PRESETS = ('faithful', 'maniskill', 'planar')
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
+  parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
+  parser.add_argument('--preset', default='faithful', choices=PHYSICS_PRESETS)
+  parser.add_argument('--engines', default='warp,mjx')
+  parser.add_argument('--num-envs', type=argtypes.positive_int, default=4096)
+  parser.add_argument('--physics-steps', type=argtypes.positive_int, default=20,
+                      help='batched env steps per timed physics call')
+  parser.add_argument('--epochs', type=argtypes.positive_int, default=3,
+                      help='timed training epochs per engine (after a first, compiling one)')
+  parser.add_argument('--min-replay', type=argtypes.positive_int, default=None,
+                      help="replay transitions prefilled before training (default: the preset's)")
+  common.add_common_args(parser, out='experiments/results/training/bench_training.json')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+
+from pachs_jax.envs import backends, pusht, registry  # noqa: E402
+from pachs_jax.sac import presets, train  # noqa: E402
+from pachs_jax.sac.trainer import make_trainer  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def epoch_throughput(env, config, epochs: int) -> dict:
@@ -57,18 +84,8 @@ def write(args: argparse.Namespace, config, rows: list) -> dict:
 
 
 def main() -> None:
-  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
-  parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
-  parser.add_argument('--preset', default='faithful', choices=sorted(pusht.PHYSICS_PRESETS))
-  parser.add_argument('--engines', default='warp,mjx')
-  parser.add_argument('--num-envs', type=argtypes.positive_int, default=4096)
-  parser.add_argument('--physics-steps', type=argtypes.positive_int, default=20,
-                      help='batched env steps per timed physics call')
-  parser.add_argument('--epochs', type=argtypes.positive_int, default=3,
-                      help='timed training epochs per engine (after a first, compiling one)')
-  parser.add_argument('--min-replay', type=argtypes.positive_int, default=None,
-                      help="replay transitions prefilled before training (default: the preset's)")
-  common.add_common_args(parser, out='experiments/results/training/bench_training.json')
+  assert PHYSICS_PRESETS == tuple(sorted(pusht.PHYSICS_PRESETS)), pusht.PHYSICS_PRESETS
+  parser = build_parser()
   args = parser.parse_args()
   engines = [e for e in args.engines.split(',') if e]
   bad = sorted(set(engines) - {'warp', 'mjx'})

@@ -9,13 +9,26 @@ from __future__ import annotations
 import argparse
 import os
 
-import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Polygon, Rectangle
 
-from pachs_jax import envs
-from pachs_jax.envs import layouts, pusht, render
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser()
+  parser.add_argument('--out', default='experiments/results')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.patches import Polygon, Rectangle  # noqa: E402
+
+from pachs_jax import envs  # noqa: E402
+from pachs_jax.envs import layouts, pusht, render  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def draw_instances(ax, env, title: str, legend: bool = True) -> None:
@@ -48,9 +61,7 @@ def draw_instances(ax, env, title: str, legend: bool = True) -> None:
 
 
 def main():
-  parser = argparse.ArgumentParser()
-  parser.add_argument('--out', default='experiments/results')
-  args = parser.parse_args()
+  args = build_parser().parse_args()
   os.makedirs(args.out, exist_ok=True)
   fig = Figure(figsize=(15, 5.6))
   FigureCanvasAgg(fig)

@@ -12,15 +12,30 @@ from __future__ import annotations
 import argparse
 import os
 
-import jax.numpy as jnp
-import mujoco
-import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Polygon, Rectangle
-from shapely.geometry import LineString, MultiPoint, Point
 
-from pachs_jax.envs import shelf
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser()
+  parser.add_argument('--instance', type=int, default=0, help='canonical instance to draw')
+  parser.add_argument('--num', type=int, default=100, help='canonical instances (seed 0)')
+  parser.add_argument('--out', default='experiments/results/shelf_problem.png')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.patches import Circle, Polygon, Rectangle  # noqa: E402
+from shapely.geometry import LineString, MultiPoint, Point  # noqa: E402
+
+from pachs_jax.envs import shelf  # noqa: E402
+# pylint: enable=wrong-import-position
 
 # (horizontal axis, vertical axis, title, shelf boxes drawn filled)
 VIEWS = (
@@ -93,11 +108,7 @@ def draw_target(ax, env, target, axes, label=True):
 
 
 def main():
-  parser = argparse.ArgumentParser()
-  parser.add_argument('--instance', type=int, default=0, help='canonical instance to draw')
-  parser.add_argument('--num', type=int, default=100, help='canonical instances (seed 0)')
-  parser.add_argument('--out', default='experiments/results/shelf_problem.png')
-  args = parser.parse_args()
+  args = build_parser().parse_args()
   if not 0 <= args.instance < args.num:
     raise ValueError(f'--instance must be in [0, {args.num}), got {args.instance}')
 

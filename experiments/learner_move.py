@@ -12,14 +12,32 @@ import dataclasses
 import os
 import tempfile
 
-import jax
 import numpy as np
 
 import common
 from pachs_jax import argtypes
-from pachs_jax.envs.point_mass import PointMassEnv
-from pachs_jax.sac import evaluator, presets, train
-from pachs_jax.sac.trainer import make_trainer
+
+
+def build_parser() -> argtypes.OneLineParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
+  parser.add_argument('--seeds', type=argtypes.positive_int, default=5)
+  parser.add_argument('--steps', type=argtypes.positive_int, default=3000)
+  parser.add_argument('--move-at', type=argtypes.positive_int, default=1500)
+  common.add_common_args(parser, out='experiments/results/training/learner_move.json')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+
+from pachs_jax.envs.point_mass import PointMassEnv  # noqa: E402
+from pachs_jax.sac import evaluator, presets, train  # noqa: E402
+from pachs_jax.sac.trainer import make_trainer  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def score(env, model, nodes) -> dict:
@@ -29,11 +47,7 @@ def score(env, model, nodes) -> dict:
 
 
 def main() -> None:
-  parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
-  parser.add_argument('--seeds', type=argtypes.positive_int, default=5)
-  parser.add_argument('--steps', type=argtypes.positive_int, default=3000)
-  parser.add_argument('--move-at', type=argtypes.positive_int, default=1500)
-  common.add_common_args(parser, out='experiments/results/training/learner_move.json')
+  parser = build_parser()
   args = parser.parse_args()
   if args.move_at >= args.steps:
     parser.error(f'--move-at ({args.move_at}) must be below --steps ({args.steps})')

@@ -8,10 +8,27 @@ import json
 import os
 from typing import Dict, List
 
-import closed_loop
-import common
-import open_loop
-import stats
+
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('kind', choices=['closed', 'open'])
+  parser.add_argument('sources', nargs='+',
+                      help="result JSON files of one task; PATH#OLD=NEW renames that source's "
+                      "planner OLD (e.g. a PACHS variant kept beside a new default)")
+  parser.add_argument('--out', required=True)
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import closed_loop  # noqa: E402
+import common  # noqa: E402
+import open_loop  # noqa: E402
+import stats  # noqa: E402
+# pylint: enable=wrong-import-position
 
 PROTOCOL = ('task', 'instances', 'rounds', 'query_time', 'execute', 'max_queries',
             'fill_with_policy', 'perturb', 'seed')
@@ -120,13 +137,7 @@ def load_source(source: str) -> Dict:
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('kind', choices=['closed', 'open'])
-  parser.add_argument('sources', nargs='+',
-                      help="result JSON files of one task; PATH#OLD=NEW renames that source's "
-                      "planner OLD (e.g. a PACHS variant kept beside a new default)")
-  parser.add_argument('--out', required=True)
-  args = parser.parse_args()
+  args = build_parser().parse_args()
   payloads = [load_source(source) for source in args.sources]
   stem = os.path.splitext(args.out)[0]
   if args.kind == 'closed':

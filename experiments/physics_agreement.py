@@ -16,15 +16,40 @@ import argparse
 import dataclasses
 import time
 
-import jax
-import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 import common
-from pachs_jax import planner
-import agreement
-from pachs_jax.envs import pusht
+
+
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap'])
+  parser.add_argument('--layouts', default='gate,wall')
+  parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
+  parser.add_argument('--horizons', default='1,10,30')
+  parser.add_argument('--planners', default='mjx,mujoco-c', help='agreement: planner physics')
+  parser.add_argument('--candidates', default=None, help='agreement: names, comma separated')
+  parser.add_argument('--bare-models', action='store_true',
+                      help="agreement: replay on the config's bare models, not the envs")
+  parser.add_argument('--mjx-cost', action='store_true', help='also time MJX steps (slow)')
+  parser.add_argument('--mjx-worlds', default='16', help='batch sizes of the MJX timing')
+  common.add_common_args(parser, out=None, instances=8, seed=True)
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+
+from pachs_jax import planner  # noqa: E402
+import agreement  # noqa: E402
+from pachs_jax.envs import pusht  # noqa: E402
+# pylint: enable=wrong-import-position
 
 P = pusht.PushTConfig
 # Every named candidate below is PushTConfig physics fields over the 'planar' preset (the default
@@ -299,19 +324,7 @@ def run_agreement(args, layouts, policies, starts_of):
 
 
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap'])
-  parser.add_argument('--layouts', default='gate,wall')
-  parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
-  parser.add_argument('--horizons', default='1,10,30')
-  parser.add_argument('--planners', default='mjx,mujoco-c', help='agreement: planner physics')
-  parser.add_argument('--candidates', default=None, help='agreement: names, comma separated')
-  parser.add_argument('--bare-models', action='store_true',
-                      help="agreement: replay on the config's bare models, not the envs")
-  parser.add_argument('--mjx-cost', action='store_true', help='also time MJX steps (slow)')
-  parser.add_argument('--mjx-worlds', default='16', help='batch sizes of the MJX timing')
-  common.add_common_args(parser, out=None, instances=8, seed=True)
-  args = parser.parse_args()
+  args = build_parser().parse_args()
   args.horizons = [int(h) for h in args.horizons.split(',')]
   args.mjx_worlds = [int(w) for w in args.mjx_worlds.split(',')]
   layouts = args.layouts.split(',')

@@ -11,15 +11,42 @@ import argparse
 import os
 import time
 
-import jax
 import numpy as np
 
-import common
-from pachs_jax import argtypes, envs, planner
-from pachs_jax.runtime import programs
-from pachs_jax.search import baselines as bl
-from pachs_jax.search import pachs
-from pachs_jax.search.result import StopReason
+from pachs_jax import argtypes
+
+
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--task', default='playground:ReacherEasy',
+                      help='playground:NAME (a task with a model)')
+  parser.add_argument('--checkpoint', default=None, help='model (default: the shipped one)')
+  parser.add_argument('--instances', type=int, default=30, help='canonical instances 0..N-1')
+  parser.add_argument('--budgets', default='1000,5000,20000',
+                      help='edge evaluations per instance of the parallel rollout and PACHS, '
+                      'comma separated (each budget is one row of each)')
+  parser.add_argument('--copies', type=int, default=16, help='parallel-rollout copies')
+  parser.add_argument('--pop-size', type=int, default=None, help='PACHS K (default: the task\'s)')
+  parser.add_argument('--seed', type=argtypes.seed, default=0)
+  parser.add_argument('--out', default=None, help='results JSON (default: '
+                      'experiments/results/playground_<name>.json)')
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+
+import common  # noqa: E402
+from pachs_jax import envs, planner  # noqa: E402
+from pachs_jax.runtime import programs  # noqa: E402
+from pachs_jax.search import baselines as bl  # noqa: E402
+from pachs_jax.search import pachs  # noqa: E402
+from pachs_jax.search.result import StopReason  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def _rows(result):
@@ -41,20 +68,7 @@ def _summary(name: str, config: str, rows, wall: float, compile_s: float) -> dic
 
 
 def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--task', default='playground:ReacherEasy',
-                      help='playground:NAME (a task with a model)')
-  parser.add_argument('--checkpoint', default=None, help='model (default: the shipped one)')
-  parser.add_argument('--instances', type=int, default=30, help='canonical instances 0..N-1')
-  parser.add_argument('--budgets', default='1000,5000,20000',
-                      help='edge evaluations per instance of the parallel rollout and PACHS, '
-                      'comma separated (each budget is one row of each)')
-  parser.add_argument('--copies', type=int, default=16, help='parallel-rollout copies')
-  parser.add_argument('--pop-size', type=int, default=None, help='PACHS K (default: the task\'s)')
-  parser.add_argument('--seed', type=argtypes.seed, default=0)
-  parser.add_argument('--out', default=None, help='results JSON (default: '
-                      'experiments/results/playground_<name>.json)')
-  args = parser.parse_args(argv)
+  args = build_parser().parse_args(argv)
   name = args.task.split(':', 1)[-1].lower()
   out = args.out or os.path.join(os.path.dirname(os.path.abspath(__file__)), 'results',
                                  f'playground_{name}.json')

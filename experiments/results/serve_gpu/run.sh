@@ -4,7 +4,8 @@
 #          server started by the benchmark;
 #   GPU b: a server for LAYOUT, and the closed loop's protocol through it (closed_loop.py
 #          --server: 20 instances x 5 rounds, 3 s queries, MuJoCo C worlds), to set beside the
-#          in-process closed loop of closed_loop_gpu.
+#          in-process closed loop of closed_loop_gpu; then requests of 30 episodes to that
+#          server, at the task's budget.
 #   OUT=dir bash experiments/results/serve_gpu/run.sh [LAYOUT]   (GPU_OFFSET=n: a = n, b = n + 1)
 # On a host of one GPU, a = b: the benchmark runs first (at most BENCH_S, 270 s), then the
 # server and its closed loop.
@@ -31,6 +32,9 @@ if [ -n "$url" ]; then  # the client's own JAX stays off the server's GPU
   JAX_PLATFORMS=cpu timeout $((END - SECONDS)) python3 experiments/heldout_layouts.py \
     experiments/closed_loop.py --task pusht-obs --layout "$layout" --planners pachs \
     --server "$url" --out "$o/${layout}_pachs-served.json" > "$o/closed_loop.log" 2>&1
+  # requests of 30 episodes at the task's budget, to the same server
+  timeout $((END - SECONDS)) python3 experiments/bench_serve.py --task pusht-obs --url "$url" \
+    --clients '' --big 30 --out "$o/bench_task_budget" > "$o/bench_task_budget.log" 2>&1
 fi
 kill -TERM $server 2>/dev/null; wait $server; wait $bench
 tail -n 5 "$o/bench.log" "$o/closed_loop.log" "$o/server.log"
