@@ -12,17 +12,48 @@ import dataclasses
 import sys
 from typing import Callable, Optional
 
-import jax
-import jax.numpy as jnp
-import mujoco
 import numpy as np
-
-from pachs_jax.envs import base, pusht
 
 HORIZON = 10  # control steps: the closed loop replans every 10
 POSITION_TOLERANCE_MM = 5.0  # T position error at the 90th percentile
 ANGLE_TOLERANCE_DEG = 2.0  # T angle error at the 90th percentile
 PLANNERS = ('mjx', 'mujoco-c', 'warp')
+# PushTConfig fields with a flag each besides --t-body and --table-friction, and their types
+# (an unset flag: PushTConfig's default)
+PHYSICS_FLAGS = {'physics_dt': float, 'substeps': int, 'solver_iterations': int,
+                 'ls_iterations': int, 'solver': str}
+T_BODIES = ('planar', 'free')  # pusht.T_BODIES, spelled out: pusht loads MuJoCo
+
+
+def build_parser() -> argparse.ArgumentParser:
+  """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
+  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  parser.add_argument('--variant', default='obs', choices=['fixed', 'rand', 'obs'])
+  parser.add_argument('--layout', default=None, help="the 'obs' variant's layout")
+  parser.add_argument('--planner', default='mjx', choices=PLANNERS)
+  parser.add_argument('--instances', type=int, default=4)
+  parser.add_argument('--steps', type=int, default=20)
+  parser.add_argument('--seed', type=int, default=0)
+  for name, kind in PHYSICS_FLAGS.items():
+    parser.add_argument('--' + name.replace('_', '-'), type=kind, default=None)
+  parser.add_argument('--t-body', default=None, choices=T_BODIES)
+  parser.add_argument('--table-friction', type=float, default=None)
+  parser.add_argument('--world-physics-dt', type=float, default=None,
+                      help="the world's time step (default: the planner's)")
+  parser.add_argument('--world-substeps', type=int, default=None)
+  return parser
+
+
+if __name__ == '__main__':
+  build_parser().parse_args()  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+
+from pachs_jax.envs import base, pusht  # noqa: E402
+# pylint: enable=wrong-import-position
 
 # A policy: (planar nodes NodeState [N] with numpy leaves, control step t) -> actions [N, 7].
 Policy = Callable[[base.NodeState, int], np.ndarray]
@@ -386,29 +417,13 @@ def check_agreement(config: pusht.PushTConfig, planner: str = 'mjx', instances: 
 
 
 def main(argv=None) -> int:
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--variant', default='obs', choices=['fixed', 'rand', 'obs'])
-  parser.add_argument('--layout', default=None, help="the 'obs' variant's layout")
-  parser.add_argument('--planner', default='mjx', choices=PLANNERS)
-  parser.add_argument('--instances', type=int, default=4)
-  parser.add_argument('--steps', type=int, default=20)
-  parser.add_argument('--seed', type=int, default=0)
-  defaults = pusht.PushTConfig()
-  for name in ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations', 'solver'):
-    value = getattr(defaults, name)
-    parser.add_argument('--' + name.replace('_', '-'), type=type(value), default=value)
-  parser.add_argument('--t-body', default=defaults.t_body, choices=pusht.T_BODIES)
-  parser.add_argument('--table-friction', type=float, default=defaults.table_friction)
-  parser.add_argument('--world-physics-dt', type=float, default=None,
-                      help="the world's time step (default: the planner's)")
-  parser.add_argument('--world-substeps', type=int, default=None)
+  assert T_BODIES == pusht.T_BODIES, pusht.T_BODIES
+  parser = build_parser()
   args = parser.parse_args(argv)
+  physics = {name: getattr(args, name) for name in [*PHYSICS_FLAGS, 't_body', 'table_friction']
+             if getattr(args, name) is not None}
   try:
-    config = pusht.PushTConfig(
-        variant=args.variant, layout=args.layout, physics_dt=args.physics_dt,
-        substeps=args.substeps, solver_iterations=args.solver_iterations,
-        ls_iterations=args.ls_iterations, solver=args.solver, t_body=args.t_body,
-        table_friction=args.table_friction)
+    config = pusht.PushTConfig(variant=args.variant, layout=args.layout, **physics)
     world = dataclasses.replace(
         config, physics_dt=args.world_physics_dt or config.physics_dt,
         substeps=args.world_substeps or config.substeps)

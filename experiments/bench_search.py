@@ -19,22 +19,147 @@ import json
 import os
 import sys
 import time
+from typing import List, Optional, Sequence, Tuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import common
-import open_loop
-import stats
-from pachs_jax import argtypes, envs, planner
-from pachs_jax.runtime import programs, sharding
-from pachs_jax.envs import backends
-from pachs_jax.sac import actor_critic as ac_lib
-from pachs_jax.search import pachs
-from pachs_jax.search.checks import instance_keys
-from pachs_jax.search.memory import tree_bytes
-from pachs_jax.search.result import StopReason
+from pachs_jax import argtypes
+from pachs_jax.envs import registry
+
+
+def throughput_parser() -> argparse.ArgumentParser:
+  """Search throughput against raw batched env steps at the same batch (the default mode)."""
+  parser = argparse.ArgumentParser(prog='bench_search.py',
+                                   description=throughput_parser.__doc__)
+  parser.add_argument('--task', default='pusht-fixed')
+  parser.add_argument('--checkpoint', default=None, help='default: the shipped model, else '
+                      'an untrained one')
+  parser.add_argument('--instances', default='1,30')
+  parser.add_argument('--pop-sizes', default='16,64,256')
+  parser.add_argument('--num-actions', type=int, default=8)
+  parser.add_argument('--budget', type=int, default=100_000)
+  parser.add_argument('--weight', type=float, default=2.0)
+  parser.add_argument('--backend', default='mjx', choices=registry.BACKENDS,
+                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads; warp: '
+                      'MuJoCo Warp)')
+  parser.add_argument('--raw-steps', type=int, default=20,
+                      help='evaluate calls per raw-throughput measurement')
+  parser.add_argument('--cpu-threads', type=int, default=None,
+                      help='MuJoCo C threads of --backend mujoco-c (default: all CPUs)')
+  parser.add_argument('--run-to-budget', action='store_true',
+                      help='never accept a goal: every instance spends its whole budget')
+  parser.add_argument('--out', default='experiments/results/bench_search.json')
+  return parser
+
+
+def scale_parser() -> argparse.ArgumentParser:
+  """The 150-run PushT-Obs benchmark on 1, 2 and 4 devices of one host (and compaction): per
+  device count wall time, edges/s, speed-up and whether the results equal the first count's
+  (docs/sharding.md); CPU: XLA_FLAGS=--xla_force_host_platform_device_count=4."""
+  parser = argparse.ArgumentParser(prog='bench_search.py scale',
+                                   description=scale_parser.__doc__)
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--checkpoint', default=None, help='default: the shipped model')
+  parser.add_argument('--devices', default='1,2,4', help='device counts, comma separated')
+  parser.add_argument('--seeds', type=int, default=5, help='runs (rounds) per instance')
+  parser.add_argument('--budget', type=int, default=100_000, help='evaluations per run')
+  parser.add_argument('--pop-sizes', default=None,
+                      help="K values, comma separated (default: the task's tuned K); each K is "
+                      'measured on every device count')
+  parser.add_argument('--compact-fractions', default='',
+                      help='SearchConfig.compact_fractions, comma separated (default: none)')
+  parser.add_argument('--repeats', type=int, default=1,
+                      help='timed calls per device count (the median is reported)')
+  common.add_common_args(parser, out='experiments/results/bench_scale.json', instances=30,
+                         backend=True, seed=True)
+  parser.add_argument('--plot-from', default=None,
+                      help='only plot: speed-up against devices from these result JSON files '
+                      '(comma separated) into the --out stem + .png')
+  return parser
+
+
+def chunked_parser() -> argparse.ArgumentParser:
+  """Does planning in chunks (a stop check and a progress report every ~0.3 s) slow the
+  search? Programs compiled once, the same search run alternately in one call and in adaptive
+  chunks; the results must be identical."""
+  parser = argparse.ArgumentParser(prog='bench_search.py chunked',
+                                   description=chunked_parser.__doc__)
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--instances', default='0-7')
+  parser.add_argument('--budget', type=int, default=20000)
+  parser.add_argument('--rounds', type=int, default=8)
+  parser.add_argument('--out', default='experiments/results/bench_chunked_search_cpu')
+  return parser
+
+
+def buckets_parser() -> argparse.ArgumentParser:
+  """What a new instance count costs `Planner`: the programs of a new bucket (instance counts
+  are padded to the next power of two; at least 32 on an accelerator, 1 on a CPU) against the
+  search time that padding one instance to a larger bucket would add."""
+  parser = argparse.ArgumentParser(prog='bench_search.py buckets',
+                                   description=buckets_parser.__doc__)
+  parser.add_argument('--task', default='pusht-obs')
+  parser.add_argument('--budget', type=int, default=3000)
+  parser.add_argument('--buckets', default='1,2,4,32')
+  parser.add_argument('--out', default='experiments/results/bench_planner_buckets_cpu')
+  return parser
+
+
+def live_lanes_parser() -> argparse.ArgumentParser:
+  """Iteration time against live instances: the open-loop batch (instances x rounds) stepped
+  one iteration per call, with the whole batch's lanes throughout and with the compacted
+  physics sizes, to show where the loop turns latency-bound as instances finish."""
+  parser = argparse.ArgumentParser(prog='bench_search.py live-lanes',
+                                   description=live_lanes_parser.__doc__)
+  parser.add_argument('--rounds', type=int, default=5, help='runs per instance')
+  parser.add_argument('--budget', type=int, default=100_000)
+  common.add_common_args(parser, out='experiments/results/engines/live_lanes.json',
+                         instances=30, backend=True, layout=True)
+  return parser
+
+
+# the modes' flags by name (None: the default mode, throughput)
+PARSERS = {None: throughput_parser, 'scale': scale_parser, 'chunked': chunked_parser,
+           'buckets': buckets_parser, 'live-lanes': live_lanes_parser}
+
+
+def build_parser(mode: Optional[str] = None) -> argparse.ArgumentParser:
+  """A mode's flags, None: the default mode's (light modules only: a bad flag is refused before
+  JAX loads)."""
+  return PARSERS[mode]()
+
+
+def split_mode(argv: Sequence[str]) -> Tuple[Optional[str], List[str]]:
+  """The mode a command line names first (None: the default mode) and the mode's arguments."""
+  if argv[:1] and argv[0] in PARSERS:
+    return argv[0], list(argv[1:])
+  return None, list(argv)
+
+
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+  """The flags of the mode a command line names (else of the default mode), parsed."""
+  mode, rest = split_mode(argv)
+  return build_parser(mode).parse_args(rest)
+
+
+if __name__ == '__main__':
+  parse_args(sys.argv[1:])  # bad flags refused before the heavy imports below
+
+# pylint: disable=wrong-import-position
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import open_loop  # noqa: E402
+import stats  # noqa: E402
+from pachs_jax import envs, planner  # noqa: E402
+from pachs_jax.runtime import programs, sharding  # noqa: E402
+from pachs_jax.sac import actor_critic as ac_lib  # noqa: E402
+from pachs_jax.search import pachs  # noqa: E402
+from pachs_jax.search.checks import instance_keys  # noqa: E402
+from pachs_jax.search.memory import tree_bytes  # noqa: E402
+from pachs_jax.search.result import StopReason  # noqa: E402
+# pylint: enable=wrong-import-position
 
 
 def untrained_model(env, hidden=(256, 256, 256), seed=0) -> ac_lib.SacActorCritic:
@@ -75,27 +200,8 @@ def peak_memory_bytes(device=None):
 
 
 def throughput(argv):
-  """Search throughput against raw batched env steps at the same batch (the default mode)."""
-  parser = argparse.ArgumentParser(prog='bench_search.py', description=throughput.__doc__)
-  parser.add_argument('--task', default='pusht-fixed')
-  parser.add_argument('--checkpoint', default=None, help='default: the shipped model, else '
-                      'an untrained one')
-  parser.add_argument('--instances', default='1,30')
-  parser.add_argument('--pop-sizes', default='16,64,256')
-  parser.add_argument('--num-actions', type=int, default=8)
-  parser.add_argument('--budget', type=int, default=100_000)
-  parser.add_argument('--weight', type=float, default=2.0)
-  parser.add_argument('--backend', default='mjx', choices=backends.BACKENDS,
-                      help='physics of the edges (mujoco-c: MuJoCo C on the CPU threads; warp: '
-                      'MuJoCo Warp)')
-  parser.add_argument('--raw-steps', type=int, default=20,
-                      help='evaluate calls per raw-throughput measurement')
-  parser.add_argument('--cpu-threads', type=int, default=None,
-                      help='MuJoCo C threads of --backend mujoco-c (default: all CPUs)')
-  parser.add_argument('--run-to-budget', action='store_true',
-                      help='never accept a goal: every instance spends its whole budget')
-  parser.add_argument('--out', default='experiments/results/bench_search.json')
-  args = parser.parse_args(argv)
+  """The default mode, described by `throughput_parser`."""
+  args = build_parser().parse_args(argv)
 
   try:
     env, model = planner.load_model(args.task, args.checkpoint, args.backend,
@@ -160,27 +266,8 @@ def throughput(argv):
 
 
 def scale(argv):
-  """The 150-run PushT-Obs benchmark on 1, 2 and 4 devices of one host (and compaction): per
-  device count wall time, edges/s, speed-up and whether the results equal the first count's
-  (docs/sharding.md); CPU: XLA_FLAGS=--xla_force_host_platform_device_count=4."""
-  parser = argparse.ArgumentParser(prog='bench_search.py scale', description=scale.__doc__)
-  parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--checkpoint', default=None, help='default: the shipped model')
-  parser.add_argument('--devices', default='1,2,4', help='device counts, comma separated')
-  parser.add_argument('--seeds', type=int, default=5, help='runs (rounds) per instance')
-  parser.add_argument('--budget', type=int, default=100_000, help='evaluations per run')
-  parser.add_argument('--pop-sizes', default=None,
-                      help="K values, comma separated (default: the task's tuned K); each K is "
-                      'measured on every device count')
-  parser.add_argument('--compact-fractions', default='',
-                      help='SearchConfig.compact_fractions, comma separated (default: none)')
-  parser.add_argument('--repeats', type=int, default=1,
-                      help='timed calls per device count (the median is reported)')
-  common.add_common_args(parser, out='experiments/results/bench_scale.json', instances=30,
-                         backend=True, seed=True)
-  parser.add_argument('--plot-from', default=None,
-                      help='only plot: speed-up against devices from these result JSON files '
-                      '(comma separated) into the --out stem + .png')
+  """The 'scale' mode, described by `scale_parser`."""
+  parser = build_parser('scale')
   args = parser.parse_args(argv)
   if args.plot_from:
     rows = []
@@ -338,16 +425,8 @@ def run_lines(title: str, provenance: dict, settings: str) -> list:
 
 
 def chunked(argv):
-  """Does planning in chunks (a stop check and a progress report every ~0.3 s) slow the
-  search? Programs compiled once, the same search run alternately in one call and in adaptive
-  chunks; the results must be identical."""
-  parser = argparse.ArgumentParser(prog='bench_search.py chunked', description=chunked.__doc__)
-  parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--instances', default='0-7')
-  parser.add_argument('--budget', type=int, default=20000)
-  parser.add_argument('--rounds', type=int, default=8)
-  parser.add_argument('--out', default='experiments/results/bench_chunked_search_cpu')
-  args = parser.parse_args(argv)
+  """The 'chunked' mode, described by `chunked_parser`."""
+  args = build_parser('chunked').parse_args(argv)
   plans = planner.Planner(args.task, budget=args.budget, cache=False)
   instances = argtypes.instance_indices(args.instances, 30)
   starts = plans.canonical(instances)
@@ -385,15 +464,8 @@ def chunked(argv):
 
 
 def buckets(argv):
-  """What a new instance count costs `Planner`: the programs of a new bucket (instance counts
-  are padded to the next power of two; at least 32 on an accelerator, 1 on a CPU) against the
-  search time that padding one instance to a larger bucket would add."""
-  parser = argparse.ArgumentParser(prog='bench_search.py buckets', description=buckets.__doc__)
-  parser.add_argument('--task', default='pusht-obs')
-  parser.add_argument('--budget', type=int, default=3000)
-  parser.add_argument('--buckets', default='1,2,4,32')
-  parser.add_argument('--out', default='experiments/results/bench_planner_buckets_cpu')
-  args = parser.parse_args(argv)
+  """The 'buckets' mode, described by `buckets_parser`."""
+  args = build_parser('buckets').parse_args(argv)
   plans = planner.Planner(args.task, budget=args.budget, cache=False)
   starts = plans.canonical([0])
   rows = []
@@ -468,16 +540,8 @@ def live_summary(rows: list, num: int) -> list:
 
 
 def live_lanes(argv):
-  """Iteration time against live instances: the open-loop batch (instances x rounds) stepped
-  one iteration per call, with the whole batch's lanes throughout and with the compacted
-  physics sizes, to show where the loop turns latency-bound as instances finish."""
-  parser = argparse.ArgumentParser(prog='bench_search.py live-lanes',
-                                   description=live_lanes.__doc__)
-  parser.add_argument('--rounds', type=int, default=5, help='runs per instance')
-  parser.add_argument('--budget', type=int, default=100_000)
-  common.add_common_args(parser, out='experiments/results/engines/live_lanes.json',
-                         instances=30, backend=True, layout=True)
-  args = parser.parse_args(argv)
+  """The 'live-lanes' mode, described by `live_lanes_parser`."""
+  args = build_parser('live-lanes').parse_args(argv)
   env, model = planner.load_model('pusht-obs', backend=args.backend, layout=args.layout)
   config = planner.default_config('pusht-obs', budget=args.budget,
                                   **planner.accelerator_settings(False))
@@ -506,14 +570,13 @@ def live_lanes(argv):
   common.write_result(args.out, result, md)
 
 
-MODES = {'scale': scale, 'chunked': chunked, 'buckets': buckets, 'live-lanes': live_lanes}
+MODES = {None: throughput, 'scale': scale, 'chunked': chunked, 'buckets': buckets,
+         'live-lanes': live_lanes}
 
 
 def main(argv=None):
-  argv = sys.argv[1:] if argv is None else argv
-  if argv[:1] and argv[0] in MODES:
-    return MODES[argv[0]](argv[1:])
-  return throughput(argv)
+  mode, argv = split_mode(sys.argv[1:] if argv is None else argv)
+  return MODES[mode](argv)
 
 
 if __name__ == '__main__':
