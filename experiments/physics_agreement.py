@@ -234,7 +234,8 @@ def gap_push(fields: dict, steps: int = 60) -> dict:
   T-block penetration (mm)."""
   cfg = config_of('slot', fields)
   world = agreement.CWorld(cfg)
-  model = mujoco.MjModel.from_xml_string(pusht.model_xml(P()))
+  # the policy sees planar nodes (`agreement.CWorld.run`): the arm's kinematics in a planar model
+  model = mujoco.MjModel.from_xml_string(pusht.model_xml(P(t_body='planar')))
   data = mujoco.MjData(model)
   x0 = -0.155
   start = np.concatenate([pusht.HOME_QPOS, [x0, 0.165, 0.0]])
