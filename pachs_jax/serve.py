@@ -198,6 +198,8 @@ class Server:
         task.planner.canonical([0])  # the canonical instances, generated once
       keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
       nodes = jax.jit(task.session.env.initial_nodes)(keys)
+      for num in range(1, self.config.max_batch + 1):  # a request's seed split into its keys
+        jax.random.split(jax.random.PRNGKey(0), num)
       for bucket in self.buckets:  # every episode count is padded to a bucket on the host
         states = {k: np.asarray(getattr(nodes, k))[:bucket] for k in task.fields}
         self._answer(task, [(states, None, None, None)], keys[:bucket],

@@ -178,6 +178,23 @@ def test_bad_requests_get_one_line_errors_and_the_server_keeps_serving(server, p
       asking.plan(good, task='shelf')
 
 
+def test_a_warm_server_compiles_nothing_for_any_episode_count(server, planner, caplog):
+  every = jax.tree.map(np.asarray, _starts(planner, MAX_BATCH, seed=5))  # no program per count
+  starts = [jax.tree.map(lambda x, n=num: x[:n], every) for num in range(1, MAX_BATCH + 1)]
+  with client.Client(server.url) as asking:
+    asking.plan(starts[0], seed=0, reset=True)  # the client's own first calls
+    jax.config.update('jax_log_compiles', True)  # for every thread: the server plans in its own
+    try:
+      with caplog.at_level('WARNING'):
+        for num, states in enumerate(starts, 1):
+          answer = asking.plan(states, seed=num, reset=True)
+          assert answer.actions.shape[0] == num
+    finally:
+      jax.config.update('jax_log_compiles', False)
+  compiled = [r.getMessage() for r in caplog.records if 'ompil' in r.getMessage()]
+  assert not compiled, compiled
+
+
 def test_a_client_gone_mid_request_costs_nothing_else(server, planner):
   states = client.node_fields(_starts(planner, 1))
   with client.Client(server.url) as asking:
