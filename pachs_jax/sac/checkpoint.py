@@ -483,7 +483,8 @@ class TrainingCheckpoints:
     meta = dict(meta, **{STATE_HASH_KEY: params_hash(state)})
     # a disk that cannot hold the state is named before orbax starts writing: a write that
     # fails midway leaves TensorStore's callbacks printing into a closed event loop
-    need = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state))
+    need = sum(np.size(x) * np.dtype(x.dtype).itemsize if hasattr(x, 'dtype')  # no copy
+               else np.asarray(x).nbytes for x in jax.tree.leaves(state))
     free = shutil.disk_usage(self.directory).free
     if free < need:
       raise CheckpointError(f'cannot save {self._where(epoch)}: no space left on device '
