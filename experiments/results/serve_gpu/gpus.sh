@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# `pachs serve` on N GPUs of the host (Warp; the server alone on GPUs 0..N-1), bench_serve.py
+# at 10,000 evaluations per request, within one device command:
+#   N = 1: one client alone, 16 clients at once (one instance each), requests of 30 and 150
+#          episodes; then requests of 30 episodes at the task's budget (a second server);
+#   N > 1: 16 clients at once and requests of 150 episodes, the batches split over the N GPUs.
+#   OUT=dir bash experiments/results/serve_gpu/gpus.sh N [N ...]   (e.g. 1 2: one after another)
+# Each N writes s/gpus<N>/ (and s/task_budget/ for N = 1), packed as $OUT/serve_gpus<N...>.tgz
+# (serve_gpus1_2.tgz for `1 2`).
+# BUDGET_S: the whole script's limit (570 s).
+set -u
+if [ "$#" -lt 1 ]; then echo "usage: OUT=dir bash $0 N [N ...] (GPU counts)" >&2; exit 2; fi
+END=$((SECONDS + ${BUDGET_S:-570}))
+o=$OUT/s; mkdir -p "$o"
+have=$(nvidia-smi -L | wc -l)
+BENCH="python3 experiments/bench_serve.py --task pusht-obs --backend warp"
+for n in "$@"; do
+  if [ "$n" -gt "$have" ]; then echo "gpus.sh: $n GPUs asked, the host has $have" >&2; continue; fi
+  visible=$(seq -s, 0 $((n - 1)))
+  if [ "$n" = 1 ]; then clients=1,16; big=30,150; else clients=16; big=150; fi
+  CUDA_VISIBLE_DEVICES=$visible timeout $((END - SECONDS)) $BENCH --budget 10000 \
+    --clients $clients --requests 20 --max-batch 16 --big $big --devices "$n" \
+    --out "$o/gpus$n" > "$o/gpus$n.log" 2>&1
+  echo "== $n GPU(s): exit $?"; tail -n 12 "$o/gpus$n.log"
+  if [ "$n" = 1 ]; then
+    CUDA_VISIBLE_DEVICES=0 timeout $((END - SECONDS)) $BENCH --clients '' --big 30 \
+      --max-batch 32 --out "$o/task_budget" > "$o/task_budget.log" 2>&1
+    echo "== task budget: exit $?"; tail -n 6 "$o/task_budget.log"
+  fi
+done
+cd "$OUT" && tar czf "serve_gpus$(IFS=_; echo "$*").tgz" s && rm -rf s
