@@ -1,6 +1,6 @@
 """Request-to-answer latency and answers per second of `pachs serve`: one client asking alone,
 then C clients at once (threads, each its own connection and session), each request one
-canonical instance; then one request of many instances. The server runs as `pachs serve` in a
+canonical instance; then many episodes at once (requests of 30). The server runs as `pachs serve` in a
 subprocess (or at --url); each answer carries the server's search time, so the overhead of the
 transport and the gathering window is latency - search time.
 
@@ -56,15 +56,20 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
   batch = [[] for _ in range(clients)]
   go = threading.Barrier(clients + 1)
 
+  failed = []
+
   def ask(c):
     go.wait()
-    for r in range(requests):
-      began = time.perf_counter()
-      answer = connections[c].plan(instances=[(c + r) % 30], seed=r, time_limit_s=time_limit_s,
-                                   reset=True)
-      latency[c].append(time.perf_counter() - began)
-      search[c].append(answer.search_s)
-      batch[c].append(answer.batch['requests'])
+    try:
+      for r in range(requests):
+        began = time.perf_counter()
+        answer = connections[c].plan(instances=[(c + r) % 30], seed=r,
+                                     time_limit_s=time_limit_s, reset=True)
+        latency[c].append(time.perf_counter() - began)
+        search[c].append(answer.search_s)
+        batch[c].append(answer.batch['requests'])
+    except Exception as err:  # pylint: disable=broad-except
+      failed.append(f'client {c}: {type(err).__name__}: {err}')
   threads = [threading.Thread(target=ask, args=(c,), daemon=True) for c in range(clients)]
   for t in threads:
     t.start()
@@ -75,6 +80,8 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
   wall = time.perf_counter() - began
   for c in connections:
     c.close()
+  if failed:
+    raise SystemExit(f'bench_serve: {len(failed)} of {clients} clients failed; {failed[0]}')
   lat, srch = np.concatenate(latency), np.concatenate(search)
   return {'clients': clients, 'requests_each': requests, 'answers': int(lat.size),
           'wall_s': wall, 'answers_per_s': lat.size / wall,
@@ -84,25 +91,49 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
           'mean_requests_per_batch': float(np.mean(np.concatenate(batch)))}
 
 
-CANONICAL = 30  # canonical instances of a PushT task; a larger request repeats them
+CANONICAL = 30  # canonical instances of a PushT task
 
 
 def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> dict:
-  """One request of `instances` episodes (canonical instance i % 30 each), `repeats` times:
-  latency, search time and episodes whose answer reaches the goal."""
+  """`instances` episodes asked at once, `repeats` times: one request of them (at most the 30
+  canonical instances), or requests of the 30 instances from as many clients, one seed each
+  (30 instances x 5 seeds for 150: the open-loop protocol), which the server gathers into one
+  search. Latency (until the last answer), search time and episodes whose answer reaches the
+  goal."""
+  parts = [min(CANONICAL, instances - i) for i in range(0, instances, CANONICAL)]
+  connections = [client.Client(url, task) for _ in parts]
   rows = []
-  with client.Client(url, task) as asking:
+  try:
     for r in range(repeats):
+      answers = [None] * len(parts)
+      go = threading.Barrier(len(parts) + 1)
+
+      def ask(p, r=r, answers=answers, go=go):
+        go.wait()
+        answers[p] = connections[p].plan(instances=list(range(parts[p])),
+                                         seed=r * len(parts) + p, time_limit_s=time_limit_s,
+                                         reset=True)
+      threads = [threading.Thread(target=ask, args=(p,), daemon=True) for p in range(len(parts))]
+      for t in threads:
+        t.start()
+      go.wait()
       began = time.perf_counter()
-      answer = asking.plan(instances=[i % CANONICAL for i in range(instances)], seed=r,
-                           time_limit_s=time_limit_s, reset=True)
-      rows.append((time.perf_counter() - began, answer.search_s,
-                   int(np.sum(np.asarray(answer.reaches_goal)))))
-  lat, srch, found = np.array(rows).T
-  return {'instances': instances, 'repeats': repeats, 'latency_median_s': float(np.median(lat)),
-          'search_median_s': float(np.median(srch)),
+      for t in threads:
+        t.join()
+      if any(a is None for a in answers):
+        raise SystemExit(f'bench_serve: a request of the {instances} episodes got no answer')
+      rows.append((time.perf_counter() - began, max(a.search_s for a in answers),
+                   sum(int(np.sum(np.asarray(a.reaches_goal))) for a in answers),
+                   max(a.batch['requests'] for a in answers)))
+  finally:
+    for c in connections:
+      c.close()
+  lat, srch, found, together = np.array(rows).T
+  return {'instances': instances, 'requests': len(parts), 'repeats': repeats,
+          'latency_median_s': float(np.median(lat)), 'search_median_s': float(np.median(srch)),
           'overhead_median_s': float(np.median(lat - srch)),
-          'reaching_goal_median': float(np.median(found))}
+          'reaching_goal_median': float(np.median(found)),
+          'most_requests_in_one_search': int(np.max(together))}
 
 
 def main() -> None:
@@ -171,6 +202,8 @@ def main() -> None:
     say('interrupted: the phases that finished are written')
   finally:
     if process is not None:
+      if process.poll() is not None:
+        say(f'the server had exited, with code {process.returncode}')
       process.send_signal(signal.SIGTERM)
       code = process.wait(60)
   if health is None:
@@ -204,7 +237,9 @@ def save(args, health: dict, start_s, code, runs: list, big: list, finished: boo
            f'{document["provenance"]["git_revision"]}.', '',
            common.markdown_table(runs, columns) if runs else '']
   for b in big:
-    lines += ['', f'One request of {b["instances"]} episodes (median of {b["repeats"]}): '
+    lines += ['', f'{b["instances"]} episodes in {b.get("requests", 1)} request(s) at once '
+              f'(median of {b["repeats"]}; at most {b.get("most_requests_in_one_search", 1)} '
+              f'in one search): '
               f'latency {b["latency_median_s"]:.3f} s, search {b["search_median_s"]:.3f} s, '
               f'overhead {b["overhead_median_s"]:.3f} s, reaching the goal '
               f'{b["reaching_goal_median"]:g}.']

@@ -81,6 +81,31 @@ def test_single_rollout_walks_straight_to_goal(env, start):
   np.testing.assert_array_equal(np.asarray(nodes.qpos), np.asarray(result.path_nodes.qpos))
 
 
+def test_replay_matches_the_edges_applied_one_by_one(env, start):
+  # paths of lengths 0, 2, 5 and 1 in a buffer of 8 rows, the third one's last edge into the wall
+  moves = np.array([[0, 1], [1, 0], [1, 1], [1, 0], [0, 1], [1, 1], [0, 1], [1, 0]], np.float32)
+  actions = np.broadcast_to(moves, (4, 8, 2)).copy()
+  actions[1] = -1.0  # from (9, 9) towards (0, 0)
+  actions[2] = [1.0, 0.0]  # from (0, 5) down into the wall's row 5 at the fifth edge
+  length = np.array([0, 2, 5, 1], np.int32)
+  nodes, cost, valid, is_goal = jax.jit(lambda a, n: common.replay(env, start, a, n))(
+      jnp.asarray(actions), jnp.asarray(length))
+  evaluate = jax.jit(env.evaluate)
+  for i in range(4):
+    node, total, ok = take(start, i), 0.0, True  # a batch of one
+    rows = [np.asarray(node.qpos)[0]]
+    for t in range(length[i]):
+      out = evaluate(node, jnp.asarray(actions[i, t:t + 1]))
+      node, total = out.next_node, total + float(out.cost[0])
+      ok = ok and bool(out.is_valid[0])
+      rows.append(np.asarray(node.qpos)[0])
+    rows += [rows[-1]] * (8 + 1 - len(rows))  # rows past the path repeat its last state
+    np.testing.assert_array_equal(np.asarray(nodes.qpos)[i], np.stack(rows))
+    np.testing.assert_allclose(float(cost[i]), total, rtol=1e-6)
+    assert bool(valid[i]) == ok and bool(is_goal[i]) == bool(env.is_goal(node)[0])
+  assert bool(valid[1]) and not bool(valid[2])
+
+
 def test_single_rollout_stops_at_episode_length(env, start):
   result = bl.make_single_rollout(env, Greedy(env), bl.SingleRolloutConfig(max_steps=3))(start)
   assert int(result.stop_reason[0]) == StopReason.BUDGET and int(result.path_length[0]) == 3

@@ -7,23 +7,24 @@
 #   OUT=dir bash experiments/results/serve_gpu/gpus.sh N [N ...]   (e.g. 1 2: one after another)
 # Each N writes s/gpus<N>/ (and s/task_budget/ for N = 1), packed as $OUT/serve_gpus<N...>.tgz
 # (serve_gpus1_2.tgz for `1 2`).
-# BUDGET_S: the whole script's limit (570 s).
+# BUDGET_S: the whole script's limit (570 s); GPU_OFFSET=g: GPUs g..g+N-1 (beside another job).
 set -u
 if [ "$#" -lt 1 ]; then echo "usage: OUT=dir bash $0 N [N ...] (GPU counts)" >&2; exit 2; fi
 END=$((SECONDS + ${BUDGET_S:-570}))
 o=$OUT/s; mkdir -p "$o"
-have=$(nvidia-smi -L | wc -l)
+have=$(($(nvidia-smi -L | wc -l) - ${GPU_OFFSET:-0}))
+export PYTHONFAULTHANDLER=1  # a server that dies in native code says where
 BENCH="python3 experiments/bench_serve.py --task pusht-obs --backend warp"
 for n in "$@"; do
   if [ "$n" -gt "$have" ]; then echo "gpus.sh: $n GPUs asked, the host has $have" >&2; continue; fi
-  visible=$(seq -s, 0 $((n - 1)))
+  first=${GPU_OFFSET:-0}; visible=$(seq -s, $first $((first + n - 1)))
   if [ "$n" = 1 ]; then clients=1,16; big=30,150; else clients=16; big=150; fi
   CUDA_VISIBLE_DEVICES=$visible timeout $((END - SECONDS)) $BENCH --budget 10000 \
     --clients $clients --requests 20 --max-batch 16 --big $big --devices "$n" \
     --out "$o/gpus$n" > "$o/gpus$n.log" 2>&1
   echo "== $n GPU(s): exit $?"; tail -n 12 "$o/gpus$n.log"
   if [ "$n" = 1 ]; then
-    CUDA_VISIBLE_DEVICES=0 timeout $((END - SECONDS)) $BENCH --clients '' --big 30 \
+    CUDA_VISIBLE_DEVICES=$first timeout $((END - SECONDS)) $BENCH --clients '' --big 30 \
       --max-batch 32 --out "$o/task_budget" > "$o/task_budget.log" 2>&1
     echo "== task budget: exit $?"; tail -n 6 "$o/task_budget.log"
   fi

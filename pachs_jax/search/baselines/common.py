@@ -49,22 +49,29 @@ def replay(env: base.Env, start: base.NodeState, actions: jax.Array, length: jax
   is_goal [I] bool the last state satisfies the goal rule).
   """
   edge_fn = env.evaluate if edge_fn is None else edge_fn
+  num_instances, steps = actions.shape[:2]
+  length = jnp.minimum(length, steps)
+  # as many sequential edges as the longest path, not L: a path cut by a clock is short
+  last_row = jnp.max(length, initial=0)
 
-  def step(carry, xs):
-    node, cost, valid = carry
-    action, t = xs
-    out = edge_fn(node, action)
+  def body(carry):
+    t, node, cost, valid, rows = carry
+    out = edge_fn(node, actions[:, t])
     apply = t < length
     node = trees.where(apply, out.next_node, node)
     cost = cost + jnp.where(apply, out.cost, 0.0)
     valid = valid & (out.is_valid | ~apply)
-    return (node, cost, valid), node
+    rows = jax.tree.map(lambda r, n: r.at[t + 1].set(n), rows, node)
+    return t + 1, node, cost, valid, rows
 
-  num_instances, steps = actions.shape[:2]
-  init = (start, jnp.zeros((num_instances,), jnp.float32), jnp.ones((num_instances,), bool))
-  xs = (jnp.swapaxes(actions, 0, 1), jnp.arange(steps, dtype=jnp.int32))
-  (last, cost, valid), nodes = jax.lax.scan(step, init, xs)
-  nodes = jax.tree.map(lambda s, n: jnp.concatenate([s[:, None], jnp.swapaxes(n, 0, 1)], axis=1),
-                       start, nodes)
+  rows = jax.tree.map(lambda s: jnp.broadcast_to(s, (steps + 1,) + s.shape), start)
+  init = (jnp.int32(0), start, jnp.zeros((num_instances,), jnp.float32),
+          jnp.ones((num_instances,), bool), rows)
+  _, last, cost, valid, rows = jax.lax.while_loop(lambda c: c[0] < last_row, body, init)
+  # rows past the longest path repeat each path's last state, as the shorter paths' rows do
+  beyond = jnp.arange(steps + 1) > last_row
+  rows = jax.tree.map(
+      lambda r, n: jnp.where(beyond.reshape((-1,) + (1,) * n.ndim), n[None], r), rows, last)
+  nodes = jax.tree.map(lambda r: jnp.swapaxes(r, 0, 1), rows)
   return nodes, cost, valid, env.is_goal(last)
 
