@@ -393,6 +393,18 @@ CLOSED_LOOP_VARIANTS = (
 )
 
 
+# revisions whose parallel rollout answered by replaying its best path over the whole episode
+# length, not the path's own: about 1.3 s of each query on an H200 (fixed at 311dda7)
+FULL_LENGTH_REPLAY = ('9053f4e', '39f8ec9', '586b3fb')
+SLOW_ANSWER = '†'
+
+
+def rollout_label(label: str, payload: Dict) -> str:
+  """label, marked where the run's rollout answered with the full-length replay."""
+  slow = payload['provenance']['git_revision'].split('+')[0] in FULL_LENGTH_REPLAY
+  return label + (f' {SLOW_ANSWER}' if slow else '')
+
+
 def failures(summary: Dict) -> str:
   """A closed-loop run's failed episodes, and how many failed on the policy's steps where the
   run counted them ('-': a run from before the count)."""
@@ -422,7 +434,8 @@ def closed_loop_sessions(src: Sources) -> str:
       a = summary_of(p, planner)
       edges = a['evaluations_per_query_mean']
       is_pachs = planner == 'pachs'
-      rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+      shown = label if is_pachs else rollout_label(label, p)
+      rows.append([layout, shown, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
                    str(a['empty_answers']),
@@ -431,9 +444,13 @@ def closed_loop_sessions(src: Sources) -> str:
       own = f'{folder}/{layout}_{variant}-planner-world.json'
       if src.exists(own):
         b = summary_of(src.load(own), planner)
-        drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
-                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
+        shown = label if is_pachs else rollout_label(label, src.load(own))
+        alike = is_pachs or shown == rollout_label(label, p)  # both worlds' runs the same code
+        drops.append([layout, shown, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
+                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
+                      + ('' if alike else f' (without {SLOW_ANSWER})'),
+                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points' if alike
+                      else '-'])
   s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
       f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
@@ -451,8 +468,13 @@ def closed_loop_sessions(src: Sources) -> str:
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      f'{SLOW_ANSWER}: the rollout\'s answer then replayed its best path over the whole '
+      'episode length, not the path\'s own, before each query\'s clock stopped: about 1.3 s of '
+      'each query went to it (at 1 s per query it answered with one action). The runs without '
+      'the mark replay the path\'s length only.',
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
-      '"-": a run from before the count).',
+      '"-": a run from before the count; "on policy steps": failed while playing an empty '
+      'answer\'s policy action or the policy\'s fill of a short answer).',
       (f'Not run on the faithful physics: {", ".join(missing)}. ' if missing else '')
       + 'The variants that lost (the session\'s candidates, K 256, no replay): '
       '[measured and not kept](#measured-and-not-kept).'])
@@ -683,6 +705,13 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'MuJoCo C in 12, 2 and 15 episodes against 10, 11 and 17: the Ts tip although no '
      'planned edge tilts them past 20 degrees',
      '`17207d4`: `closed_loop_gpu/*_pachs-tilt20.json`'),
+    ('Closed loop: the parallel rollout\'s answer replaying its best path over the whole '
+     'episode length (the rollouts\' result before `311dda7`)',
+     'on wall 27 iterations and 6,309 edges per query, 50% solved, against 51, 9,303 and 64% '
+     'replaying the path\'s length; at 1 s per query 4% (one action an answer) against 25%. '
+     'The rollout runs of other layouts still in the tables are marked',
+     '`9053f4e`: `closed_loop_gpu/wall_parallel.json`; `586b3fb`: the 1 s run\'s log (not '
+     'committed)'),
     ('PushT-Obs with every action drawn from the actor (no uniform draws), faithful physics, '
      'open loop on one H200',
      'PACHS solved gate 39/150, wall 94/150, detour 5/150, against 143, 149 and 8 with a quarter '
@@ -784,13 +813,25 @@ def playground(src: Sources) -> str:
             rows)])
 
 
-def serving(src: Sources) -> str:
-  """`pachs serve`: answers per second and latency of one client alone and of several at once."""
-  data = src.load('serve_cpu/bench_serve.json')
-  settings, server, big = data['settings'], data['server'], data['big_request'][0]
-  rows = [[str(c['clients']), num(c['answers_per_s']), f'{num(c["speedup_vs_alone"], 2)}x',
+def bench_serve_rows(data: Dict) -> List[List[str]]:
+  """A bench_serve result's rows: clients, answers/s, speed-up, latency, search, overhead."""
+  return [[str(c['clients']), num(c['answers_per_s']), f'{num(c["speedup_vs_alone"], 2)}x',
            num(c['latency_median_s']), num(c['search_median_s']), num(c['overhead_median_s']),
            num(c['mean_requests_per_batch'], 2)] for c in data['clients']]
+
+
+def serving(src: Sources) -> str:
+  """`pachs serve`: answers per second and latency of one client alone and of several at once,
+  on a CPU and on one GPU."""
+  data = src.load('serve_cpu/bench_serve.json')
+  settings, server, big = data['settings'], data['server'], data['big_request'][0]
+  header = ['clients', 'answers/s', 'vs alone', 'latency (s)', 'search (s)', 'overhead (s)',
+            'requests per batch']
+  gpu = src.load('serve_gpu/gpus1/bench_serve.json')
+  g_settings, g_server = gpu['settings'], gpu['server']
+  g_big = ' '.join(
+      f'{b["instances"]} episodes in one request: {num(b["latency_median_s"])} s, of which the '
+      f'search {num(b["search_median_s"])} s.' for b in gpu['big_request'])
   return '\n\n'.join([
       f'A resident server ([serving.md](serving.md)) on {settings["task"]} with '
       f'{server["physics"]} physics, {settings["budget"]:,} evaluations per request, batches '
@@ -799,11 +840,16 @@ def serving(src: Sources) -> str:
       f'ready: {num(server["start_to_ready_s"], 1)} s. One request of {big["instances"]} '
       f'instances: {num(big["latency_median_s"])} s, of which the search '
       f'{num(big["search_median_s"])} s.',
-      table(['clients', 'answers/s', 'vs alone', 'latency (s)', 'search (s)', 'overhead (s)',
-             'requests per batch'], rows),
-      'On a CPU the physics cost grows with the batch, so batching gains little; batching '
-      'pays where a physics call costs about the same from one world to thousands (a GPU: '
-      '`experiments/bench_serve.py`, not measured yet).',
+      table(header, bench_serve_rows(data)),
+      'On a CPU the physics cost grows with the batch, so batching gains little.',
+      f'The same benchmark on one GPU ({gpu["provenance"]["device"]}, revision '
+      f'`{gpu["provenance"]["git_revision"]}`, `serve_gpu/gpus.sh`), {g_server["physics"]} '
+      f'physics, {g_settings["budget"]:,} evaluations per request, each client '
+      f'{g_settings["requests"]} requests; every batch then padded to one size, '
+      f'{", ".join(map(str, g_server["buckets"]))} episodes (the server now also warms the '
+      'powers of four below it, not measured on a GPU yet). Start to ready: '
+      f'{num(g_server["start_to_ready_s"], 1)} s. {g_big}',
+      table(header, bench_serve_rows(gpu)),
       served_closed_loop(src)])
 
 
@@ -991,14 +1037,17 @@ def closed_loop_headline(src: Sources) -> str:
       settings = src.load(names[0])['settings']
       pachs, rollout = (summary_of(src.load(n), planner)
                         for n, planner in zip(names, ('pachs', 'parallel')))
-      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
+      slow = rollout_label('', src.load(names[1]))
+      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}'
+                   f'{slow}')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' (gate-mirror and '
-          'wall-right held out; [results](docs/results.md#closed-loop-on-the-faithful-physics)).')
+          + ', '.join(pairs) + f' (gate-mirror and wall-right held out; {SLOW_ANSWER}: a '
+          'rollout whose answer cost it about 1.3 s of each query; '
+          '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:

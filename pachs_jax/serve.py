@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pachs_jax import planner as planner_lib
 from pachs_jax import replan, wire
 from pachs_jax.runtime import sharding
 
@@ -106,8 +107,8 @@ def one_line(err: BaseException) -> str:
 @dataclasses.dataclass
 class Task:
   """A loaded task: its planner (a `planner.Planner`, or any object with env, model, config and
-  search, and canonical(indices) for instance requests), its replanning session and what a
-  request's states must look like."""
+  search, and canonical(indices) with num_instances for instance requests), its replanning
+  session, what a request's states must look like and the canonical instances on the host."""
 
   name: str
   planner: object
@@ -115,6 +116,7 @@ class Task:
   fields: Dict[str, Tuple[Tuple[int, ...], np.dtype]]  # NodeState field -> (trailing shape, dtype)
   warm: bool = False
   remainder: Callable = None
+  instances: Optional[Dict[str, np.ndarray]] = None  # the canonical instances' fields [N, ...]
 
   @property
   def budget(self) -> int:
@@ -126,7 +128,7 @@ class Task:
             'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
             'node_fields': {k: {'shape': list(s), 'dtype': d.name}
                             for k, (s, d) in self.fields.items()},
-            'instances': hasattr(self.planner, 'canonical')}
+            'instances': self.instances is not None}
 
 
 @dataclasses.dataclass
@@ -155,7 +157,7 @@ class Server:
   """Loaded tasks, their warm programs, the client sessions and the planning thread.
 
   planners: task name -> a `planner.Planner` (or an object with env, model, config, search and
-    optionally canonical(indices)). config: a `ServeConfig`.
+    optionally canonical(indices) and num_instances). config: a `ServeConfig`.
   """
 
   def __init__(self, planners: Mapping[str, object], config: ServeConfig = ServeConfig()):
@@ -179,7 +181,12 @@ class Server:
       spec = planner.env.node_spec
       fields = {f.name: (tuple(getattr(spec, f.name).shape), np.dtype(getattr(spec, f.name).dtype))
                 for f in dataclasses.fields(spec)}
-      self.tasks[name] = Task(name, planner, session, fields, remainder=jax.jit(replan.remainder))
+      instances = None
+      if hasattr(planner, 'canonical'):  # on the host: a request's thread runs no JAX (below)
+        nodes = planner.canonical(list(range(planner.num_instances)))
+        instances = {k: np.asarray(getattr(nodes, k)) for k in fields}
+      self.tasks[name] = Task(name, planner, session, fields, remainder=jax.jit(replan.remainder),
+                              instances=instances)
     self.counters = collections.Counter()
     self._sessions: 'collections.OrderedDict[Tuple[str, str], Tuple[np.ndarray, np.ndarray]]' = \
         collections.OrderedDict()
@@ -197,8 +204,6 @@ class Server:
     env's initial states): afterwards no request compiles."""
     for task in self.tasks.values():
       began = time.perf_counter()
-      if hasattr(task.planner, 'canonical'):
-        task.planner.canonical([0])  # the canonical instances, generated once
       keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
       nodes = jax.jit(task.session.env.initial_nodes)(keys)
       for num in range(1, self.config.max_batch + 1):  # a request's seed split into its keys
@@ -310,16 +315,19 @@ class Server:
                          'indices)')
     limit = self.config.max_batch
     if instances is not None:
-      if not hasattr(task.planner, 'canonical'):
+      if task.instances is None:
         raise RequestError(f'task {task.name} has no canonical instances: send states')
       if isinstance(instances, list) and len(instances) > limit:
         raise RequestError(f'{len(instances)} episodes exceed the server\'s {limit} per request '
                            '(--max-batch)')
+      available = next(iter(task.instances.values())).shape[0]
       try:
-        nodes = task.planner.canonical(instances)
+        index = planner_lib.check_indices(instances, available)
       except ValueError as err:
         raise RequestError(one_line(err)) from None
-      return {k: np.asarray(getattr(nodes, k)) for k in task.fields}
+      # NumPy, not the planner's device arrays: JAX work beside the planning thread's can crash
+      # a GPU process inside MuJoCo Warp's callbacks
+      return {k: v[index] for k, v in task.instances.items()}
     if not isinstance(states, dict) or set(states) != set(task.fields):
       got = sorted(states) if isinstance(states, dict) else type(states).__name__
       raise RequestError(f'states must map the NodeState fields {", ".join(task.fields)}, '

@@ -263,6 +263,36 @@ def test_pachs_serve_refuses_bad_flags_in_one_line(capsys):
     assert message in err and err.count('\n') == 1
 
 
+@dataclasses.dataclass
+class CanonicalPlanner(PointMassPlanner):
+  """A planner with 6 canonical instances, counting the calls of `canonical`."""
+
+  num_instances: int = 6
+  calls: int = 0
+
+  def canonical(self, indices):
+    self.calls += 1
+    return jax.tree.map(lambda x: x[np.asarray(indices)], _starts(self, self.num_instances, 11))
+
+
+def test_instance_requests_are_the_canonical_states_taken_on_the_host(planner):
+  with_instances = CanonicalPlanner(planner.env, planner.model, planner.config, planner.search)
+  built = serve.Server({TASK: with_instances}, serve.ServeConfig(
+      max_batch=MAX_BATCH, buckets=(MAX_BATCH,), max_time_limit_s=5.0))
+  built.warm()
+  # every instance is fetched once, at start-up: a request's thread runs no JAX, which beside
+  # the planning thread's can crash a GPU process inside MuJoCo Warp's callbacks
+  assert with_instances.calls == 1
+  states = with_instances.canonical([4, 1])
+  with serve.Running(built) as running, client.Client(running.url) as asking:
+    assert asking.health()['tasks'][TASK]['instances']
+    by_index = asking.plan(instances=[4, 1], seed=3)
+    _same(by_index, asking.plan(states, seed=3, reset=True))
+    with pytest.raises(client.ServerError, match=r'instances must lie in 0\.\.5, got 6'):
+      asking.plan(instances=[6])
+  assert with_instances.calls == 2  # the test's own call only
+
+
 def test_sigterm_answers_the_request_in_flight_and_exits_0():
   process = subprocess.Popen(
       [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', 'pusht-obs', '--budget', '20000',
