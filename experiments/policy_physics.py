@@ -1,8 +1,12 @@
 """How a PushT policy pushes under each physics preset: its deterministic rollouts in MuJoCo C
 on canonical instances, counting successes, episodes ended by a tipped T or another invalid
 edge, and the stick tip's height (median over steps with the tip within 10 cm of the T).
+--presets takes `pusht.PHYSICS_PRESETS` names and physics_agreement.py's penetration
+candidates (a shorter step, a contact margin), the policy trained on one physics pushed in
+another.
 
   python experiments/policy_physics.py --presets faithful --instances 30
+  python experiments/policy_physics.py --presets 'faithful,faithful 1.25ms x40' --instances 30
 """
 
 from __future__ import annotations
@@ -38,9 +42,20 @@ from pachs_jax.envs import backends, pusht  # noqa: E402
 # pylint: enable=wrong-import-position
 
 
+def config_of(task: str, preset: str) -> pusht.PushTConfig:
+  """The task's config with a `pusht.PHYSICS_PRESETS` entry or a physics_agreement.py
+  penetration candidate (physics fields over the planar preset)."""
+  variant = task.split('-')[1]
+  if preset in pusht.PHYSICS_PRESETS:
+    return pusht.physics_preset(preset, variant=variant)
+  import physics_agreement  # pylint: disable=import-outside-toplevel
+  return pusht.PushTConfig(variant=variant, **{**physics_agreement.BASE,
+                                               **physics_agreement.PENETRATION[preset]})
+
+
 def rollouts(task: str, preset: str, instances: int, model_dir: str) -> dict:
   """The summary row of the policy of `model_dir` on `preset` (MuJoCo C, deterministic)."""
-  config = pusht.physics_preset(preset, variant=task.split('-')[1])
+  config = config_of(task, preset)
   env = backends.make_backend(pusht.PushTEnv(config), 'mujoco-c')
   _, model = planner.load_model(task, path=model_dir)
   nodes = env.canonical_instances(instances)
@@ -71,9 +86,11 @@ def main() -> None:
   parser = build_parser()
   args = parser.parse_args()
   presets = [p for p in args.presets.split(',') if p]
-  bad = sorted(set(presets) - set(pusht.PHYSICS_PRESETS))
+  import physics_agreement  # pylint: disable=import-outside-toplevel
+  known = list(pusht.PHYSICS_PRESETS) + list(physics_agreement.PENETRATION)
+  bad = sorted(set(presets) - set(known))
   if not presets or bad:
-    parser.error(f'--presets: names of {", ".join(pusht.PHYSICS_PRESETS)}; got {bad}')
+    parser.error(f'--presets: names of {", ".join(known)}; got {bad}')
   common.check_out(parser, args.out)
   common.task_instances(args.task, args.instances, parser)
   if args.model is not None and not os.path.isdir(args.model):

@@ -104,6 +104,10 @@ def test_replay_matches_the_edges_applied_one_by_one(env, start):
     np.testing.assert_allclose(float(cost[i]), total, rtol=1e-6)
     assert bool(valid[i]) == ok and bool(is_goal[i]) == bool(env.is_goal(node)[0])
   assert bool(valid[1]) and not bool(valid[2])
+  # a buffer of no rows: the starts themselves
+  nodes, cost, valid, _ = common.replay(env, start, jnp.zeros((4, 0, 2)), jnp.zeros(4, jnp.int32))
+  np.testing.assert_array_equal(np.asarray(nodes.qpos)[:, 0], np.asarray(start.qpos))
+  assert nodes.qpos.shape[1] == 1 and not np.any(np.asarray(cost)) and np.all(np.asarray(valid))
 
 
 def test_single_rollout_stops_at_episode_length(env, start):

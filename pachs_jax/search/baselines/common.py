@@ -50,6 +50,9 @@ def replay(env: base.Env, start: base.NodeState, actions: jax.Array, length: jax
   """
   edge_fn = env.evaluate if edge_fn is None else edge_fn
   num_instances, steps = actions.shape[:2]
+  if steps == 0:  # no edge to apply
+    return (jax.tree.map(lambda s: s[:, None], start), jnp.zeros((num_instances,), jnp.float32),
+            jnp.ones((num_instances,), bool), env.is_goal(start))
   length = jnp.minimum(length, steps)
   # as many sequential edges as the longest path, not L: a path cut by a clock is short
   last_row = jnp.max(length, initial=0)
