@@ -102,6 +102,8 @@ PENETRATION = {
 }
 AGREEMENT = {
     'faithful': FAITHFUL,
+    **{name: PENETRATION[name] for name in PENETRATION
+       if name.startswith('faithful') and name != 'faithful'},
     'planar': PLANAR,
     'newton 10/20': dict(solver_iterations=10, ls_iterations=20),
     '10ms x5': MANISKILL_STEP,

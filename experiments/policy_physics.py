@@ -87,7 +87,7 @@ def main() -> None:
   args = parser.parse_args()
   presets = [p for p in args.presets.split(',') if p]
   import physics_agreement  # pylint: disable=import-outside-toplevel
-  known = list(pusht.PHYSICS_PRESETS) + list(physics_agreement.PENETRATION)
+  known = list(dict.fromkeys(list(pusht.PHYSICS_PRESETS) + list(physics_agreement.PENETRATION)))
   bad = sorted(set(presets) - set(known))
   if not presets or bad:
     parser.error(f'--presets: names of {", ".join(known)}; got {bad}')

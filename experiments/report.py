@@ -349,7 +349,26 @@ def faithful(src: Sources) -> str:
       'into the block itself), 1.25 ms steps with the blocks\' solref at its 2-step limit, '
       'and both:',
       table(['physics', 'T-block max (mm)', 'stick-block max (mm)', 'control step (ms)'],
-            candidate_rows)])
+            candidate_rows),
+      'Warp against the MuJoCo C world for the candidates, measured as above but with Warp\'s '
+      'CPU kernels on a 2-core CPU (their float32 results differ from the GPU\'s, hence '
+      '"faithful" again): the T\'s position error p90 (mm) / angle error p90 (degrees) after '
+      '10 control steps:',
+      candidate_agreement(src)])
+
+
+def candidate_agreement(src: Sources) -> str:
+  """The physics candidates' Warp (CPU kernels) against MuJoCo C agreement, per layout."""
+  cells, layouts = {}, []
+  for name in ('physics/agreement_fine_cpu.json', 'physics/agreement_fine_cpu_2.json'):
+    for r in src.load(name)['rows']:
+      if r['horizon'] == 10:
+        cells.setdefault(r['physics'], {})[r['layout']] = (
+            f'{num(r["position_mm_p90"], 2)} / {num(r["angle_deg_p90"], 2)}')
+        layouts += [] if r['layout'] in layouts else [r['layout']]
+  return table(['physics'] + layouts,
+               [[name] + [row.get(layout, '-') for layout in layouts]
+                for name, row in cells.items()])
 
 
 def p_value(p: float) -> str:

@@ -6,7 +6,8 @@
 # and the last answer's remainder replayed in its search, by default) or parallel (the parallel
 # rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
 # (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
-# planners' own physics).
+# planners' own physics), nofill (a short answer is not followed by policy actions: the next
+# query comes sooner).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -38,6 +39,7 @@ run() {  # the command line of one run
       k[0-9]*) flags+=(-K "${opt#k}") ;;
       q[0-9]*) flags+=(--query-time "${opt#q}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
+      nofill) flags+=(--fill-with-policy 0) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
