@@ -165,6 +165,9 @@ class Server:
       raise ValueError('a server needs at least one task')
     self.config = config
     self.on_cpu = jax.default_backend() == 'cpu'
+    # read once here: a request's thread asks JAX nothing (see `_states`)
+    self.backend = jax.default_backend()
+    self.device = f'{self.backend}: {jax.devices()[0].device_kind} x{config.devices}'
     self.buckets = config.bucket_sizes(self.on_cpu)
     self.tasks: Dict[str, Task] = {}
     if config.devices > jax.device_count():
@@ -244,9 +247,7 @@ class Server:
     return {'ok': True, 'ready': all(t.warm for t in self.tasks.values()),
             'draining': self.draining,
             'tasks': {name: t.describe() for name, t in self.tasks.items()},
-            'backend': jax.default_backend(), 'devices': self.config.devices,
-            'device': (f'{jax.default_backend()}: {jax.devices()[0].device_kind} '
-                       f'x{self.config.devices}'),
+            'backend': self.backend, 'devices': self.config.devices, 'device': self.device,
             'buckets': list(self.buckets),
             'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
             'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
