@@ -368,9 +368,16 @@ def _serve(args: argparse.Namespace) -> int:
   websocket until SIGTERM or SIGINT (docs/serving.md)."""
   _check_listen(args.host, args.port)  # before the minutes of loading and warming
   from pachs_jax import planner, serve  # start-up path: lazy (JAX)
+  buckets = None
+  if args.buckets is not None:
+    try:
+      buckets = tuple(int(b) for b in args.buckets.split(','))
+    except ValueError:
+      raise ValueError(f'--buckets {args.buckets!r}: comma-separated powers of two, the largest '
+                       '>= --max-batch') from None
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
-                             devices=args.devices)
+                             devices=args.devices, buckets=buckets)
   import jax  # pylint: disable=import-outside-toplevel
   if args.devices > jax.device_count():  # before any model loads
     raise ValueError(f'--devices {args.devices}: this host has {jax.device_count()} '
@@ -602,6 +609,11 @@ def _main(words, prefetch=None, guard=None) -> int:
                       help='the largest time_limit_s a request may ask (default 60 s)')
   served.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the host's first N devices share each batch's search (default 1)")
+  served.add_argument('--buckets', default=None,
+                      help='the batch sizes a batch is padded to, each warmed at start-up: '
+                      'comma-separated powers of two (default: every power of two up to '
+                      "--max-batch's on a CPU, the powers of four and it on an accelerator; "
+                      'fewer: a shorter start, longer searches of small batches)')
   served.add_argument('--no-cache', action='store_true',
                       help='no persistent compilation cache')
   served.set_defaults(func=_serve)

@@ -255,7 +255,9 @@ def test_pachs_serve_refuses_bad_flags_in_one_line(capsys):
   for argv, message in ((['--task', 'nope'], "invalid choice: 'nope'"),
                         (['--max-batch', '0'], '--max-batch: must be a positive integer'),
                         (['--port', '70000'], '--port must be in 0..65535'),
-                        (['--task', 'shelf', '--layout', 'wall'], '--layout applies to')):
+                        (['--task', 'shelf', '--layout', 'wall'], '--layout applies to'),
+                        (['--buckets', '3,16'], 'buckets must be powers of two'),
+                        (['--buckets', '1,x'], "--buckets '1,x': comma-separated")):
     with pytest.raises(SystemExit) as exit_info:
       cli.main(['serve'] + argv)
     assert exit_info.value.code == 2
