@@ -67,7 +67,8 @@ def build_parser() -> argtypes.OneLineParser:
   parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
                       help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
                       "planners' own edge physics (--backend), so that plans transfer")
-  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True)
+  common.add_common_args(parser, out=None, instances=20, backend=True, seed=True, layout=True,
+                         physics=True)
   return parser
 
 
@@ -411,6 +412,7 @@ def main():
   if args.world == 'planner' and args.perturb:
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   common.check_layout(parser, args.task, args.layout)
+  common.check_physics(parser, args.task, args.physics)
   common.task_instances(args.task, args.instances, parser)
   names = [n for n in args.planners.split(',') if n]
   unknown = [n for n in names if n not in PLANNERS]
@@ -429,6 +431,8 @@ def main():
       if args.replay_remainder and not config.rollout_lanes:
         parser.error(f'--replay-remainder 1: {name} on {args.task} has no chain lanes to '
                      'replay the remainder in (rollout share 0)')
+  if args.server is not None and args.physics is not None:
+    parser.error('--physics with --server: the server plans on the physics it was started with')
   if args.server is not None and 'pachs' in names:
     from pachs_jax import client  # pylint: disable=import-outside-toplevel
     try:
@@ -441,7 +445,8 @@ def main():
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
-  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
+                                  physics=args.physics)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)

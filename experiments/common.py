@@ -16,12 +16,12 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Union
 import numpy as np
 
 from pachs_jax import argtypes, cli, envs
-from pachs_jax.envs import layouts, registry
+from pachs_jax.envs import layouts, physics_presets, registry
 
 
 def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
                     instances: Union[bool, None, int] = False, backend: bool = False,
-                    seed: bool = False, layout: bool = False) -> None:
+                    seed: bool = False, layout: bool = False, physics: bool = False) -> None:
   """Adds the flags the experiments share.
 
   --out: the results JSON (markdown and pictures go next to it); default `out`, or where None,
@@ -33,6 +33,9 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
   --seed (if `seed`): the runs' PRNG seed, default 0.
   --layout NAME (if `layout`): pusht-obs's obstacle layout (`layouts.LAYOUTS`; default
     `layouts.DEFAULT`); check it against the task with `check_layout`.
+  --physics NAME (if `physics`): a PushT task's physics preset
+    (`physics_presets.PHYSICS_PRESETS`; default: the task's); check it against the task with
+    `check_physics`.
   """
   if instances is not False:
     parser.add_argument('--instances', type=argtypes.positive_int, default=instances,
@@ -49,6 +52,10 @@ def add_common_args(parser: argparse.ArgumentParser, out: Optional[str],
     parser.add_argument('--layout', default=None, choices=layouts.NAMES,
                         help=f"pusht-obs only: the obstacle layout (default: {layouts.DEFAULT}; "
                         "'legacy': PushT-Obs of the results recorded before the layouts)")
+  if physics:
+    parser.add_argument('--physics', default=None, choices=physics_presets.NAMES,
+                        help='PushT only: the physics preset of the planners and the worlds '
+                        '(default: the task\'s, faithful)')
   parser.add_argument('--out', default=out, type=argtypes.path('a file'),
                       help='results JSON, other outputs next to it '
                       f'(default: {out or "in experiments/results/, named after the flags"})')
@@ -58,6 +65,12 @@ def check_layout(parser: argparse.ArgumentParser, task: str, layout: Optional[st
   """parser.error unless --layout is unset or the task is pusht-obs."""
   if layout is not None and task != 'pusht-obs':
     parser.error(f'--layout applies to --task pusht-obs only, not {task!r}')
+
+
+def check_physics(parser: argparse.ArgumentParser, task: str, physics: Optional[str]) -> None:
+  """--physics applies to the PushT tasks only."""
+  if physics is not None and not task.startswith('pusht'):
+    parser.error(f'--physics applies to the PushT tasks, not {task}')
 
 
 def task_label(task: str, layout: Optional[str] = None) -> str:

@@ -60,7 +60,8 @@ def build_parser() -> argtypes.OneLineParser:
                       help='cells the BFS-3D distances extend into blocked cells')
   parser.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help='shard the runs over this many local devices (no PACHS time limit)')
-  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True)
+  common.add_common_args(parser, out=None, instances=None, backend=True, seed=True, layout=True,
+                         physics=True)
   return parser
 
 
@@ -281,6 +282,7 @@ def main():
   parser = build_parser()
   args = parser.parse_args()
   common.check_layout(parser, args.task, args.layout)
+  common.check_physics(parser, args.task, args.physics)
   shelf = args.task == 'shelf'
   args.instances = common.task_instances(args.task, args.instances, parser)
   args.rounds = args.rounds or (1 if shelf else 5)
@@ -314,7 +316,8 @@ def main():
   label = common.task_label(args.task, args.layout)
   out = args.out or f'experiments/results/open_loop_{label}.json'
 
-  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout)
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
+                                  physics=args.physics)
   starts = env.canonical_instances(args.instances, seed=args.instance_seed)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: x[index], starts)

@@ -221,6 +221,8 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', ''], '--planners: none named'),
     (closed_loop, ['--planners', 'pachs,foo'], '--planners: unknown foo'),
     (closed_loop, ['--candidates', 'policy,x'], '--candidates: unknown x'),
+    (closed_loop, ['--physics', 'soft'], "argument --physics: invalid choice: 'soft'"),
+    (closed_loop, ['--server', 'ws://x', '--physics', 'planar'], '--physics with --server'),
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
     (bench_serve, ['--out', '/tmp', '--big', '-1'], "--big: episode counts must not be negative"),

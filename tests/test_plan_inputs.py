@@ -12,6 +12,7 @@ import pytest
 
 from fakes import Result, State, patch_clock
 from pachs_jax import argtypes, cli, planner
+from pachs_jax.envs import pusht
 from pachs_jax.runtime import anytime, programs, progress
 from pachs_jax.search import memory
 from pachs_jax.search.result import StopReason
@@ -238,3 +239,13 @@ def test_shelf_on_a_cpu_says_that_it_plans_instance_0_only(monkeypatch, capsys):
   assert 'A GPU plans 100 instances x 20,000 evaluations' in out.err
   assert 'planning shelf instances 0 ' in out.out
   assert 'stopped before planning' in out.err
+
+
+def test_a_physics_preset_reaches_the_planners_env_and_is_refused_where_it_does_not_apply():
+  env, _ = planner.load_model('pusht-obs', layout='wall', physics='hard-blocks')
+  want = pusht.physics_preset('hard-blocks', variant='obs', layout='wall')
+  assert env.config == want and (want.physics_dt, want.substeps) == (0.00125, 40)
+  with pytest.raises(ValueError, match="task 'shelf' has no option physics"):
+    planner.load_model('shelf', physics='planar')
+  with pytest.raises(ValueError, match="unknown physics preset 'soft'"):
+    planner.load_model('pusht-fixed', physics='soft')

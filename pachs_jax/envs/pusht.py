@@ -10,7 +10,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from pachs_jax.envs import base, coverage, kinematics, layouts, panda, warp_import
+from pachs_jax.envs import (base, coverage, kinematics, layouts, panda, physics_presets,
+                            warp_import)
 
 mjx = warp_import.quiet_mjx()  # mujoco.mjx, without its stdout line about a missing warp-lang
 
@@ -98,21 +99,8 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
   return layouts.layout(layouts.DEFAULT if config.layout is None else config.layout)
 
 
-# Named physics settings (PushTConfig fields; experiments/results/physics/ has the measurements).
-# The defaults ('faithful') are ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff
-# blocks; its T-table friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's
-# default material (0.3); 2.5 ms x 20 steps and 20 solver iterations hold the stiff contacts.
-# 'maniskill': that T at ManiSkill's own 10 ms x 5 physics (cheaper, softer blocks, worse
-# planner-world agreement). 'planar': a T that slides and turns on the table plane (joints with
-# friction loss, no gravity) at 12.5 ms x 4, soft blocks: about 9x cheaper per step in MuJoCo C,
-# the CPU tests' physics (the shipped models were not trained on it).
-PHYSICS_PRESETS = {
-    'faithful': {},
-    'maniskill': dict(physics_dt=0.01, substeps=5, solver_iterations=4, ls_iterations=8,
-                      block_solref=None, block_solimp=None),
-    'planar': dict(t_body='planar', table_friction=0.5, physics_dt=0.0125, substeps=4,
-                   solver_iterations=4, ls_iterations=8, block_solref=None, block_solimp=None),
-}
+# Named physics settings (`physics_presets`: a light module, for the scripts' flags).
+PHYSICS_PRESETS = physics_presets.PHYSICS_PRESETS
 # The PushTConfig fields that make the physics model (`physics_settings`); the others make the task.
 PHYSICS_FIELDS = ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations',
                   'table_friction', 'pusher_friction', 't_body', 't_friction_radius', 't_damping',
