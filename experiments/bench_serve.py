@@ -1,8 +1,8 @@
 """Request-to-answer latency and answers per second of `pachs serve`: one client asking alone,
 then C clients at once (threads, each its own connection and session), each request one
-canonical instance; then many episodes at once (requests of 30). The server runs as `pachs serve` in a
-subprocess (or at --url); each answer carries the server's search time, so the overhead of the
-transport and the gathering window is latency - search time.
+canonical instance; then many episodes at once (requests of 30). The server runs as `pachs
+serve` in a subprocess (or at --url); each answer carries the server's search time, so the
+overhead of the transport and the gathering window is latency - search time.
 
 GPU (the issue's settings):
   python experiments/bench_serve.py --task pusht-obs --budget 10000 --clients 1,16 \\
@@ -101,18 +101,21 @@ def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> 
   search. Latency (until the last answer), search time and episodes whose answer reaches the
   goal."""
   parts = [min(CANONICAL, instances - i) for i in range(0, instances, CANONICAL)]
-  connections = [client.Client(url, task) for _ in parts]
-  rows = []
+  connections, rows, failed = [], [], []
   try:
+    connections += [client.Client(url, task) for _ in parts]
     for r in range(repeats):
       answers = [None] * len(parts)
       go = threading.Barrier(len(parts) + 1)
 
       def ask(p, r=r, answers=answers, go=go):
         go.wait()
-        answers[p] = connections[p].plan(instances=list(range(parts[p])),
-                                         seed=r * len(parts) + p, time_limit_s=time_limit_s,
-                                         reset=True)
+        try:
+          answers[p] = connections[p].plan(instances=list(range(parts[p])),
+                                           seed=r * len(parts) + p, time_limit_s=time_limit_s,
+                                           reset=True)
+        except Exception as err:  # pylint: disable=broad-except
+          failed.append(f'request {p}: {type(err).__name__}: {err}')
       threads = [threading.Thread(target=ask, args=(p,), daemon=True) for p in range(len(parts))]
       for t in threads:
         t.start()
@@ -120,8 +123,9 @@ def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> 
       began = time.perf_counter()
       for t in threads:
         t.join()
-      if any(a is None for a in answers):
-        raise SystemExit(f'bench_serve: a request of the {instances} episodes got no answer')
+      if failed or any(a is None for a in answers):
+        raise SystemExit(f'bench_serve: {instances} episodes at once: '
+                         f'{failed[0] if failed else "a request got no answer"}')
       rows.append((time.perf_counter() - began, max(a.search_s for a in answers),
                    sum(int(np.sum(np.asarray(a.reaches_goal))) for a in answers),
                    max(a.batch['requests'] for a in answers)))

@@ -14,16 +14,14 @@ import time
 
 import common
 from pachs_jax import argtypes
-
-# sorted(pusht.PHYSICS_PRESETS), spelled out: pusht loads MuJoCo (main checks they agree)
-PHYSICS_PRESETS = ('faithful', 'maniskill', 'planar')
+from pachs_jax.envs import physics_presets
 
 
 def build_parser() -> argtypes.OneLineParser:
   """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
   parser = argtypes.OneLineParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='pusht-fixed', choices=('pusht-fixed', 'pusht-rand'))
-  parser.add_argument('--preset', default='faithful', choices=PHYSICS_PRESETS)
+  parser.add_argument('--preset', default='faithful', choices=physics_presets.NAMES)
   parser.add_argument('--engines', default='warp,mjx')
   parser.add_argument('--num-envs', type=argtypes.positive_int, default=4096)
   parser.add_argument('--physics-steps', type=argtypes.positive_int, default=20,
@@ -84,7 +82,6 @@ def write(args: argparse.Namespace, config, rows: list) -> dict:
 
 
 def main() -> None:
-  assert PHYSICS_PRESETS == tuple(sorted(pusht.PHYSICS_PRESETS)), pusht.PHYSICS_PRESETS
   parser = build_parser()
   args = parser.parse_args()
   engines = [e for e in args.engines.split(',') if e]

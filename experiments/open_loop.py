@@ -313,7 +313,7 @@ def main():
           budget=args.budget,
           **{k: v for k, v in flags.search_overrides(args).items() if v is not None}))
   common.check_out(parser, args.out)
-  label = common.task_label(args.task, args.layout)
+  label = common.task_label(args.task, args.layout) + (f'_{args.physics}' if args.physics else '')
   out = args.out or f'experiments/results/open_loop_{label}.json'
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
@@ -329,6 +329,7 @@ def main():
              'settings': {'instances': args.instances, 'rounds': args.rounds,
                           'instance_seed': args.instance_seed, 'budget': args.budget,
                           'time_limit_s': args.time_limit, 'devices': args.devices,
+                          'physics': args.physics,
                           **({'epase_weight': args.epase_weight,
                               'epase_spread_cells': args.epase_spread}
                              if 'epase' in names else {})},

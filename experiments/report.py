@@ -427,7 +427,8 @@ SLOW_ANSWER = '†'
 
 def rollout_label(label: str, payload: Dict) -> str:
   """label, marked where the run's rollout answered with the full-length replay."""
-  slow = payload['provenance']['git_revision'].split('+')[0] in FULL_LENGTH_REPLAY
+  revision = payload['provenance'].get('git_revision', '').split('+')[0]
+  slow = any(revision.startswith(r) for r in FULL_LENGTH_REPLAY if revision)
   return label + (f' {SLOW_ANSWER}' if slow else '')
 
 

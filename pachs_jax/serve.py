@@ -186,6 +186,9 @@ class Server:
                 for f in dataclasses.fields(spec)}
       instances = None
       if hasattr(planner, 'canonical'):  # on the host: a request's thread runs no JAX (below)
+        if not isinstance(getattr(planner, 'num_instances', None), int):
+          raise ValueError(f'task {name}: a planner with canonical(indices) needs '
+                           'num_instances, the size of its canonical set')
         nodes = planner.canonical(list(range(planner.num_instances)))
         instances = {k: np.asarray(getattr(nodes, k)) for k in fields}
       self.tasks[name] = Task(name, planner, session, fields, remainder=jax.jit(replan.remainder),
@@ -318,14 +321,14 @@ class Server:
     if instances is not None:
       if task.instances is None:
         raise RequestError(f'task {task.name} has no canonical instances: send states')
-      if isinstance(instances, list) and len(instances) > limit:
-        raise RequestError(f'{len(instances)} episodes exceed the server\'s {limit} per request '
-                           '(--max-batch)')
       available = next(iter(task.instances.values())).shape[0]
       try:
         index = planner_lib.check_indices(instances, available)
       except ValueError as err:
         raise RequestError(one_line(err)) from None
+      if len(index) > limit:
+        raise RequestError(f'{len(index)} episodes exceed the server\'s {limit} per request '
+                           '(--max-batch)')
       # NumPy, not the planner's device arrays: JAX work beside the planning thread's can crash
       # a GPU process inside MuJoCo Warp's callbacks
       return {k: v[index] for k, v in task.instances.items()}
@@ -424,7 +427,11 @@ class Server:
           pending.append(item)
       batch, rest, size = [], [], 0
       for r in pending:
-        if r.task == pending[0].task and size + r.episodes <= self.config.max_batch:
+        if r.episodes > self.config.max_batch:  # `check` refuses these; never kept waiting
+          self.counters['errors'] += 1
+          self._finish(r, {'ok': False, 'id': r.id, 'error': f'{r.episodes} episodes exceed '
+                           f'the server\'s {self.config.max_batch} per request (--max-batch)'})
+        elif r.task == pending[0].task and size + r.episodes <= self.config.max_batch:
           batch.append(r)
           size += r.episodes
         else:

@@ -292,6 +292,11 @@ def test_instance_requests_are_the_canonical_states_taken_on_the_host(planner):
     _same(by_index, asking.plan(states, seed=3, reset=True))
     with pytest.raises(client.ServerError, match=r'instances must lie in 0\.\.5, got 6'):
       asking.plan(instances=[6])
+    # an array of instances beyond the batch is refused as a list is; the server keeps serving
+    response = _raw(running.url, wire.pack({'type': 'plan', 'task': TASK,
+                                            'instances': np.arange(5)}))
+    assert not response['ok'] and "5 episodes exceed the server's 4" in response['error']
+    _same(asking.plan(instances=[4, 1], seed=3, reset=True), by_index)
   assert with_instances.calls == 2  # the test's own call only
 
 

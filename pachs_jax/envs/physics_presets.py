@@ -1,6 +1,6 @@
-"""PushT's named physics settings: PushTConfig fields over its defaults (light: no JAX, so
-that scripts check a preset name before loading it; experiments/results/physics/ has the
-measurements).
+"""PushT's named physics settings: PushTConfig fields over its defaults (without MuJoCo or
+the PushT model, so that scripts check a preset name before loading them;
+experiments/results/physics/ has the measurements).
 
 'faithful' (the defaults): ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff
 blocks; its T-table friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's

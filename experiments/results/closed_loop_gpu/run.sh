@@ -22,8 +22,15 @@ fi
 END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp} ${EXTRA:-}"
-[ "${WARM:-1}" = 1 ] && CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $CL --layout gate --planners pachs --instances 1 --rounds 1 \
-  --max-queries 2 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
+if [ "${WARM:-1}" = 1 ]; then  # each physics the runs use
+  physics=('')
+  case " $* " in *-hard*) physics+=(hard-blocks) ;; esac
+  for p in "${physics[@]}"; do
+    CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $CL --layout gate --planners pachs --instances 1 \
+      --rounds 1 --max-queries 2 ${p:+--physics $p} --out /tmp/warp_kernels.json \
+      >> "$o/warp_kernels.log" 2>&1
+  done
+fi
 run() {  # the command line of one run
   local layout=${1%%/*} variant=${1#*/} flags=()
   local planner=${variant%%-*} opts=${variant#*-}
@@ -49,5 +56,6 @@ run() {  # the command line of one run
        "> $o/${layout}_$variant.log 2>&1; echo $1; tail -c 900 $o/${layout}_$variant.log"
 }
 export -f run; export CL o
-bash experiments/parallel_gpus.sh --lines run "$o/logs" $((END - SECONDS)) "$@"
+left=$((END - SECONDS)); [ "$left" -gt 0 ] || left=1  # 0 would mean no limit
+bash experiments/parallel_gpus.sh --lines run "$o/logs" "$left" "$@"
 cd "$OUT" && tar czf closed_loop.tgz r && rm -rf r

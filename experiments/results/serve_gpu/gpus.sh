@@ -19,12 +19,14 @@ for n in "$@"; do
   if [ "$n" -gt "$have" ]; then echo "gpus.sh: $n GPUs asked, the host has $have" >&2; continue; fi
   first=${GPU_OFFSET:-0}; visible=$(seq -s, $first $((first + n - 1)))
   if [ "$n" = 1 ]; then clients=1,16; big=30,150; else clients=16; big=150; fi
-  CUDA_VISIBLE_DEVICES=$visible timeout $((END - SECONDS)) $BENCH --budget 10000 \
+  left=$((END - SECONDS)); [ "$left" -gt 0 ] || break  # timeout 0 would mean no limit
+  CUDA_VISIBLE_DEVICES=$visible timeout "$left" $BENCH --budget 10000 \
     --clients $clients --requests 20 --max-batch 16 --big $big --devices "$n" \
     --out "$o/gpus$n" > "$o/gpus$n.log" 2>&1
   echo "== $n GPU(s): exit $?"; tail -n 12 "$o/gpus$n.log"
-  if [ "$n" = 1 ]; then
-    CUDA_VISIBLE_DEVICES=$first timeout $((END - SECONDS)) $BENCH --clients '' --big 30 \
+  left=$((END - SECONDS))
+  if [ "$n" = 1 ] && [ "$left" -gt 0 ]; then
+    CUDA_VISIBLE_DEVICES=$first timeout "$left" $BENCH --clients '' --big 30 \
       --max-batch 32 --out "$o/task_budget" > "$o/task_budget.log" 2>&1
     echo "== task budget: exit $?"; tail -n 6 "$o/task_budget.log"
   fi

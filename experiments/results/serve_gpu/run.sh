@@ -17,11 +17,14 @@ url=''
 while [ -z "$url" ] && kill -0 $server 2>/dev/null && [ $SECONDS -lt $END ]; do
   sleep 1; url=$(grep -o 'ws://[^ ]*' "$o/server.log" | head -n 1)
 done
+left() {  # seconds left, at least 1 (timeout 0 would mean no limit)
+  local s=$((END - SECONDS)); [ "$s" -gt 0 ] && echo "$s" || echo 1
+}
 if [ -n "$url" ]; then  # the client's own JAX stays off the server's GPU
-  JAX_PLATFORMS=cpu timeout $((END - SECONDS)) python3 experiments/heldout_layouts.py \
+  JAX_PLATFORMS=cpu timeout "$(left)" python3 experiments/heldout_layouts.py \
     experiments/closed_loop.py --task pusht-obs --layout "$layout" --planners pachs \
     --server "$url" --out "$o/${layout}_pachs-served.json" > "$o/closed_loop.log" 2>&1
-  timeout $((END - SECONDS)) python3 experiments/bench_serve.py --task pusht-obs --url "$url" \
+  timeout "$(left)" python3 experiments/bench_serve.py --task pusht-obs --url "$url" \
     --clients '' --big 30 --out "$o/bench_task_budget" > "$o/bench_task_budget.log" 2>&1
 fi
 kill -TERM $server 2>/dev/null; wait $server
