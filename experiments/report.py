@@ -347,7 +347,7 @@ def faithful(src: Sources) -> str:
       'layouts; a control step\'s physics on this CPU, one thread, in ms): contact margins '
       'of 1 and 2 mm on the blocks (their contacts act from that distance, so nothing sinks '
       'into the block itself), 1.25 ms steps with the blocks\' solref at its 2-step limit, '
-      'and both:',
+      'and both ("faithful 1.25ms x40 margin2mm" is the preset `hard-blocks`):',
       table(['physics', 'T-block max (mm)', 'stick-block max (mm)', 'control step (ms)'],
             candidate_rows),
       'Warp against the MuJoCo C world for the candidates, measured as above but with Warp\'s '
@@ -416,6 +416,12 @@ CLOSED_LOOP_VARIANTS = (
     ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
+    ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
+    ('pachs-nofill-q1', 'PACHS, a short answer not followed by policy actions, 1 s per query'),
+    ('pachs-k256', 'PACHS, K 256'),
+    ('pachs-k256-q1', 'PACHS, K 256, 1 s per query'),
+    ('pachs-hard', 'PACHS, hard-blocks physics (planners and world)'),
+    ('parallel-hard', 'parallel rollout, hard-blocks physics (planners and world)'),
 )
 
 
