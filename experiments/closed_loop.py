@@ -442,7 +442,7 @@ def main():
       parser.error(f'--server {args.server!r}: no pachs serve answers there ({err})')
   perturbation = common.checked(parser, lambda: parse_perturbation(args.perturb))
   common.check_out(parser, args.out)
-  label = common.task_label(args.task, args.layout) + (f'_{args.physics}' if args.physics else '')
+  label = common.task_label(args.task, args.layout, args.physics)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,

@@ -73,10 +73,11 @@ def check_physics(parser: argparse.ArgumentParser, task: str, physics: Optional[
     parser.error(f'--physics applies to the PushT tasks, not {task}')
 
 
-def task_label(task: str, layout: Optional[str] = None) -> str:
+def task_label(task: str, layout: Optional[str] = None, physics: Optional[str] = None) -> str:
   """The name a task's result files carry: the task, or 'pusht-obs-NAME' for a layout other than
-  the default."""
-  return task if layout in (None, layouts.DEFAULT) else f'{task}-{layout}'
+  the default, and '_PRESET' for a physics preset given."""
+  label = task if layout in (None, layouts.DEFAULT) else f'{task}-{layout}'
+  return label + (f'_{physics}' if physics else '')
 
 
 def task_instances(task: str, instances: Optional[int] = None,

@@ -313,7 +313,7 @@ def main():
           budget=args.budget,
           **{k: v for k, v in flags.search_overrides(args).items() if v is not None}))
   common.check_out(parser, args.out)
-  label = common.task_label(args.task, args.layout) + (f'_{args.physics}' if args.physics else '')
+  label = common.task_label(args.task, args.layout, args.physics)
   out = args.out or f'experiments/results/open_loop_{label}.json'
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,

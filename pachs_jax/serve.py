@@ -164,9 +164,9 @@ class Server:
     if not planners:
       raise ValueError('a server needs at least one task')
     self.config = config
-    self.on_cpu = jax.default_backend() == 'cpu'
     # read once here: a request's thread asks JAX nothing (see `_states`)
     self.backend = jax.default_backend()
+    self.on_cpu = self.backend == 'cpu'
     self.device = f'{self.backend}: {jax.devices()[0].device_kind} x{config.devices}'
     self.buckets = config.bucket_sizes(self.on_cpu)
     self.tasks: Dict[str, Task] = {}
@@ -427,11 +427,7 @@ class Server:
           pending.append(item)
       batch, rest, size = [], [], 0
       for r in pending:
-        if r.episodes > self.config.max_batch:  # `check` refuses these; never kept waiting
-          self.counters['errors'] += 1
-          self._finish(r, {'ok': False, 'id': r.id, 'error': f'{r.episodes} episodes exceed '
-                           f'the server\'s {self.config.max_batch} per request (--max-batch)'})
-        elif r.task == pending[0].task and size + r.episodes <= self.config.max_batch:
+        if r.task == pending[0].task and size + r.episodes <= self.config.max_batch:
           batch.append(r)
           size += r.episodes
         else:

@@ -1,25 +1,23 @@
-"""PushT's named physics settings: PushTConfig fields over its defaults (without MuJoCo or
-the PushT model, so that scripts check a preset name before loading them;
-experiments/results/physics/ has the measurements).
-
-'faithful' (the defaults): ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff
-blocks; its T-table friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's
-default material (0.3); 2.5 ms x 20 steps and 20 solver iterations hold the stiff contacts.
-'hard-blocks': the faithful physics at 1.25 ms x 40 steps, the blocks' solref at that step's
-limit and their contacts acting from 2 mm: no block penetration beyond 2 mm over the policy's
-pushes, at twice the cost per control step (a candidate for the default).
-'maniskill': that T at ManiSkill's own 10 ms x 5 physics (cheaper, softer blocks, worse
-planner-world agreement). 'planar': a T that slides and turns on the table plane (joints with
-friction loss, no gravity) at 12.5 ms x 4, soft blocks: about 9x cheaper per step in MuJoCo C,
-the CPU tests' physics (the shipped models were not trained on it).
-"""
+"""PushT's named physics settings: PushTConfig fields over its defaults, in a module without
+MuJoCo so that scripts check a preset name before loading it (experiments/results/physics/
+has the measurements)."""
 
 PHYSICS_PRESETS = {
+    # the defaults: ManiSkill PushT-v1's free T (0.8 kg, under gravity) with stiff blocks; T-table
+    # friction 1.65 is PhysX's average of the T's material (3) and ManiSkill's default (0.3);
+    # 2.5 ms x 20 steps and 20 solver iterations hold the stiff contacts
     'faithful': {},
+    # the faithful physics at 1.25 ms x 40, the blocks' solref at that step's limit and their
+    # contacts acting from 2 mm: block penetration under 2 mm over the policy's pushes, twice
+    # the cost per control step (a candidate for the default)
     'hard-blocks': dict(physics_dt=0.00125, substeps=40, block_solref=(0.0025, 1.0),
                         block_margin=0.002),
+    # that T at ManiSkill's own 10 ms x 5 (cheaper, softer blocks, worse planner-world agreement)
     'maniskill': dict(physics_dt=0.01, substeps=5, solver_iterations=4, ls_iterations=8,
                       block_solref=None, block_solimp=None),
+    # a T that slides and turns on the table plane (joints with friction loss, no gravity) at
+    # 12.5 ms x 4, soft blocks: about 9x cheaper per step in MuJoCo C, the CPU tests' physics
+    # (the shipped models were not trained on it)
     'planar': dict(t_body='planar', table_friction=0.5, physics_dt=0.0125, substeps=4,
                    solver_iterations=4, ls_iterations=8, block_solref=None, block_solimp=None),
 }
