@@ -354,13 +354,18 @@ def faithful(src: Sources) -> str:
       'CPU kernels on a 2-core CPU (their float32 results differ from the GPU\'s, hence '
       '"faithful" again): the T\'s position error p90 (mm) / angle error p90 (degrees) after '
       '10 control steps:',
-      candidate_agreement(src)])
+      candidate_agreement(src, ('physics/agreement_fine_cpu.json',
+                                'physics/agreement_fine_cpu_2.json')),
+      'The same on the GPU (Warp\'s CUDA kernels, '
+      f'{src.load("physics/agreement_hard_gpu.json")["provenance"]["device"]}), the preset '
+      '`hard-blocks` and the default in one run:',
+      candidate_agreement(src, ('physics/agreement_hard_gpu.json',))])
 
 
-def candidate_agreement(src: Sources) -> str:
-  """The physics candidates' Warp (CPU kernels) against MuJoCo C agreement, per layout."""
+def candidate_agreement(src: Sources, names: Sequence[str]) -> str:
+  """The physics candidates' Warp against MuJoCo C agreement in the files names, per layout."""
   cells, layouts = {}, []
-  for name in ('physics/agreement_fine_cpu.json', 'physics/agreement_fine_cpu_2.json'):
+  for name in names:
     for r in src.load(name)['rows']:
       if r['horizon'] == 10:
         cells.setdefault(r['physics'], {})[r['layout']] = (
@@ -418,24 +423,9 @@ CLOSED_LOOP_VARIANTS = (
     ('parallel-q1', 'parallel rollout, 1 s per query'),
     ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
     ('pachs-nofill-q1', 'PACHS, a short answer not followed by policy actions, 1 s per query'),
-    ('pachs-k256', 'PACHS, K 256'),
-    ('pachs-k256-q1', 'PACHS, K 256, 1 s per query'),
     ('pachs-hard', 'PACHS, hard-blocks physics (planners and world)'),
     ('parallel-hard', 'parallel rollout, hard-blocks physics (planners and world)'),
 )
-
-
-# revisions whose parallel rollout answered by replaying its best path over the whole episode
-# length, not the path's own: about 1.3 s of each query on an H200 (fixed at 311dda7)
-FULL_LENGTH_REPLAY = ('9053f4e', '39f8ec9', '586b3fb')
-SLOW_ANSWER = '†'
-
-
-def rollout_label(label: str, payload: Dict) -> str:
-  """label, marked where the run's rollout answered with the full-length replay."""
-  revision = payload['provenance'].get('git_revision', '').split('+')[0]
-  slow = any(revision.startswith(r) for r in FULL_LENGTH_REPLAY if revision)
-  return label + (f' {SLOW_ANSWER}' if slow else '')
 
 
 def failures(summary: Dict) -> str:
@@ -462,13 +452,13 @@ def closed_loop_sessions(src: Sources) -> str:
       p = src.load(name)
       first = first or p
       planner = variant.split('-')[0]
-      same = f'{folder}/{layout}_parallel{variant[len(planner):]}.json'  # the rollout's run
+      clock = ''.join(f'-{o}' for o in variant.split('-')[1:] if re.fullmatch(r'q[\d.]+', o))
+      same = f'{folder}/{layout}_parallel{clock}.json'  # the rollout's run at the same clock
       rollout = summary_of(src.load(same), 'parallel') if src.exists(same) else None
       a = summary_of(p, planner)
       edges = a['evaluations_per_query_mean']
       is_pachs = planner == 'pachs'
-      shown = label if is_pachs else rollout_label(label, p)
-      rows.append([layout, shown, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+      rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
                    str(a['empty_answers']),
@@ -477,13 +467,9 @@ def closed_loop_sessions(src: Sources) -> str:
       own = f'{folder}/{layout}_{variant}-planner-world.json'
       if src.exists(own):
         b = summary_of(src.load(own), planner)
-        shown = label if is_pachs else rollout_label(label, src.load(own))
-        alike = is_pachs or shown == rollout_label(label, p)  # both worlds' runs the same code
-        drops.append([layout, shown, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
-                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
-                      + ('' if alike else f' (without {SLOW_ANSWER})'),
-                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points' if alike
-                      else '-'])
+        drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
+                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
   s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
       f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
@@ -501,10 +487,6 @@ def closed_loop_sessions(src: Sources) -> str:
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
-      f'{SLOW_ANSWER}: the rollout\'s answer then replayed its best path over the whole '
-      'episode length, not the path\'s own, before each query\'s clock stopped: about 1.3 s of '
-      'each query went to it (at 1 s per query it answered with one action). The runs without '
-      'the mark replay the path\'s length only.',
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
       '"-": a run from before the count; "on policy steps": failed while playing an empty '
       'answer\'s policy action or the policy\'s fill of a short answer).',
@@ -723,8 +705,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`19d1b29`: `closed_loop_gpu/*_pachs-remainder-policy.json`, '
      '`*_pachs-k256-remainder-policy.json`; planar: `9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop: K 256 edges per iteration (the search\'s path alone)',
-     '2.2x the edges per query; wall 90% against 92%, detour 5% against 5%',
-     '`19d1b29`: `closed_loop_gpu/wall_pachs-k256.json`, `detour_pachs-k256.json`'),
+     '1.56x the rollout\'s edges per query on wall (14,470 against 9,303; K 64: 0.62x), but fewer '
+     'episodes solved: wall 88% against 90%, gate-mirror 67% against 78%; at 1 s per query wall '
+     '54% against 66%, gate-mirror 4% against 27% (1.8 iterations a query: too shallow). Before, '
+     'wall 90% against 92%, detour 5% against 5%',
+     '`e5d802a`: `closed_loop_gpu/*_pachs-k256*.json`; `19d1b29`: '
+     '`closed_loop_gpu/wall_pachs-k256.json`, `detour_pachs-k256.json`'),
     ('Closed loop: the search\'s path alone, without the last answer\'s remainder replayed in '
      'the search (the default before)',
      'as many episodes solved (wall 92% against 89%, gate 90% against 94%, detour 5% against '
@@ -739,12 +725,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'planned edge tilts them past 20 degrees',
      '`17207d4`: `closed_loop_gpu/*_pachs-tilt20.json`'),
     ('Closed loop: the parallel rollout\'s answer replaying its best path over the whole '
-     'episode length (the rollouts\' result before `311dda7`)',
+     'episode length (the rollouts\' result before `311dda7`): about 1.3 s of each query',
      'on wall 27 iterations and 6,309 edges per query, 50% solved, against 51, 9,303 and 64% '
-     'replaying the path\'s length; at 1 s per query 4% (one action an answer) against 25%. '
-     'The rollout runs of other layouts still in the tables are marked',
-     '`9053f4e`: `closed_loop_gpu/wall_parallel.json`; `586b3fb`: the 1 s run\'s log (not '
-     'committed)'),
+     'replaying the path\'s length; at 1 s per query 4% (one action an answer) against 25%; '
+     'gate 29% against 62%, slot 30% against 53%, two-gaps 8% against 12%, gate-mirror 13% '
+     'against 23%, wall-right 26% against 42%',
+     '`9053f4e`: `closed_loop_gpu/wall_parallel.json`; `fa40569`: `closed_loop_gpu/*_parallel*.json`'),
     ('PushT-Obs with every action drawn from the actor (no uniform draws), faithful physics, '
      'open loop on one H200',
      'PACHS solved gate 39/150, wall 94/150, detour 5/150, against 143, 149 and 8 with a quarter '
@@ -1070,16 +1056,13 @@ def closed_loop_headline(src: Sources) -> str:
       settings = src.load(names[0])['settings']
       pachs, rollout = (summary_of(src.load(n), planner)
                         for n, planner in zip(names, ('pachs', 'parallel')))
-      slow = rollout_label('', src.load(names[1]))
-      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}'
-                   f'{slow}')
+      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + f' (gate-mirror and wall-right held out; {SLOW_ANSWER}: a '
-          'rollout whose answer cost it about 1.3 s of each query; '
+          + ', '.join(pairs) + ' (gate-mirror and wall-right held out; '
           '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
