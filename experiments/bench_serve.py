@@ -31,7 +31,8 @@ from pachs_jax import argtypes, client  # pylint: disable=wrong-import-position
 
 
 def start_server(args, environ: dict) -> tuple:
-  """(process, url) of `pachs serve` with the benchmark's settings, once it says it is ready."""
+  """(process, url, (s to ready, s to every bucket warm)) of `pachs serve` with the benchmark's
+  settings, once every bucket is warm (it answers from the largest before)."""
   command = [sys.executable, '-m', 'pachs_jax.cli', 'serve', '--task', args.task, '--port', '0',
              '--max-batch', str(max([args.max_batch] + args.big_sizes)), '--window-ms', str(args.window_ms),
              '--backend', args.backend, '--devices', str(args.devices)]
@@ -44,7 +45,14 @@ def start_server(args, environ: dict) -> tuple:
   if not found:
     process.kill()
     raise SystemExit(f'bench_serve: the server did not start: {line!r}')
-  return process, found.group(0), time.perf_counter() - began
+  ready_s = time.perf_counter() - began
+  with client.Client(found.group(0), args.task) as asking:  # measured with every bucket warm
+    while True:
+      health = asking.health()
+      if health['tasks'][args.task]['warm_buckets'] == health['buckets'] or process.poll():
+        break
+      time.sleep(0.2)
+  return process, found.group(0), (ready_s, time.perf_counter() - began)
 
 
 def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) -> dict:
@@ -225,7 +233,8 @@ def save(args, health: dict, start_s, code, runs: list, big: list, finished: boo
   the markdown lines."""
   document = {'provenance': common.provenance(health.get('device')), 'settings': vars(args),
               'finished': finished,
-              'server': {'start_to_ready_s': start_s, 'exit_code': code,
+              'server': {'start_to_ready_s': start_s and start_s[0],
+                         'start_to_every_bucket_warm_s': start_s and start_s[1], 'exit_code': code,
                          'backend': health['backend'], 'buckets': health['buckets'],
                          'budget': health['tasks'][args.task]['budget'],
                          'physics': health['tasks'][args.task]['physics'],
@@ -236,7 +245,9 @@ def save(args, health: dict, start_s, code, runs: list, big: list, finished: boo
   lines = [f'# pachs serve: latency and answers per second ({args.task})', '',
            f'Device: {document["provenance"]["device"]}; server devices {args.devices}; physics '
            f'{document["server"]["physics"]}; budget {document["server"]["budget"]} evaluations '
-           f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.',
+           f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.'
+           + (f' Start to ready {start_s[0]:.1f} s, to every bucket warm {start_s[1]:.1f} s.'
+              if start_s else ''),
            f'Command: `{document["provenance"]["command"]}` at '
            f'{document["provenance"]["git_revision"]}.', '',
            common.markdown_table(runs, columns) if runs else '']

@@ -865,11 +865,25 @@ def serving(src: Sources) -> str:
       f'`{gpu["provenance"]["git_revision"]}`, `serve_gpu/gpus.sh`), {g_server["physics"]} '
       f'physics, {g_settings["budget"]:,} evaluations per request, each client '
       f'{g_settings["requests"]} requests; every batch then padded to one size, '
-      f'{", ".join(map(str, g_server["buckets"]))} episodes (the server now also warms the '
-      'powers of four below it, not measured on a GPU yet). Start to ready: '
+      f'{", ".join(map(str, g_server["buckets"]))} episodes (the server\'s default buckets now '
+      'add the powers of four below it: below). Start to ready: '
       f'{num(g_server["start_to_ready_s"], 1)} s. {g_big}',
       table(header, bench_serve_rows(gpu)),
+      five_buckets(src.load('serve_gpu/gpus1_five_buckets/bench_serve.json')),
       served_closed_loop(src)])
+
+
+def five_buckets(run: Dict) -> str:
+  """The GPU server warming every bucket before it was ready (a run cut short after one client)."""
+  server, alone = run['server'], run['clients'][0]
+  return (f'The same server warming each of its buckets ({", ".join(map(str, server["buckets"]))} '
+          f'episodes) before it was ready, at revision `{run["provenance"]["git_revision"]}`: '
+          f'start to ready {num(server["start_to_ready_s"], 1)} s (beside another job on the '
+          f'host\'s second GPU; the run ended at its time limit after the one-client phase). One '
+          f'client alone, its requests now padded to 1 episode: latency '
+          f'{num(alone["latency_median_s"])} s, search {num(alone["search_median_s"])} s. The '
+          'server now answers once its largest bucket is warm and warms the others while idle '
+          '([serving.md](serving.md)); `bench_serve.py` measures after every bucket is warm.')
 
 
 def served_closed_loop(src: Sources) -> str:

@@ -392,7 +392,7 @@ def _serve(args: argparse.Namespace) -> int:
                                      cache=not args.no_cache,
                                      layout=args.layout if task == 'pusht-obs' else None)
   server = serve.Server(planners, config)
-  server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr))
+  server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr), every=args.warm_all)
   return serve.serve_forever(server, args.host, args.port, lambda url: _say(
       f'pachs serve: ready on {url} ({", ".join(tasks)}; batches of up to {args.max_batch} '
       f'episodes gathered for {args.window_ms:g} ms)'))
@@ -610,10 +610,13 @@ def _main(words, prefetch=None, guard=None) -> int:
   served.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the host's first N devices share each batch's search (default 1)")
   served.add_argument('--buckets', default=None,
-                      help='the batch sizes a batch is padded to, each warmed at start-up: '
+                      help='the batch sizes a batch is padded to (each compiled once): '
                       'comma-separated powers of two (default: every power of two up to '
                       "--max-batch's on a CPU, the powers of four and it on an accelerator; "
                       'fewer: a shorter start, longer searches of small batches)')
+  served.add_argument('--warm-all', action='store_true',
+                      help='warm every bucket before answering (default: the largest, which '
+                      'holds any batch, then the others while no request waits)')
   served.add_argument('--no-cache', action='store_true',
                       help='no persistent compilation cache')
   served.set_defaults(func=_serve)

@@ -48,9 +48,12 @@ class ServeConfig:
     power of two up to max_batch's on a CPU, where padded episodes cost their physics; on an
     accelerator the powers of four and max_batch's power of two, fewer programs to warm: there
     a padded episode costs less, but not nothing (one episode alone, padded to 256, searched
-    for 2.2 s where 30 took 3.3 s, on an H200 at 10,000 evaluations)). Each bucket is warmed at
-    start-up; a batch is padded to its bucket on the host, so a warm server compiles nothing.
+    for 2.2 s where 30 took 3.3 s, on an H200 at 10,000 evaluations)). A batch is padded on
+    the host to the smallest warm bucket that holds it, so a warm server compiles nothing.
   warm_time_s: the time limit of each warm-up query (s).
+  warm_idle: the buckets `Server.warm` left cold (`every=False`: the largest alone, which holds
+    every batch) are warmed by the planning thread while no request waits, one at a time (a
+    request that arrives meanwhile waits for that one bucket).
   devices: the first this many of `jax.devices()` share each batch's search, its episodes split
     over them (`sharding.ShardedSearch`; 1: one device, with lane compaction).
   """
@@ -62,6 +65,7 @@ class ServeConfig:
   max_sessions: int = 4096
   buckets: Optional[Tuple[int, ...]] = None
   warm_time_s: float = 0.05
+  warm_idle: bool = True
   devices: int = 1
 
   def __post_init__(self):
@@ -69,6 +73,8 @@ class ServeConfig:
       value = getattr(self, name)
       if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f'{name} must be a positive int, got {value!r}')
+    if not isinstance(self.warm_idle, bool):
+      raise ValueError(f'warm_idle must be a bool, got {self.warm_idle!r}')
     for name in ('window_s', 'max_time_limit_s', 'warm_time_s'):
       value = getattr(self, name)
       if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (
@@ -114,7 +120,8 @@ class Task:
   planner: object
   session: replan.Session
   fields: Dict[str, Tuple[Tuple[int, ...], np.dtype]]  # NodeState field -> (trailing shape, dtype)
-  warm: bool = False
+  warm: bool = False  # the largest bucket warm: any request is answered without compiling
+  warm_buckets: Tuple[int, ...] = ()  # ascending; replaced whole (health reads it elsewhere)
   remainder: Callable = None
   instances: Optional[Dict[str, np.ndarray]] = None  # the canonical instances' fields [N, ...]
 
@@ -124,7 +131,7 @@ class Task:
 
   def describe(self) -> dict:
     env = self.session.env
-    return {'warm': self.warm, 'budget': self.budget, 'horizon': int(self.session.horizon),
+    return {'warm': self.warm, 'warm_buckets': list(self.warm_buckets), 'budget': self.budget, 'horizon': int(self.session.horizon),
             'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
             'node_fields': {k: {'shape': list(s), 'dtype': d.name}
                             for k, (s, d) in self.fields.items()},
@@ -202,26 +209,39 @@ class Server:
     self._waiting = 0
     self._thread: Optional[threading.Thread] = None
     self.draining = False
+    self._say: Callable[[str], None] = lambda text: None
+    self._warm_inputs: Dict[str, Tuple[Dict[str, np.ndarray], np.ndarray]] = {}
+    self._warm_failed = set()  # (task, bucket) whose idle warm-up raised: not tried again
 
   # -- start-up ------------------------------------------------------------------------------
 
-  def warm(self, say: Callable[[str], None] = lambda text: None) -> None:
+  def warm(self, say: Callable[[str], None] = lambda text: None, every: bool = True) -> None:
     """Compiles and runs one warm-up query per task and bucket (a time-limited search from the
-    env's initial states): afterwards no request compiles."""
+    env's initial states): afterwards no request compiles. every=False: the largest bucket
+    alone (the server answers any request at once; `ServeConfig.warm_idle` warms the rest)."""
+    self._say = say
     for task in self.tasks.values():
       began = time.perf_counter()
+      for bucket in self.buckets if every else self.buckets[-1:]:
+        self._warm_bucket(task, bucket)
+        say(f'{task.name}: batch size {bucket} warm after {time.perf_counter() - began:.1f} s')
+      task.warm = True
+      say(f'{task.name}: warm ({len(task.warm_buckets)} batch size(s) '
+          f'{",".join(map(str, task.warm_buckets))}) in {time.perf_counter() - began:.1f} s')
+
+  def _warm_bucket(self, task: Task, bucket: int) -> None:
+    """One warm-up query of task padded to bucket (compiles its programs once)."""
+    if task.name not in self._warm_inputs:
       keys = jax.random.split(jax.random.PRNGKey(0), self.buckets[-1])
       nodes = jax.jit(task.session.env.initial_nodes)(keys)
       for num in range(1, self.config.max_batch + 1):  # a request's seed split into its keys
         jax.random.split(jax.random.PRNGKey(0), num)
-      for bucket in self.buckets:  # every episode count is padded to a bucket on the host
-        states = {k: np.asarray(getattr(nodes, k))[:bucket] for k in task.fields}
-        self._answer(task, [(states, None, None, None)], keys[:bucket],
-                     self.config.warm_time_s, bucket)
-        say(f'{task.name}: batch size {bucket} warm after {time.perf_counter() - began:.1f} s')
-      task.warm = True
-      say(f'{task.name}: warm ({len(self.buckets)} batch size(s) '
-          f'{",".join(map(str, self.buckets))}) in {time.perf_counter() - began:.1f} s')
+      self._warm_inputs[task.name] = (
+          {k: np.asarray(getattr(nodes, k)) for k in task.fields}, np.asarray(keys))
+    states, keys = self._warm_inputs[task.name]
+    self._answer(task, [({k: v[:bucket] for k, v in states.items()}, None, None, None)],
+                 keys[:bucket], self.config.warm_time_s, bucket)
+    task.warm_buckets = tuple(sorted({*task.warm_buckets, bucket}))
 
   def start(self) -> None:
     """Starts the planning thread."""
@@ -406,7 +426,7 @@ class Server:
     stopping = False
     while not (stopping and not pending):
       if not pending:
-        item = self._inbox.get()
+        item = self._next_request()
         if item is None:
           break
         pending.append(item)
@@ -434,6 +454,31 @@ class Server:
           rest.append(r)
       pending = rest
       self._plan_batch(batch)
+
+  def _next_request(self) -> Optional[Request]:
+    """The next request from the inbox (None: stop); while none waits, warms the warm tasks'
+    cold buckets, smallest first (`ServeConfig.warm_idle`)."""
+    while self.config.warm_idle:
+      cold = [(bucket, name) for name, task in self.tasks.items() if task.warm
+              for bucket in self.buckets if bucket not in task.warm_buckets
+              and (name, bucket) not in self._warm_failed]
+      if not cold:
+        break
+      try:
+        return self._inbox.get_nowait()
+      except queue.Empty:
+        pass
+      bucket, name = min(cold)
+      began = time.perf_counter()
+      try:
+        self._warm_bucket(self.tasks[name], bucket)
+        self._say(f'{name}: batch size {bucket} warm in {time.perf_counter() - began:.1f} s '
+                  '(while idle)')
+      except Exception as err:  # pylint: disable=broad-except  (the largest bucket still serves)
+        self._warm_failed.add((name, bucket))
+        self.counters['warm_errors'] += 1
+        self._say(f'{name}: batch size {bucket} not warmed: {one_line(err)}')
+    return self._inbox.get()
 
   def _finish(self, request: Request, response: dict, commit=lambda: None) -> None:
     with self._lock:
@@ -468,7 +513,9 @@ class Server:
   def _plan_requests(self, requests: List[Request]):
     task = self.tasks[requests[0].task]
     num = sum(r.episodes for r in requests)
-    bucket = next(b for b in self.buckets if b >= num)
+    # the smallest warm bucket that holds the batch (a cold one compiles here, then is warm)
+    bucket = next((b for b in task.warm_buckets if b >= num), None) or next(
+        b for b in self.buckets if b >= num)
     parts = []
     for r in requests:
       with self._lock:
@@ -488,6 +535,7 @@ class Server:
     limits = [r.time_limit_s for r in requests if r.time_limit_s is not None]
     began = time.perf_counter()
     answer = self._answer(task, parts, keys, min(limits) if limits else None, bucket)
+    task.warm_buckets = tuple(sorted({*task.warm_buckets, bucket}))
     search_s = time.perf_counter() - began
     self.counters['batches'] += 1
     self.counters['searches'] += 1

@@ -86,6 +86,7 @@ def test_health_says_what_is_loaded_and_warm(server):
     health = asking.health()
     assert asking.task == TASK
   assert health['ready'] and health['tasks'][TASK]['warm']
+  assert health['tasks'][TASK]['warm_buckets'] == [MAX_BATCH]
   assert health['tasks'][TASK]['budget'] == 64
   assert health['tasks'][TASK]['node_fields']['qpos'] == {'shape': [2], 'dtype': 'float32'}
   assert health['buckets'] == [MAX_BATCH] and health['max_batch'] == MAX_BATCH
@@ -105,6 +106,29 @@ def test_an_answer_through_the_server_is_the_librarys_and_keeps_the_session(serv
     # the next query starts from the session's last answer: its remainder after 3 actions
     _same(asking.plan(states, executed=[3, client.DIVERGED], seed=8), want[1])
     assert first.batch == {'requests': 1, 'episodes': 2, 'bucket': MAX_BATCH}
+
+
+def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idle(planner):
+  states = _starts(planner, 1, seed=13)
+  want = _reference(planner, states, [(5, None)])[0]
+  for idle in (False, True):
+    built = serve.Server({TASK: planner}, serve.ServeConfig(
+        max_batch=MAX_BATCH, buckets=(1, MAX_BATCH), max_time_limit_s=5.0, warm_idle=idle))
+    built.warm(every=False)
+    health = built.health()  # ready once the largest bucket, which holds any batch, is warm
+    assert health['ready'] and health['tasks'][TASK]['warm_buckets'] == [MAX_BATCH]
+    with serve.Running(built) as running, client.Client(running.url) as asking:
+      if idle:  # the planning thread warms bucket 1 while no request waits
+        deadline = time.time() + 120
+        while asking.health()['tasks'][TASK]['warm_buckets'] != [1, MAX_BATCH]:
+          assert time.time() < deadline, 'bucket 1 never warmed while idle'
+          time.sleep(0.05)
+      answer = asking.plan(states, seed=5)
+      # a cold bucket is not compiled for a request while a warm one holds it
+      assert answer.batch['bucket'] == (1 if idle else MAX_BATCH)
+      _same(answer, want)  # the answer does not depend on its bucket
+      assert asking.health()['tasks'][TASK]['warm_buckets'] == (
+          [1, MAX_BATCH] if idle else [MAX_BATCH])
 
 
 def test_concurrent_clients_are_planned_in_one_search_and_get_their_own_answers(server, planner):
