@@ -85,6 +85,7 @@ PENETRATION = {
                                           block_solref=(0.0025, 1.0), block_margin=0.001),
     'faithful 1.25ms x40 margin2mm': dict(FAITHFUL, **pusht.PHYSICS_PRESETS['hard-blocks']),
     'faithful margin2mm': dict(FAITHFUL, block_margin=0.002),
+    'faithful margin3mm': dict(FAITHFUL, block_margin=0.003),
     'planar': PLANAR,
     '10ms x5': MANISKILL_STEP,
     '10ms x5 hard': dict(**MANISKILL_STEP, **HARD),

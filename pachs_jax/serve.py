@@ -131,7 +131,8 @@ class Task:
 
   def describe(self) -> dict:
     env = self.session.env
-    return {'warm': self.warm, 'warm_buckets': list(self.warm_buckets), 'budget': self.budget, 'horizon': int(self.session.horizon),
+    return {'warm': self.warm, 'warm_buckets': list(self.warm_buckets), 'budget': self.budget,
+            'horizon': int(self.session.horizon),
             'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
             'node_fields': {k: {'shape': list(s), 'dtype': d.name}
                             for k, (s, d) in self.fields.items()},
