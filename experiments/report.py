@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import statistics
 import sys
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
@@ -347,19 +348,38 @@ def faithful(src: Sources) -> str:
       'layouts; a control step\'s physics on this CPU, one thread, in ms): contact margins '
       'of 1 and 2 mm on the blocks (their contacts act from that distance, so nothing sinks '
       'into the block itself), 1.25 ms steps with the blocks\' solref at its 2-step limit, '
-      'and both ("faithful 1.25ms x40 margin2mm" is the preset `hard-blocks`):',
+      'and both:',
       table(['physics', 'T-block max (mm)', 'stick-block max (mm)', 'control step (ms)'],
             candidate_rows),
+      'Again in one run, so that the costs compare (each physics step\'s cost is the median '
+      'over the layouts; the margin adds no cost per step): a 3 mm margin at the faithful '
+      'step is the preset `hard-blocks`, the candidate for the default:',
+      table(['physics', 'T-block max (mm)', 'stick-block max (mm)', 'control step (ms)'],
+            one_run_candidates(src.load('physics/penetration_margin3mm.json'))),
       'Warp against the MuJoCo C world for the candidates, measured as above but with Warp\'s '
       'CPU kernels on a 2-core CPU (their float32 results differ from the GPU\'s, hence '
       '"faithful" again): the T\'s position error p90 (mm) / angle error p90 (degrees) after '
       '10 control steps:',
       candidate_agreement(src, ('physics/agreement_fine_cpu.json',
-                                'physics/agreement_fine_cpu_2.json')),
+                                'physics/agreement_fine_cpu_2.json',
+                                'physics/agreement_margin3mm_cpu.json')),
       'The same on the GPU (Warp\'s CUDA kernels, '
-      f'{src.load("physics/agreement_hard_gpu.json")["provenance"]["device"]}), the preset '
-      '`hard-blocks` and the default in one run:',
+      f'{src.load("physics/agreement_hard_gpu.json")["provenance"]["device"]}), the 1.25 ms '
+      'candidate and the default in one run:',
       candidate_agreement(src, ('physics/agreement_hard_gpu.json',))])
+
+
+def one_run_candidates(run: Dict) -> List[List[str]]:
+  """Rows of the penetration candidates of one run: deepest T-block and stick-block contact over
+  its layouts and the median control step's physics (ms)."""
+  by_physics = {}
+  for r in run['rows']:
+    by_physics.setdefault(r['physics'], []).append(r)
+  return [[name, num(max(r['t_block_max_mm'] for r in rows), 2),
+           num(max(r['stick_block_max_mm'] for r in rows), 2),
+           num(statistics.median([r["mujoco_c_us_per_physics_step"]
+                                     * r['physics_steps_per_control_step'] for r in rows]) / 1000, 3)]
+          for name, rows in by_physics.items()]
 
 
 def candidate_agreement(src: Sources, names: Sequence[str]) -> str:
