@@ -387,8 +387,7 @@ def hard_blocks_screen(src: Sources) -> str:
       f'PACHS on PushT-Obs in the candidate\'s physics (planners in MuJoCo C on this CPU, '
       f'{s["instances"]} instances x {s["rounds"]} seed, {s["budget"]:,} evaluations), against '
       'the default on the same instances (two runs at a time on the two cores); a screen '
-      'before the GPU runs that would make it the '
-      'default:',
+      'before the GPU runs that would make it the default:',
       table(['layout', 'faithful: solved', 'mean cost (solved)', 'wall (s)',
              'hard-blocks: solved', 'mean cost (solved)', 'wall (s)'], rows)])
 
@@ -401,8 +400,9 @@ def one_run_candidates(run: Dict) -> List[List[str]]:
     by_physics.setdefault(r['physics'], []).append(r)
   return [[name, num(max(r['t_block_max_mm'] for r in rows), 2),
            num(max(r['stick_block_max_mm'] for r in rows), 2),
-           num(statistics.median([r["mujoco_c_us_per_physics_step"]
-                                     * r['physics_steps_per_control_step'] for r in rows]) / 1000, 3)]
+           num(statistics.median([r['mujoco_c_us_per_physics_step']
+                                  * r['physics_steps_per_control_step'] for r in rows]) / 1000,
+               3)]
           for name, rows in by_physics.items()]
 
 
@@ -751,7 +751,7 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('Closed loop: K 256 edges per iteration (the search\'s path alone)',
      '1.56x the rollout\'s edges per query on wall (14,470 against 9,303; K 64: 0.62x), but fewer '
      'episodes solved: wall 88% against 90%, gate-mirror 67% against 78%; at 1 s per query wall '
-     '54% against 66%, gate-mirror 4% against 27% (1.8 iterations a query: too shallow). Before, '
+     '54% against 66%, gate-mirror 4% against 27% (1.8-3.5 iterations a query: too shallow). Before, '
      'wall 90% against 92%, detour 5% against 5%',
      '`e5d802a`: `closed_loop_gpu/*_pachs-k256*.json`; `19d1b29`: '
      '`closed_loop_gpu/wall_pachs-k256.json`, `detour_pachs-k256.json`'),
