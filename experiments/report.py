@@ -467,6 +467,8 @@ CLOSED_LOOP_VARIANTS = (
     ('parallel-q1', 'parallel rollout, 1 s per query'),
     ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
     ('pachs-nofill-q1', 'PACHS, a short answer not followed by policy actions, 1 s per query'),
+    ('pachs-k128', 'PACHS, K 128'),
+    ('pachs-k128-q1', 'PACHS, K 128, 1 s per query'),
     ('pachs-hard', 'PACHS, hard-blocks physics (planners and world)'),
     ('parallel-hard', 'parallel rollout, hard-blocks physics (planners and world)'),
 )
@@ -505,6 +507,7 @@ def closed_loop_sessions(src: Sources) -> str:
       rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
                    if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
+                   num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
                    str(a['empty_answers']),
                    failures(a),
                    answer_counts(a) if is_pachs else '-'])
@@ -515,6 +518,7 @@ def closed_loop_sessions(src: Sources) -> str:
                       f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                       f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
   s, prov = first['settings'], first['provenance']
+  steps = summary_of(first, 'pachs')['config']['edge_steps']
   return '\n\n'.join([
       f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
       f'worlds, each planner alone on its GPU ({prov["device"]}; `{folder}/run.sh`, one line '
@@ -526,11 +530,15 @@ def closed_loop_sessions(src: Sources) -> str:
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
       'file is named by what ran (its command names the file it was written as).',
       table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
-             'iterations per query', 'empty answers', 'T tipped (failed)', 'PACHS answers'],
+             'iterations per query', 'ms per iteration', 'empty answers', 'T tipped (failed)',
+             'PACHS answers'],
             rows),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
+      f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
+      'iteration one call of one step for every copy). '
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
       '"-": a run from before the count; "on policy steps": failed while playing an empty '
       'answer\'s policy action or the policy\'s fill of a short answer).',
