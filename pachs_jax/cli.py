@@ -616,7 +616,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                       'fewer: a shorter start, longer searches of small batches)')
   served.add_argument('--warm-all', action='store_true',
                       help='warm every bucket before answering (default: the largest, which '
-                      'holds any batch, then the others while no request waits)')
+                      'holds any batch, then the others, each after 2 s without a request)')
   served.add_argument('--no-cache', action='store_true',
                       help='no persistent compilation cache')
   served.set_defaults(func=_serve)

@@ -51,9 +51,10 @@ class ServeConfig:
     for 2.2 s where 30 took 3.3 s, on an H200 at 10,000 evaluations)). A batch is padded on
     the host to the smallest warm bucket that holds it, so a warm server compiles nothing.
   warm_time_s: the time limit of each warm-up query (s).
-  warm_idle: the buckets `Server.warm` left cold (`every=False`: the largest alone, which holds
-    every batch) are warmed by the planning thread while no request waits, one at a time (a
-    request that arrives meanwhile waits for that one bucket).
+  warm_idle_s: the buckets `Server.warm` left cold (`every=False`: the largest alone, which
+    holds every batch) are warmed by the planning thread one at a time, each after this many
+    seconds without a request (None: never); a request that arrives during one waits for it,
+    so a client that asks at shorter intervals (a robot's control loop) is never held up.
   devices: the first this many of `jax.devices()` share each batch's search, its episodes split
     over them (`sharding.ShardedSearch`; 1: one device, with lane compaction).
   """
@@ -65,7 +66,7 @@ class ServeConfig:
   max_sessions: int = 4096
   buckets: Optional[Tuple[int, ...]] = None
   warm_time_s: float = 0.05
-  warm_idle: bool = True
+  warm_idle_s: Optional[float] = 2.0
   devices: int = 1
 
   def __post_init__(self):
@@ -73,8 +74,11 @@ class ServeConfig:
       value = getattr(self, name)
       if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f'{name} must be a positive int, got {value!r}')
-    if not isinstance(self.warm_idle, bool):
-      raise ValueError(f'warm_idle must be a bool, got {self.warm_idle!r}')
+    if self.warm_idle_s is not None and (
+        isinstance(self.warm_idle_s, bool) or not isinstance(self.warm_idle_s, (int, float))
+        or not math.isfinite(self.warm_idle_s) or self.warm_idle_s < 0):
+      raise ValueError(f'warm_idle_s must be a finite number of seconds >= 0 or None, got '
+                       f'{self.warm_idle_s!r}')
     for name in ('window_s', 'max_time_limit_s', 'warm_time_s'):
       value = getattr(self, name)
       if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (
@@ -219,7 +223,7 @@ class Server:
   def warm(self, say: Callable[[str], None] = lambda text: None, every: bool = True) -> None:
     """Compiles and runs one warm-up query per task and bucket (a time-limited search from the
     env's initial states): afterwards no request compiles. every=False: the largest bucket
-    alone (the server answers any request at once; `ServeConfig.warm_idle` warms the rest)."""
+    alone (the server answers any request at once; `ServeConfig.warm_idle_s` warms the rest)."""
     self._say = say
     for task in self.tasks.values():
       began = time.perf_counter()
@@ -457,16 +461,16 @@ class Server:
       self._plan_batch(batch)
 
   def _next_request(self) -> Optional[Request]:
-    """The next request from the inbox (None: stop); while none waits, warms the warm tasks'
-    cold buckets, smallest first (`ServeConfig.warm_idle`)."""
-    while self.config.warm_idle:
+    """The next request from the inbox (None: stop); after each `ServeConfig.warm_idle_s`
+    without one, warms one of the warm tasks' cold buckets, smallest first."""
+    while self.config.warm_idle_s is not None:
       cold = [(bucket, name) for name, task in self.tasks.items() if task.warm
               for bucket in self.buckets if bucket not in task.warm_buckets
               and (name, bucket) not in self._warm_failed]
       if not cold:
         break
       try:
-        return self._inbox.get_nowait()
+        return self._inbox.get(timeout=self.config.warm_idle_s)
       except queue.Empty:
         pass
       bucket, name = min(cold)

@@ -113,12 +113,13 @@ def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idl
   want = _reference(planner, states, [(5, None)])[0]
   for idle in (False, True):
     built = serve.Server({TASK: planner}, serve.ServeConfig(
-        max_batch=MAX_BATCH, buckets=(1, MAX_BATCH), max_time_limit_s=5.0, warm_idle=idle))
+        max_batch=MAX_BATCH, buckets=(1, MAX_BATCH), max_time_limit_s=5.0,
+        warm_idle_s=0.05 if idle else None))
     built.warm(every=False)
     health = built.health()  # ready once the largest bucket, which holds any batch, is warm
     assert health['ready'] and health['tasks'][TASK]['warm_buckets'] == [MAX_BATCH]
     with serve.Running(built) as running, client.Client(running.url) as asking:
-      if idle:  # the planning thread warms bucket 1 while no request waits
+      if idle:  # the planning thread warms bucket 1 once no request came for warm_idle_s
         deadline = time.time() + 120
         while asking.health()['tasks'][TASK]['warm_buckets'] != [1, MAX_BATCH]:
           assert time.time() < deadline, 'bucket 1 never warmed while idle'
@@ -129,6 +130,12 @@ def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idl
       _same(answer, want)  # the answer does not depend on its bucket
       assert asking.health()['tasks'][TASK]['warm_buckets'] == (
           [1, MAX_BATCH] if idle else [MAX_BATCH])
+
+
+def test_a_bad_idle_warm_up_setting_is_named():
+  for bad in (-1.0, float('nan'), True, '2'):
+    with pytest.raises(ValueError, match='warm_idle_s must be a finite number of seconds'):
+      serve.ServeConfig(warm_idle_s=bad)
 
 
 def test_concurrent_clients_are_planned_in_one_search_and_get_their_own_answers(server, planner):
