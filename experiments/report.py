@@ -934,8 +934,9 @@ def five_buckets(run: Dict) -> str:
           f'host\'s second GPU; the run ended at its time limit after the one-client phase). One '
           f'client alone, its requests now padded to 1 episode: latency '
           f'{num(alone["latency_median_s"])} s, search {num(alone["search_median_s"])} s. The '
-          'server now answers once its largest bucket is warm and warms the others while idle '
-          '([serving.md](serving.md)); `bench_serve.py` measures after every bucket is warm.')
+          'server now answers once its largest bucket is warm and warms the others while no '
+          'request comes ([serving.md](serving.md)); `bench_serve.py` measures after every '
+          'bucket is warm.')
 
 
 def served_closed_loop(src: Sources) -> str:
