@@ -11,9 +11,6 @@ PHYSICS_PRESETS = {
     # 2 mm over the policy's pushes at the faithful cost per step (a candidate for the default;
     # 1.25 ms x 40 steps with a 2 mm margin also held it, at twice the cost)
     'hard-blocks': dict(block_margin=0.003),
-    # that T at ManiSkill's own 10 ms x 5 (cheaper, softer blocks, worse planner-world agreement)
-    'maniskill': dict(physics_dt=0.01, substeps=5, solver_iterations=4, ls_iterations=8,
-                      block_solref=None, block_solimp=None),
     # a T that slides and turns on the table plane (joints with friction loss, no gravity) at
     # 12.5 ms x 4, soft blocks: about 9x cheaper per step in MuJoCo C, the CPU tests' physics
     # (the shipped models were not trained on it)
