@@ -21,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -49,10 +50,34 @@ def start_server(args, environ: dict) -> tuple:
   with client.Client(found.group(0), args.task) as asking:  # measured with every bucket warm
     while True:
       health = asking.health()
-      if health['tasks'][args.task]['warm_buckets'] == health['buckets'] or process.poll():
+      if (health['tasks'][args.task]['warm_buckets'] == health['buckets']
+          or process.poll() is not None):
         break
       time.sleep(0.2)
   return process, found.group(0), (ready_s, time.perf_counter() - began)
+
+
+def at_once(count: int, ask: Callable[[int], None], what: str) -> float:
+  """Runs ask(0), ..., ask(count - 1) in threads released together; the seconds from their
+  release until the last returned. SystemExit naming the first failure (what: 'client', ...)."""
+  go, failed = threading.Barrier(count + 1), []
+
+  def run(i):
+    go.wait()
+    try:
+      ask(i)
+    except Exception as err:  # pylint: disable=broad-except
+      failed.append(f'{what} {i}: {type(err).__name__}: {err}')
+  threads = [threading.Thread(target=run, args=(i,), daemon=True) for i in range(count)]
+  for t in threads:
+    t.start()
+  go.wait()
+  began = time.perf_counter()
+  for t in threads:
+    t.join()
+  if failed:
+    raise SystemExit(f'bench_serve: {len(failed)} of {count} {what}s failed; {failed[0]}')
+  return time.perf_counter() - began
 
 
 def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) -> dict:
@@ -62,34 +87,20 @@ def run_clients(url: str, task: str, clients: int, requests: int, time_limit_s) 
   latency = [[] for _ in range(clients)]
   search = [[] for _ in range(clients)]
   batch = [[] for _ in range(clients)]
-  go = threading.Barrier(clients + 1)
-
-  failed = []
 
   def ask(c):
-    go.wait()
-    try:
-      for r in range(requests):
-        began = time.perf_counter()
-        answer = connections[c].plan(instances=[(c + r) % 30], seed=r,
-                                     time_limit_s=time_limit_s, reset=True)
-        latency[c].append(time.perf_counter() - began)
-        search[c].append(answer.search_s)
-        batch[c].append(answer.batch['requests'])
-    except Exception as err:  # pylint: disable=broad-except
-      failed.append(f'client {c}: {type(err).__name__}: {err}')
-  threads = [threading.Thread(target=ask, args=(c,), daemon=True) for c in range(clients)]
-  for t in threads:
-    t.start()
-  go.wait()
-  began = time.perf_counter()
-  for t in threads:
-    t.join()
-  wall = time.perf_counter() - began
-  for c in connections:
-    c.close()
-  if failed:
-    raise SystemExit(f'bench_serve: {len(failed)} of {clients} clients failed; {failed[0]}')
+    for r in range(requests):
+      began = time.perf_counter()
+      answer = connections[c].plan(instances=[(c + r) % 30], seed=r, time_limit_s=time_limit_s,
+                                   reset=True)
+      latency[c].append(time.perf_counter() - began)
+      search[c].append(answer.search_s)
+      batch[c].append(answer.batch['requests'])
+  try:
+    wall = at_once(clients, ask, 'client')
+  finally:
+    for c in connections:
+      c.close()
   lat, srch = np.concatenate(latency), np.concatenate(search)
   return {'clients': clients, 'requests_each': requests, 'answers': int(lat.size),
           'wall_s': wall, 'answers_per_s': lat.size / wall,
@@ -109,32 +120,18 @@ def run_big(url: str, task: str, instances: int, time_limit_s, repeats: int) -> 
   search. Latency (until the last answer), search time and episodes whose answer reaches the
   goal."""
   parts = [min(CANONICAL, instances - i) for i in range(0, instances, CANONICAL)]
-  connections, rows, failed = [], [], []
+  connections, rows = [], []
   try:
     connections += [client.Client(url, task) for _ in parts]
     for r in range(repeats):
       answers = [None] * len(parts)
-      go = threading.Barrier(len(parts) + 1)
 
-      def ask(p, r=r, answers=answers, go=go):
-        go.wait()
-        try:
-          answers[p] = connections[p].plan(instances=list(range(parts[p])),
-                                           seed=r * len(parts) + p, time_limit_s=time_limit_s,
-                                           reset=True)
-        except Exception as err:  # pylint: disable=broad-except
-          failed.append(f'request {p}: {type(err).__name__}: {err}')
-      threads = [threading.Thread(target=ask, args=(p,), daemon=True) for p in range(len(parts))]
-      for t in threads:
-        t.start()
-      go.wait()
-      began = time.perf_counter()
-      for t in threads:
-        t.join()
-      if failed or any(a is None for a in answers):
-        raise SystemExit(f'bench_serve: {instances} episodes at once: '
-                         f'{failed[0] if failed else "a request got no answer"}')
-      rows.append((time.perf_counter() - began, max(a.search_s for a in answers),
+      def ask(p, r=r, answers=answers):
+        answers[p] = connections[p].plan(instances=list(range(parts[p])),
+                                         seed=r * len(parts) + p, time_limit_s=time_limit_s,
+                                         reset=True)
+      wall = at_once(len(parts), ask, 'request')
+      rows.append((wall, max(a.search_s for a in answers),
                    sum(int(np.sum(np.asarray(a.reaches_goal))) for a in answers),
                    max(a.batch['requests'] for a in answers)))
   finally:

@@ -63,6 +63,8 @@ HARD = dict(block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.0005, 0.5, 2
 STIFF = dict(physics_dt=0.0025, substeps=20, solver_iterations=20, ls_iterations=20,
              block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.001, 0.5, 2))
 FREE = dict(t_body='free', table_friction=3.0)
+# the faithful physics at half its step, the blocks' solref at that step's 2-step limit
+FINE = dict(FAITHFUL, physics_dt=0.00125, substeps=40, block_solref=(0.0025, 1.0))
 
 # name -> PushTConfig physics fields
 REFERENCE = {  # free T (world) and planar fits, ManiSkill's friction 3 and 100 Hz x 5 physics
@@ -79,12 +81,9 @@ PLANAR_FITS = {
 PENETRATION = {
     'faithful': FAITHFUL,
     'faithful margin1mm': dict(FAITHFUL, block_margin=0.001),
-    'faithful 1.25ms x40': dict(FAITHFUL, physics_dt=0.00125, substeps=40,
-                                block_solref=(0.0025, 1.0)),
-    'faithful 1.25ms x40 margin1mm': dict(FAITHFUL, physics_dt=0.00125, substeps=40,
-                                          block_solref=(0.0025, 1.0), block_margin=0.001),
-    'faithful 1.25ms x40 margin2mm': dict(FAITHFUL, physics_dt=0.00125, substeps=40,
-                                          block_solref=(0.0025, 1.0), block_margin=0.002),
+    'faithful 1.25ms x40': FINE,
+    'faithful 1.25ms x40 margin1mm': dict(FINE, block_margin=0.001),
+    'faithful 1.25ms x40 margin2mm': dict(FINE, block_margin=0.002),
     'faithful margin2mm': dict(FAITHFUL, block_margin=0.002),
     'faithful margin3mm': dict(FAITHFUL, **pusht.PHYSICS_PRESETS['hard-blocks']),
     'planar': PLANAR,

@@ -125,13 +125,17 @@ class Task:
   session: replan.Session
   fields: Dict[str, Tuple[Tuple[int, ...], np.dtype]]  # NodeState field -> (trailing shape, dtype)
   warm: bool = False  # the largest bucket warm: any request is answered without compiling
-  warm_buckets: Tuple[int, ...] = ()  # ascending; replaced whole (health reads it elsewhere)
+  warm_buckets: Tuple[int, ...] = ()  # ascending (`mark_warm`)
   remainder: Callable = None
   instances: Optional[Dict[str, np.ndarray]] = None  # the canonical instances' fields [N, ...]
 
   @property
   def budget(self) -> int:
     return int(self.session.config.budget)
+
+  def mark_warm(self, bucket: int) -> None:
+    """Records bucket as compiled (`warm_buckets` replaced whole: health reads it elsewhere)."""
+    self.warm_buckets = tuple(sorted({*self.warm_buckets, bucket}))
 
   def describe(self) -> dict:
     env = self.session.env
@@ -246,7 +250,7 @@ class Server:
     states, keys = self._warm_inputs[task.name]
     self._answer(task, [({k: v[:bucket] for k, v in states.items()}, None, None, None)],
                  keys[:bucket], self.config.warm_time_s, bucket)
-    task.warm_buckets = tuple(sorted({*task.warm_buckets, bucket}))
+    task.mark_warm(bucket)
 
   def start(self) -> None:
     """Starts the planning thread."""
@@ -540,7 +544,7 @@ class Server:
     limits = [r.time_limit_s for r in requests if r.time_limit_s is not None]
     began = time.perf_counter()
     answer = self._answer(task, parts, keys, min(limits) if limits else None, bucket)
-    task.warm_buckets = tuple(sorted({*task.warm_buckets, bucket}))
+    task.mark_warm(bucket)
     search_s = time.perf_counter() - began
     self.counters['batches'] += 1
     self.counters['searches'] += 1
