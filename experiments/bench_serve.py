@@ -39,6 +39,8 @@ def start_server(args, environ: dict) -> tuple:
              '--backend', args.backend, '--devices', str(args.devices)]
   if args.budget:
     command += ['--budget', str(args.budget)]
+  if args.buckets:
+    command += ['--buckets', args.buckets]
   began = time.perf_counter()
   process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=environ)
   line = process.stdout.readline()
@@ -161,6 +163,8 @@ def main() -> None:
   parser.add_argument('--big-repeats', type=argtypes.positive_int, default=3)
   parser.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the started server's devices (pachs serve --devices)")
+  parser.add_argument('--buckets', default=None,
+                      help="the started server's buckets (pachs serve --buckets; default its own)")
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()
