@@ -901,8 +901,11 @@ def serving(src: Sources) -> str:
   gpu = src.load('serve_gpu/gpus1/bench_serve.json')
   g_settings, g_server = gpu['settings'], gpu['server']
   g_big = ' '.join(
-      f'{b["instances"]} episodes in one request: {num(b["latency_median_s"])} s, of which the '
-      f'search {num(b["search_median_s"])} s.' for b in gpu['big_request'])
+      f'{b["instances"]} episodes at once ({b["requests"]} request(s) gathered into one '
+      f'search): {num(b["latency_median_s"])} s, of which the search '
+      f'{num(b["search_median_s"])} s.' for b in gpu['big_request'])
+  task_budget = src.load('serve_gpu/task_budget/bench_serve.json')
+  t_big = task_budget['big_request'][0]
   return '\n\n'.join([
       f'A resident server ([serving.md](serving.md)) on {settings["task"]} with '
       f'{server["physics"]} physics, {settings["budget"]:,} evaluations per request, batches '
@@ -914,15 +917,46 @@ def serving(src: Sources) -> str:
       table(header, bench_serve_rows(data)),
       'On a CPU the physics cost grows with the batch, so batching gains little.',
       f'The same benchmark on one GPU ({gpu["provenance"]["device"]}, revision '
-      f'`{gpu["provenance"]["git_revision"]}`, `serve_gpu/gpus.sh`), {g_server["physics"]} '
+      f'`{gpu["provenance"]["git_revision"]}`, `serve_gpu/gpus.sh 1`), {g_server["physics"]} '
       f'physics, {g_settings["budget"]:,} evaluations per request, each client '
-      f'{g_settings["requests"]} requests; every batch then padded to one size, '
-      f'{", ".join(map(str, g_server["buckets"]))} episodes (the server\'s default buckets now '
-      'add the powers of four below it: below). Start to ready: '
-      f'{num(g_server["start_to_ready_s"], 1)} s. {g_big}',
+      f'{g_settings["requests"]} requests, the server warming the buckets these requests use '
+      f'({", ".join(map(str, g_server["buckets"]))} episodes): start to ready '
+      f'{num(g_server["start_to_ready_s"], 1)} s, to every bucket warm '
+      f'{num(g_server["start_to_every_bucket_warm_s"], 1)} s. {g_big}',
       table(header, bench_serve_rows(gpu)),
+      f'At the task\'s budget ({task_budget["server"]["budget"]:,} evaluations per episode), '
+      f'one request of {t_big["instances"]} episodes: {num(t_big["latency_median_s"])} s, of '
+      f'which the search {num(t_big["search_median_s"])} s; '
+      f'{num(t_big["reaching_goal_median"])} of them reached the goal.',
+      serving_gpus(src),
       five_buckets(src.load('serve_gpu/gpus1_five_buckets/bench_serve.json')),
       served_closed_loop(src)])
+
+
+def serving_gpus(src: Sources) -> str:
+  """The server's batches split over 1, 2 and 4 GPUs of one host: 150 episodes at once and 16
+  clients, against one GPU."""
+  runs = {n: src.load(f'serve_gpu/gpus{n}/bench_serve.json') for n in (1, 2, 4)}
+  big = {n: next(b for b in r['big_request'] if b['instances'] == 150) for n, r in runs.items()}
+  many = {n: next(c for c in r['clients'] if c['clients'] == 16) for n, r in runs.items()}
+  alone = next(c for c in runs[1]['clients'] if c['clients'] == 1)
+  rows = [[str(n), runs[n]['provenance']['device'], num(big[n]['latency_median_s']),
+           f'{num(big[1]["latency_median_s"] / big[n]["latency_median_s"], 2)}x',
+           num(big[n]['reaching_goal_median']), num(many[n]['answers_per_s']),
+           num(many[n]['latency_median_s'])] for n in runs]
+  return '\n\n'.join([
+      'The server\'s batches split over the host\'s GPUs (`pachs serve --devices N`, '
+      '`serve_gpu/gpus.sh N`, one H200 host; the 1- and 2-GPU servers ran at once on GPUs 0 '
+      'and 1-2 of one host, the 4-GPU server alone), 10,000 evaluations per episode: 150 '
+      'episodes asked at once (30 instances x 5 seeds), and 16 clients of one episode each:',
+      table(['GPUs', 'device', '150 episodes: latency (s)', 'vs 1 GPU', 'reaching the goal',
+             '16 clients: answers/s', 'latency (s)'], rows),
+      f'On one GPU, one episode alone took {num(alone["search_median_s"])} s and 150 at once '
+      f'{num(big[1]["search_median_s"])} s: 150 times the physics for '
+      f'{num(big[1]["search_median_s"] / alone["search_median_s"], 2)} times the time. Most of '
+      'an iteration\'s cost is a fixed cost per physics call (the kernels of 8 control steps '
+      'of 20 physics steps each), which every GPU pays again when the episodes are split; '
+      'only the part that grows with the worlds is divided.'])
 
 
 def five_buckets(run: Dict) -> str:
