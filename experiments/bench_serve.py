@@ -41,6 +41,8 @@ def start_server(args, environ: dict) -> tuple:
     command += ['--budget', str(args.budget)]
   if args.buckets:
     command += ['--buckets', args.buckets]
+  if args.split:
+    command += ['--split', args.split]
   began = time.perf_counter()
   process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=environ)
   line = process.stdout.readline()
@@ -165,6 +167,8 @@ def main() -> None:
                       help="the started server's devices (pachs serve --devices)")
   parser.add_argument('--buckets', default=None,
                       help="the started server's buckets (pachs serve --buckets; default its own)")
+  parser.add_argument('--split', choices=('mesh', 'threads'), default=None,
+                      help="how the started server's devices share a batch (pachs serve --split)")
   parser.add_argument('--url', default=None, help='a running server (default: start one)')
   parser.add_argument('--out', required=True, help='directory for bench_serve.json and .md')
   args = parser.parse_args()

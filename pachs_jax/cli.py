@@ -377,7 +377,7 @@ def _serve(args: argparse.Namespace) -> int:
                        '>= --max-batch') from None
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
-                             devices=args.devices, buckets=buckets)
+                             devices=args.devices, split=args.split, buckets=buckets)
   import jax  # pylint: disable=import-outside-toplevel
   if args.devices > jax.device_count():  # before any model loads
     raise ValueError(f'--devices {args.devices}: this host has {jax.device_count()} '
@@ -609,6 +609,9 @@ def _main(words, prefetch=None, guard=None) -> int:
                       help='the largest time_limit_s a request may ask (default 60 s)')
   served.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the host's first N devices share each batch's search (default 1)")
+  served.add_argument('--split', choices=('mesh', 'threads'), default='mesh',
+                      help='how --devices share a batch: one search sharded over them (mesh, '
+                      'the default) or a part per device, each searched from its own thread')
   served.add_argument('--buckets', default=None,
                       help='the batch sizes a batch is padded to (each compiled once): '
                       'comma-separated powers of two (default: every power of two up to '

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import concurrent.futures
+import contextlib
 import dataclasses
 import functools
 import math
@@ -23,12 +25,15 @@ import numpy as np
 
 from pachs_jax import planner as planner_lib
 from pachs_jax import replan, wire
-from pachs_jax.runtime import sharding
+from pachs_jax.runtime import programs, sharding
 
 # a request's `executed` for an episode that did something else than its last answer
 DIVERGED = replan.DIVERGED
 
 REQUEST_TYPES = ('plan', 'health', 'reset')
+
+# how several devices share a batch (`ServeConfig.split`)
+SPLITS = ('mesh', 'threads')
 
 # the `SearchResult` fields [E] an answer carries in its 'search' map
 SEARCH_FIELDS = ('path_length', 'found', 'stop_reason', 'expanded', 'generated', 'invalid',
@@ -56,7 +61,12 @@ class ServeConfig:
     seconds without a request (None: never); a request that arrives during one waits for it,
     so a client that asks at shorter intervals (a robot's control loop) is never held up.
   devices: the first this many of `jax.devices()` share each batch's search, its episodes split
-    over them (`sharding.ShardedSearch`; 1: one device, with lane compaction).
+    over them (1: one device, with lane compaction).
+  split: how several devices share a batch: 'mesh', one search sharded over them
+    (`sharding.ShardedSearch`: the devices in lockstep, every lane simulated), or 'threads',
+    the batch cut into an even part per device (each padded to bucket / devices episodes),
+    each searched by its own one-device session (lane compaction) from its own host thread,
+    all at once.
   """
 
   window_s: float = 0.005
@@ -68,6 +78,7 @@ class ServeConfig:
   warm_time_s: float = 0.05
   warm_idle_s: Optional[float] = 2.0
   devices: int = 1
+  split: str = 'mesh'
 
   def __post_init__(self):
     for name in ('max_batch', 'max_queue', 'max_sessions', 'devices'):
@@ -85,6 +96,8 @@ class ServeConfig:
           name != 'window_s' and value == 0):
         raise ValueError(f'{name} must be a finite number of seconds '
                          f'{">= 0" if name == "window_s" else "> 0"}, got {value!r}')
+    if self.split not in SPLITS:
+      raise ValueError(f'split must be one of {", ".join(SPLITS)}, got {self.split!r}')
     if self.buckets is not None:
       sizes = tuple(self.buckets)
       if (not sizes or any(isinstance(b, bool) or not isinstance(b, int) or b < 1
@@ -128,6 +141,8 @@ class Task:
   warm_buckets: Tuple[int, ...] = ()  # ascending (`mark_warm`)
   remainder: Callable = None
   instances: Optional[Dict[str, np.ndarray]] = None  # the canonical instances' fields [N, ...]
+  # split 'threads': one session per device, the first `session` (else just it)
+  device_sessions: Tuple[replan.Session, ...] = ()
 
   @property
   def budget(self) -> int:
@@ -189,14 +204,25 @@ class Server:
     if config.devices > jax.device_count():
       raise ValueError(f'devices {config.devices}: this host has {jax.device_count()} '
                        f'{jax.default_backend()} device(s)')
-    self.mesh = (None if config.devices == 1
-                 else sharding.instance_mesh(jax.devices()[:config.devices]))
+    self.devices = tuple(jax.devices()[:config.devices])
+    threads = config.devices > 1 and config.split == 'threads'
+    self.mesh = (sharding.instance_mesh(self.devices)
+                 if config.devices > 1 and not threads else None)
+    # split 'threads': a host thread per device, each driving its own device's search
+    self._workers = (concurrent.futures.ThreadPoolExecutor(config.devices, 'pachs-serve-device')
+                     if threads else None)
     for name, planner in planners.items():
-      # chain lanes: the session's own search, which replays remainders
-      replays = planner.config.rollout_lanes
-      session = replan.Session(planner.env, planner.model, planner.config,
-                               None if replays else getattr(planner, 'search', None),
-                               mesh=self.mesh)
+      # chain lanes: each session's own search, which replays remainders; else the planner's
+      # (compiled for one device: the other devices' sessions get their own programs)
+      shared = None if planner.config.rollout_lanes else getattr(planner, 'search', None)
+      sessions = []
+      for i, device in enumerate(self.devices if threads else self.devices[:1]):
+        search = shared if i == 0 or shared is None else programs.Programs(
+            getattr(shared, 'search', shared))
+        with jax.default_device(device):
+          sessions.append(replan.Session(planner.env, planner.model, planner.config, search,
+                                         mesh=self.mesh))
+      session = sessions[0]
       spec = planner.env.node_spec
       fields = {f.name: (tuple(getattr(spec, f.name).shape), np.dtype(getattr(spec, f.name).dtype))
                 for f in dataclasses.fields(spec)}
@@ -208,7 +234,8 @@ class Server:
         nodes = planner.canonical(list(range(planner.num_instances)))
         instances = {k: np.asarray(getattr(nodes, k)) for k in fields}
       self.tasks[name] = Task(name, planner, session, fields, remainder=jax.jit(replan.remainder),
-                              instances=instances)
+                              instances=instances,
+                              device_sessions=tuple(sessions) if threads else ())
     self.counters = collections.Counter()
     self._sessions: 'collections.OrderedDict[Tuple[str, str], Tuple[np.ndarray, np.ndarray]]' = \
         collections.OrderedDict()
@@ -280,6 +307,7 @@ class Server:
             'draining': self.draining,
             'tasks': {name: t.describe() for name, t in self.tasks.items()},
             'backend': self.backend, 'devices': self.config.devices, 'device': self.device,
+            'split': self.config.split if self.config.devices > 1 else None,
             'buckets': list(self.buckets),
             'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
             'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
@@ -568,10 +596,11 @@ class Server:
 
   def _answer(self, task: Task, parts, keys, time_limit_s, bucket) -> Dict[str, np.ndarray]:
     """The answer fields (NumPy) of the episodes of parts, each (states, last actions, last
-    length, executed) with last None for none, planned together in a batch padded to bucket."""
-    session, horizon = task.session, task.session.horizon
+    length, executed) with last None for none, planned together in a batch padded to bucket
+    (split 'threads': an even part per device, each padded to bucket / devices, at once)."""
+    horizon = task.session.horizon
     num = sum(next(iter(p[0].values())).shape[0] for p in parts)
-    last_actions = np.zeros((bucket, horizon, session.env.action_size), np.float32)
+    last_actions = np.zeros((bucket, horizon, task.session.env.action_size), np.float32)
     last_length = np.zeros(bucket, np.int32)
     executed = np.full(bucket, DIVERGED, np.int32)
     row = 0
@@ -583,21 +612,46 @@ class Server:
       row += n
     actions, length = task.remainder(jnp.asarray(last_actions), jnp.asarray(last_length),
                                      jnp.asarray(executed))
+    episodes = {k: np.concatenate([p[0][k] for p in parts]) for k in task.fields}
+    episodes.update(actions=np.asarray(actions)[:num], length=np.asarray(length)[:num],
+                    keys=np.asarray(keys)[:num])
+    if self._workers is None:
+      return self._answer_on(task, task.session, None, episodes, time_limit_s, bucket)
+    # an even part per device (at most bucket / devices episodes: each device's warm size)
+    size = max(1, bucket // len(self.devices))
+    cuts = np.array_split(np.arange(num), min(len(self.devices), num))
+    futures = [self._workers.submit(
+        self._answer_on, task, task.device_sessions[i], self.devices[i],
+        {k: v[rows] for k, v in episodes.items()}, time_limit_s, size)
+               for i, rows in enumerate(cuts)]
+    answers = [f.result() for f in futures]
+    join = lambda *xs: np.concatenate(xs)
+    merged = jax.tree.map(join, *[{k: v for k, v in a.items() if k != 'follow_s'}
+                                  for a in answers])
+    return dict(merged, follow_s=max(a['follow_s'] for a in answers))
+
+  def _answer_on(self, task: Task, session: replan.Session, device, episodes, time_limit_s,
+                 bucket) -> Dict[str, np.ndarray]:
+    """`_answer`'s fields of episodes (NodeState fields, actions, length, keys [n, ...] NumPy)
+    planned by session on device (None: the default) in a batch padded to bucket."""
+    num = episodes['keys'].shape[0]
     # every array at the bucket's size, padded on the host with copies of the last episode that
     # do not search (`active`): one set of compiled programs serves every episode count
-    pad = lambda x: np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)])
-    fields = {k: pad(np.concatenate([p[0][k] for p in parts])) for k in task.fields}
-    states = type(session.env.node_spec)(**{k: jnp.asarray(v) for k, v in fields.items()})
-    answer = session.answer(states, actions, length, jnp.asarray(pad(np.asarray(keys))),
-                            time_limit_s, bucket, active=np.arange(bucket) < num)
-    first = lambda x: np.asarray(x)[:num]
-    return {'actions': first(answer.actions), 'length': first(answer.length),
-            'kind': first(answer.kind), 'reaches_goal': first(answer.reaches_goal),
-            'cost': first(answer.cost), 'evaluated': first(answer.search.evaluated),
-            'search': {k: first(getattr(answer.search, k)) for k in SEARCH_FIELDS},
-            'remainder': {'steps': first(session.followed['remainder'].steps),
-                          'reaches_goal': first(session.followed['remainder'].reached_goal)},
-            'follow_s': float(session.timing['follow_s'])}
+    pad = lambda x: jnp.asarray(np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)]))
+    with jax.default_device(device) if device is not None else contextlib.nullcontext():
+      states = type(session.env.node_spec)(**{k: pad(episodes[k]) for k in task.fields})
+      length = jnp.asarray(np.pad(episodes['length'], (0, bucket - num)))  # padding: none
+      answer = session.answer(states, pad(episodes['actions']), length,
+                              pad(episodes['keys']), time_limit_s, bucket,
+                              active=np.arange(bucket) < num)
+      first = lambda x: np.asarray(x)[:num]
+      return {'actions': first(answer.actions), 'length': first(answer.length),
+              'kind': first(answer.kind), 'reaches_goal': first(answer.reaches_goal),
+              'cost': first(answer.cost), 'evaluated': first(answer.search.evaluated),
+              'search': {k: first(getattr(answer.search, k)) for k in SEARCH_FIELDS},
+              'remainder': {'steps': first(session.followed['remainder'].steps),
+                            'reaches_goal': first(session.followed['remainder'].reached_goal)},
+              'follow_s': float(session.timing['follow_s'])}
 
   # -- the websocket -------------------------------------------------------------------------
 

@@ -132,10 +132,12 @@ def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idl
           [1, MAX_BATCH] if idle else [MAX_BATCH])
 
 
-def test_a_bad_idle_warm_up_setting_is_named():
+def test_bad_idle_warm_up_and_split_settings_are_named():
   for bad in (-1.0, float('nan'), True, '2'):
     with pytest.raises(ValueError, match='warm_idle_s must be a finite number of seconds'):
       serve.ServeConfig(warm_idle_s=bad)
+  with pytest.raises(ValueError, match="split must be one of mesh, threads, got 'shards'"):
+    serve.ServeConfig(split='shards')
 
 
 def test_concurrent_clients_are_planned_in_one_search_and_get_their_own_answers(server, planner):

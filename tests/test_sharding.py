@@ -162,6 +162,21 @@ FOUR_DEVICES = SETUP + textwrap.dedent('''
                                jax.numpy.zeros(6, jax.numpy.int32), keys, None, 8)
       for name in fields:
         assert np.array_equal(answer[name], np.asarray(getattr(reference, name))), name
+      # split 'threads': 6 episodes in parts of 2, 2, 1 and 1 (each padded to 8 / 4), one per
+      # device at once, each searched by its own one-device session, answer as one device does
+      threaded = serve.Server({'grid': task}, serve.ServeConfig(devices=4, split='threads',
+                                                                max_batch=8, buckets=(8,)))
+      assert threaded.health()['split'] == 'threads' and threaded.mesh is None
+      threaded.warm()  # each device's part of the bucket compiled on its device
+      assert threaded.tasks['grid'].warm_buckets == (8,)
+      answer = threaded._answer(threaded.tasks['grid'], [(states, None, None, None)], keys,
+                                None, 8)
+      for name in fields:
+        assert np.array_equal(answer[name], np.asarray(getattr(reference, name))), name
+      sessions = threaded.tasks['grid'].device_sessions
+      used = [sorted({d.id for c in s._compiled.values() for x in c.input_shardings[0]
+                      for d in jax.tree.leaves(x)[0].device_set}) for s in sessions]
+      assert used == [[0], [1], [2], [3]], used
 
     checks = {'pachs': lambda: same('pachs', sharding.plan_sharded(
         ENV, AC, NODES, CONFIG, key, mesh=mesh, search=SEARCH)),
