@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import os
 import sys
 import time
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -59,6 +60,14 @@ def build_parser() -> argtypes.OneLineParser:
                       'the search has chain lanes')
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
+  parser.add_argument('--check-copies', type=argtypes.integer(low=0), default=0,
+                      help="PACHS (PushT): each answer's first --execute actions followed from "
+                      "this many perturbed copies of its start (the T moved 1 mm and turned "
+                      "0.01 rad, standard deviations, times --check-scale) and executed only up "
+                      "to the first a copy could not take, then replanned (replan.AnswerCheck; "
+                      "default 0: no check)")
+  parser.add_argument('--check-scale', type=argtypes.positive_float, default=1.0,
+                      help='scale of the --check-copies perturbation (default 1)')
   parser.add_argument('--server', default=None,
                       help="plan 'pachs' through a running `pachs serve` at this URL (its task, "
                       'budget and settings; docs/serving.md)')
@@ -143,13 +152,15 @@ def policy_actions(env, model):
 class Asked:
   """A query's answer for `episodes.run` and the planner's row: actions [E, T, A] and length
   [E] (numpy), evaluated [E] edge evaluations, found [E] the answer ends at a goal, info: a
-  session's extras (`SessionAnswers`)."""
+  session's extras (`SessionAnswers`), safe_length [E]: the actions to execute where an
+  `AnswerCheck` ran (None: length)."""
 
   actions: np.ndarray
   length: np.ndarray
   evaluated: np.ndarray
   found: np.ndarray
   info: dict
+  safe_length: Optional[np.ndarray] = None
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
@@ -166,10 +177,15 @@ def make_query(name: str, task: str, env, model, args, num: int):
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     config = planner.default_config(task, algorithm, budget=args.budget,
                                     **flags.search_overrides(args))
+    check = None
+    if args.check_copies:
+      check = replan.AnswerCheck(functools.partial(
+          pusht.perturb_t, position_m=0.001 * args.check_scale,
+          yaw_rad=0.01 * args.check_scale), copies=args.check_copies, steps=args.execute)
     session = replan.Session(env, model, config, candidates=args.candidates,
                              replay_remainder=(None if args.replay_remainder is None
                                                else bool(args.replay_remainder)),
-                             chunk_iterations=args.chunk_iterations)
+                             chunk_iterations=args.chunk_iterations, check=check)
 
     def query(nodes, keys, executed, running):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
@@ -183,7 +199,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s'],
                'remainder_followed': 'remainder' in session.candidates,
                'remainder_steps': np.asarray(session.followed['remainder'].steps),
-               'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)})
+               'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)},
+              safe_length=answer.safe_length if check is not None else None)
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, budget=args.budget)
@@ -382,6 +399,8 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
     else:
       query_times.append(elapsed)
     lengths = np.minimum(answer.length, args.execute)
+    if answer.safe_length is not None:  # a checked answer runs to its safe length
+      lengths = np.minimum(lengths, answer.safe_length)
     empty_answers[0] += int(np.sum((lengths == 0) & running))
     by_query.append([int(running.sum()), int(np.sum(answer.found & running))])
     actions_per_query.extend(lengths[running].tolist())
@@ -400,6 +419,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'goal_answers': sum(goals for _, goals in by_query), 'goal_answers_by_query': by_query,
           'policy_fill_steps': int(log.policy_steps.sum()) - empty_answers[0],
           'failures_on_policy_steps': int(log.failed_on_policy.sum()),
+          'cut_answers': int(log.cut_answers.sum()),
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}
@@ -411,6 +431,8 @@ def main():
     args.candidates = replan.DEFAULT_CANDIDATES
   if args.world == 'planner' and args.perturb:
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
+  if args.check_copies and args.server:
+    parser.error('--check-copies checks the answers of an in-process PACHS, not --server')
   common.check_layout(parser, args.task, args.layout)
   common.check_physics(parser, args.task, args.physics)
   common.task_instances(args.task, args.instances, parser)

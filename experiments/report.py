@@ -455,7 +455,9 @@ def answer_counts(row: Dict) -> str:
     return '-'
   names = (('goal_path', 'goal'), ('partial_path', 'partial'), ('remainder', 'remainder'),
            ('policy', 'policy'), ('none', 'none'))
-  return ', '.join(f'{label} {answers[name]:,}' for name, label in names)
+  cut = row.get('cut_answers')
+  return ', '.join(f'{label} {answers[name]:,}' for name, label in names) + (
+      f'; {cut:,} cut by the check' if cut else '')
 
 
 # the closed-loop runs on the faithful physics: file suffix -> what ran
@@ -470,6 +472,8 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs-k128', 'PACHS, K 128'),
     ('pachs-k128-q1', 'PACHS, K 128, 1 s per query'),
     ('pachs-hard', 'PACHS, hard-blocks physics (planners and world)'),
+    ('pachs-check', 'PACHS, each answer executed up to the first action one of 8 perturbed '
+                    'copies of its start could not take'),
     ('parallel-hard', 'parallel rollout, hard-blocks physics (planners and world)'),
 )
 
@@ -945,7 +949,8 @@ def serving_gpus(src: Sources) -> str:
            num(big[n]['reaching_goal_median']), num(many[n]['answers_per_s']),
            num(many[n]['latency_median_s'])] for n in runs]
   return '\n\n'.join([
-      'The server\'s batches split over the host\'s GPUs (`pachs serve --devices N`, '
+      'The server\'s batches split over the host\'s GPUs in one sharded search (`pachs serve '
+      '--devices N --split mesh`, '
       '`serve_gpu/gpus.sh N`, one H200 host; the 1- and 2-GPU servers ran at once on GPUs 0 '
       'and 1-2 of one host, the 4-GPU server alone), 10,000 evaluations per episode: 150 '
       'episodes asked at once (30 instances x 5 seeds), and 16 clients of one episode each:',

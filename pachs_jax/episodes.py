@@ -90,6 +90,7 @@ class Log:
   policy_steps: [E] int world steps the policy took: after a short answer, and one for an empty
     answer.
   failed_on_policy: [E] bool the episode failed (`Worlds.failed`) on a step the policy took.
+  cut_answers: [E] int answers executed only up to their `safe_length` (`replan.AnswerCheck`).
   plans: per query, (the world step of each episode when it was asked [E], the answer's
     states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]);
     for answers that carry their states.
@@ -100,6 +101,7 @@ class Log:
   answers: np.ndarray
   policy_steps: np.ndarray
   failed_on_policy: np.ndarray
+  cut_answers: np.ndarray = None
   plans: list = dataclasses.field(default_factory=list)
   interrupted_at_query: Optional[int] = None
 
@@ -143,7 +145,8 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   """Runs the worlds' episodes in closed loop: a query for all episodes still running, the
   first `execute` actions of each answer in its world (an empty answer: one action of the
   policy; a shorter answer followed by the policy's actions up to `execute` when
-  fill_with_policy), until every episode reached the goal or made max_queries queries.
+  fill_with_policy; an answer with a shorter `safe_length`, `replan.AnswerCheck`: that many,
+  then the next query), until every episode reached the goal or made max_queries queries.
 
   planner: a `replan.Session` (reset, then asked for `time_limit_s` s per query), or
     query(nodes [E], keys [E, 2], executed [E], running [E]) -> an answer with actions
@@ -168,7 +171,8 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   num = worlds.num
   log = Log(queries=np.zeros(num, np.int64),
             answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
-            policy_steps=np.zeros(num, np.int64), failed_on_policy=np.zeros(num, bool))
+            policy_steps=np.zeros(num, np.int64), failed_on_policy=np.zeros(num, bool),
+            cut_answers=np.zeros(num, np.int64))
   key = jax.random.PRNGKey(0) if key is None else key
   executed = np.zeros(num, np.int64)
   for number in range(max_queries):
@@ -190,6 +194,12 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
       log.answers[np.flatnonzero(running), answer.kind[running]] += 1
       log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
     lengths = np.minimum(answer.length, execute)
+    # an answer that a check cut (`replan.AnswerCheck`) is executed up to its safe length, then
+    # replanned at once: no policy fill
+    safe = getattr(answer, 'safe_length', None)
+    cut = np.zeros(num, bool) if safe is None else running & (np.asarray(safe) < lengths)
+    lengths = np.where(cut, safe, lengths) if safe is not None else lengths
+    log.cut_answers += cut
     actions = answer.actions[:, :execute]
     empty = running & (lengths == 0)
     if empty.any():  # one action of the policy where the answer has none
@@ -201,11 +211,11 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     worlds.execute(actions, lengths)
     log.failed_on_policy |= empty & worlds.failed & ~failed
     # the answer's actions executed; an episode the policy moves next diverges from it
-    short = lengths < execute
+    short = (lengths < execute) & ~cut
     executed = np.where(short & fill_with_policy, replan.DIVERGED, lengths)
     if fill_with_policy:
       for j in range(1, execute):
-        need = worlds.active & (lengths <= j)
+        need = worlds.active & (lengths <= j) & ~cut
         if not need.any():
           continue
         log.policy_steps += need

@@ -25,6 +25,9 @@ from pachs_jax.search.result import SearchResult
 # (its remainder is dropped)
 DIVERGED = np.iinfo(np.int32).max
 
+# folded into an episode's key for its `AnswerCheck` copies (a stream the search does not use)
+CHECK_STREAM = 0x636b
+
 
 class AnswerKind:
   """What a query answered with ([E] int32 codes in `Answer.kind`)."""
@@ -121,6 +124,9 @@ class Answer:
   states: NodeState [E, T + 1, ...] where the answer goes in the planner's physics, the start
     first (rows past length repeat the last; all the start for `none`).
   search: the query's `SearchResult` [E].
+  safe_length: [E] int32 the answer's first actions to execute before the next query: its
+    length, or where an `AnswerCheck` found a perturbed copy of the start that could not take
+    one of its first actions, the actions before it (at least 1).
   """
 
   actions: jax.Array
@@ -130,6 +136,50 @@ class Answer:
   cost: jax.Array
   states: base.NodeState
   search: SearchResult
+  safe_length: jax.Array = None
+
+
+@dataclasses.dataclass(frozen=True)
+class AnswerCheck:
+  """Each answer's first `steps` actions followed from `copies` perturbed copies of its start
+  in the planner's physics, one batch: an answer is executed only up to the first action that
+  some copy could not take (`Answer.safe_length`), so that a plan that holds in the planner's
+  physics but not near it (a T that tips over in another engine) is replanned sooner.
+
+  perturb: (nodes [B], keys [B, 2]) -> nodes [B] near them (`pusht.perturb_t`).
+  copies: perturbed copies per episode.
+  steps: the first actions checked (a closed loop's actions per query).
+  """
+
+  perturb: Callable[[base.NodeState, jax.Array], base.NodeState]
+  copies: int = 8
+  steps: int = 10
+
+  def __post_init__(self):
+    if not callable(self.perturb):
+      raise ValueError(f'AnswerCheck.perturb must be a function, got {self.perturb!r}')
+    for name in ('copies', 'steps'):
+      value = getattr(self, name)
+      if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f'AnswerCheck.{name} must be a positive int, got {value!r}')
+
+
+def safe_length(env: base.Env, policy: Callable[[jax.Array], jax.Array], check: AnswerCheck,
+                start: base.NodeState, actions: jax.Array, length: jax.Array,
+                keys: jax.Array) -> jax.Array:
+  """[E] int32 the actions of paths actions [E, T, A] of length [E] from start [E] that all of
+  `check.copies` perturbed copies of each start take in env (keys [E, 2]: each episode's
+  copies; a copy that reaches a goal first counts as taking them all); length where they all
+  take the first check.steps, else at least 1. A pure function."""
+  num, copies, steps = length.shape[0], check.copies, check.steps
+  first = jnp.minimum(length, steps)
+  copy_keys = jax.vmap(lambda k: jax.random.split(k, copies))(keys).reshape(num * copies, -1)
+  starts = check.perturb(jax.tree.map(lambda x: jnp.repeat(x, copies, axis=0), start), copy_keys)
+  repeated = jnp.repeat(first, copies)
+  took = follow(env, policy, starts, jnp.repeat(actions[:, :steps], copies, axis=0), repeated,
+                jnp.zeros((num * copies,), bool))
+  taken = jnp.where(took.reached_goal, repeated, took.steps).reshape(num, copies).min(axis=1)
+  return jnp.where(taken < first, jnp.maximum(taken, 1), length).astype(jnp.int32)
 
 
 def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int) -> Answer:
@@ -161,10 +211,11 @@ def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int)
   pick = lambda a, b, c: jnp.where(
       from_search.reshape((-1,) + (1,) * (a.ndim - 1)), a,
       jnp.where((kind == AnswerKind.REMAINDER).reshape((-1,) + (1,) * (a.ndim - 1)), b, c))
+  length = jnp.where(kind == AnswerKind.NONE, 0,
+                     pick(search_length, last.steps, policy.steps)).astype(jnp.int32)
   return Answer(
       actions=pick(search_actions, last.actions, policy.actions),
-      length=jnp.where(kind == AnswerKind.NONE, 0,
-                       pick(search_length, last.steps, policy.steps)).astype(jnp.int32),
+      length=length, safe_length=length,
       kind=kind,
       reaches_goal=pick(found, last.reached_goal, policy.reached_goal) & (kind != AnswerKind.NONE),
       cost=jnp.where(kind == AnswerKind.NONE, 0.0, pick(search.cost, last.cost, policy.cost)),
@@ -224,6 +275,8 @@ class Session:
     new state inside the search's physics batches (`search.replay`), so the search goes on from
     where the last answer got without following it first (needs chain lanes and a search with
     room for it); None: wherever it can (a search built here gets the room).
+  check: an `AnswerCheck` of each answer's first actions (None: none; `Answer.safe_length` is
+    the length).
   """
 
   env: base.Env
@@ -235,6 +288,7 @@ class Session:
   chunk_iterations: Optional[int] = None
   mesh: Optional[object] = None
   replay_remainder: Optional[bool] = None
+  check: Optional[AnswerCheck] = None
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -269,11 +323,16 @@ class Session:
     if self.replay_remainder and self.search.search.sizes.replay < self.horizon:
       raise ValueError(f'the search replays paths of at most {self.search.search.sizes.replay} '
                        f'actions, the session keeps {self.horizon} (Capacities.replay)')
-    env, policy = self.env, self.actor_critic.deterministic_action
+    if self.check is not None and not isinstance(self.check, AnswerCheck):
+      raise ValueError(f'check must be an AnswerCheck or None, got {self.check!r}')
+    env, policy, check = self.env, self.actor_critic.deterministic_action, self.check
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
+    self._safe_length = check and jax.jit(
+        lambda *args: safe_length(env, policy, check, *args))
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
     self._compiled = {}  # episodes -> the compiled follow
+    self._checks = {}  # episodes -> the compiled check
     self._sharded = (None if self.mesh is None
                      else sharding.ShardedSearch(self.search.search, self.mesh))
     self.last: Optional[Answer] = None
@@ -351,6 +410,12 @@ class Session:
             jnp.asarray(use_policy))
     if rows not in self._compiled:  # compiled before the query's clock, as the search is
       self._compiled[rows] = self._follow.lower(*args).compile()
+    if self.check is not None:  # each episode's own keys for its perturbed copies
+      check_keys = jax.vmap(lambda k: jax.random.fold_in(k, CHECK_STREAM))(
+          pad(instance_keys(key, num)))
+      check_args = (jax.tree.map(pad, states), args[1][:rows], args[2][:rows], check_keys)
+      if rows not in self._checks:
+        self._checks[rows] = self._safe_length.lower(*check_args).compile()
     began = time.perf_counter()
     followed = jax.block_until_ready(self._compiled[rows](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
@@ -372,13 +437,14 @@ class Session:
                              time_limit_s=left, chunk_iterations=self.chunk_iterations,
                              search=self.search, min_bucket=bucket, replay=replay, live=active)
     choosing = time.perf_counter()
-    if rows > num:  # the choice in the padded batch too (its rows after num dropped)
-      grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)
-      answer = self._choose(jax.tree.map(grow, result), jax.tree.map(grow, last),
-                            jax.tree.map(grow, policy), horizon)
-      answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
-    else:
-      answer = self._choose(result, last, policy, horizon)
+    # the choice (and the check) in the padded batch too (its rows after num dropped)
+    grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)
+    answer = self._choose(jax.tree.map(grow, result), jax.tree.map(grow, last),
+                          jax.tree.map(grow, policy), horizon)
+    if self.check is not None:
+      answer = answer.replace(safe_length=self._checks[rows](
+          check_args[0], answer.actions, answer.length, check_keys))
+    answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
     answer = jax.block_until_ready(answer)
-    self.timing['choose_s'] = time.perf_counter() - choosing
+    self.timing['choose_s'] = time.perf_counter() - choosing  # the check's time included
     return answer

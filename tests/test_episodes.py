@@ -75,6 +75,25 @@ def test_a_failure_on_a_policy_step_is_told_from_one_on_a_planned_step():
   assert log.failed_on_policy.tolist() == [True, False, True, False]
 
 
+def test_an_answer_cut_by_its_check_runs_to_its_safe_length_then_replans_unfilled():
+  """Episode 0's answers are safe for 1 of their 3 actions (`replan.AnswerCheck`): it executes 1
+  per query, the policy does not fill the rest, and the next query is told 1 was executed (so
+  the session keeps its remainder); episode 1's are safe whole."""
+  answer = type('Answer', (), {'actions': np.zeros((2, 3, 1), np.float32),
+                               'length': np.array([3, 3]), 'safe_length': np.array([1, 3])})
+  told = []
+
+  def query(nodes, keys, executed, running):
+    told.append(np.asarray(executed).tolist())
+    return answer
+  worlds = _FailOnOne(2)
+  log = episodes.run(query, worlds, execute=3, max_queries=2,
+                     policy=lambda nodes: np.zeros((2, 1), np.float32))
+  assert worlds.steps.tolist() == [2, 6]
+  assert told == [[0, 0], [1, 3]]
+  assert log.policy_steps.tolist() == [0, 0] and log.cut_answers.tolist() == [2, 0]
+
+
 def test_executed_plans_follow_the_queries_of_an_episode():
   states = lambda value: jax.tree.map(lambda x: np.full((2, 5), value), {'q': 0})
   log = episodes.Log(queries=np.zeros(2), answers=np.zeros((2, 5)), policy_steps=np.zeros(2),

@@ -8,7 +8,7 @@ import pytest
 from conftest import UniformActorCritic
 
 from pachs_jax import replan
-from pachs_jax.envs.point_mass import PointMassEnv
+from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.replan import AnswerKind
 from pachs_jax.search import SearchConfig
 
@@ -285,3 +285,81 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
   fixed = planner.Planner('pusht-fixed', backend='mujoco-c', budget=400, cache=False)
   session = fixed.session()
   assert not session.replay_remainder and session.search is fixed.search
+
+
+class Cliff(PointMassEnv):
+  """The point mass with a cliff: a move that ends beyond x = 0.55 is an invalid edge."""
+
+  def transition(self, node, action):
+    out = super().transition(node, action)
+    ok = out.is_valid & (out.next_node.qpos[0] <= 0.55)
+    return out.replace(is_valid=ok, is_goal=out.is_goal & ok)
+
+
+def _shift_right(nodes, keys):
+  """Every copy 0.08 to the right (a perturbation that does not draw)."""
+  del keys
+  return nodes.replace(qpos=nodes.qpos.at[:, 0].add(0.08))
+
+
+def test_an_answer_is_safe_up_to_the_first_action_a_perturbed_copy_cannot_take():
+  env = Cliff()
+  check = replan.AnswerCheck(_shift_right, copies=3, steps=10)
+  safe = jax.jit(lambda *args: replan.safe_length(env, TowardGoal(DIM).deterministic_action,
+                                                  check, *args))
+  # moves of 0.1 along x: 0 ends at 0.5 (its copies at 0.58 on their 5th move: 4 safe); 1 far
+  # from the cliff; 2 goes on past it (12 moves: 4 safe); 3 one move to 0.48 (its copies fall
+  # on it: at least one action is kept); 4's copies reach the goal at 0.3 before the cliff (a
+  # copy at a goal has taken them all)
+  starts = [[0.0, 0.0], [-0.5, 0.0], [0.0, 0.0], [0.38, 0.0], [0.0, 0.0]]
+  goals = [[-0.9, -0.9]] * 4 + [[0.3, 0.0]]
+  actions = np.zeros((5, 16, DIM), np.float32)
+  actions[:, :, 0] = 1.0
+  length = jnp.array([5, 5, 12, 1, 5])
+  keys = jax.random.split(jax.random.PRNGKey(0), 5)
+  got = safe(_nodes(env, starts, goals), jnp.asarray(actions), length, keys)
+  np.testing.assert_array_equal(got, [4, 5, 4, 1, 5])
+  short = replan.AnswerCheck(_shift_right, copies=3, steps=3)
+  got = jax.jit(lambda *args: replan.safe_length(
+      env, TowardGoal(DIM).deterministic_action, short, *args))(
+          _nodes(env, starts, goals), jnp.asarray(actions), length, keys)
+  # checked on their first 3 moves only: the cliff lies past them but for 3
+  np.testing.assert_array_equal(got, [5, 5, 12, 1, 5])
+
+
+def test_a_session_with_a_check_answers_with_its_safe_length():
+  env = Cliff(PointMassConfig(success_radius=0.01))
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
+  check = replan.AnswerCheck(_shift_right, copies=2, steps=10)
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, candidates=('remainder',),
+                           check=check)
+  starts = np.array([[0.0, 0.0], [-0.5, 0.0]], np.float32)
+  goals = np.array([[0.5, 0.0], [0.0, 0.0]], np.float32)
+  session.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0))
+  # the last answer replaced by 5 moves right to the goals, 1 executed: the remainder's 4 moves
+  # reach them; episode 0's copies, 0.08 further right, miss its goal and fall off the cliff on
+  # their 4th move (3 safe), episode 1's take all 4
+  straight = np.zeros((2, 16, DIM), np.float32)
+  straight[:, :5, 0] = 1.0
+  session.last = session.last.replace(actions=jnp.asarray(straight),
+                                      length=jnp.full((2,), 5, jnp.int32))
+  moved = _nodes(env, starts + [0.1, 0.0], goals)
+  answer = jax.tree.map(np.asarray, session.plan(moved, executed=[1, 1],
+                                                 key=jax.random.PRNGKey(1)))
+  assert [AnswerKind.name(k) for k in answer.kind] == ['remainder'] * 2
+  np.testing.assert_array_equal(answer.length, [4, 4])
+  np.testing.assert_array_equal(answer.safe_length, [3, 4])
+  # without a check the safe length is the length
+  plain = replan.Session(env, TowardGoal(DIM), config, horizon=16)
+  answer = plain.plan(moved, key=jax.random.PRNGKey(1))
+  np.testing.assert_array_equal(answer.safe_length, answer.length)
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'perturb': None}, 'AnswerCheck.perturb must be a function'),
+    ({'copies': 0}, 'AnswerCheck.copies must be a positive int'),
+    ({'steps': 2.0}, 'AnswerCheck.steps must be a positive int'),
+])
+def test_bad_answer_checks_are_refused(kwargs, message):
+  with pytest.raises(ValueError, match=message):
+    replan.AnswerCheck(**{'perturb': _shift_right, **kwargs})

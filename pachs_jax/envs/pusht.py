@@ -208,6 +208,24 @@ def t_pose(qpos: jax.Array) -> jax.Array:
   return jnp.stack([qpos[..., 7], qpos[..., 8], yaw], -1)
 
 
+def perturb_t(nodes: base.NodeState, keys: jax.Array, position_m: float = 0.001,
+              yaw_rad: float = 0.01) -> base.NodeState:
+  """Nodes [B] with the T moved by N(0, position_m) along x and y and turned by N(0, yaw_rad)
+  about the world z axis (planar or free T; one draw per node from keys [B, 2]): states near
+  nodes, as another engine's T lies after a few steps (`replan.AnswerCheck`)."""
+  noise = jax.vmap(lambda k: jax.random.normal(k, (3,)))(keys) * jnp.asarray(
+      [position_m, position_m, yaw_rad], jnp.float32)
+  qpos = nodes.qpos.at[:, 7:9].add(noise[:, :2].astype(nodes.qpos.dtype))
+  if qpos.shape[-1] == 10:  # planar: the yaw joint
+    qpos = qpos.at[:, 9].add(noise[:, 2].astype(qpos.dtype))
+  else:  # free: the quaternion (w, x, y, z) turned about world z, q' = (c, 0, 0, s) q
+    c, s = jnp.cos(noise[:, 2] / 2), jnp.sin(noise[:, 2] / 2)
+    w, x, y, z = (qpos[:, 10 + k] for k in range(4))
+    qpos = qpos.at[:, 10:14].set(jnp.stack([c * w - s * z, c * x - s * y, c * y + s * x,
+                                            c * z + s * w], -1).astype(qpos.dtype))
+  return nodes.replace(qpos=qpos)
+
+
 def t_velocity(qvel: jax.Array) -> jax.Array:
   """[..., 3] the T's planar velocity (m/s, m/s, rad/s) of node qvel [..., 10] or [..., 13]."""
   qvel = jnp.asarray(qvel)

@@ -7,7 +7,9 @@
 # rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
 # (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
 # planners' own physics), nofill (a short answer is not followed by policy actions: the next
-# query comes sooner), hard (the hard-blocks physics preset, planners and worlds).
+# query comes sooner), hard (the hard-blocks physics preset, planners and worlds), check (each
+# answer executed up to the first action one of 8 perturbed copies of its start could not take:
+# closed_loop.py --check-copies 8).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -48,6 +50,7 @@ run() {  # the command line of one run
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       nofill) flags+=(--fill-with-policy 0) ;;
       hard) flags+=(--physics hard-blocks) ;;
+      check) flags+=(--check-copies 8) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
