@@ -43,6 +43,8 @@ def start_server(args, environ: dict) -> tuple:
     command += ['--buckets', args.buckets]
   if args.split:
     command += ['--split', args.split]
+  if args.max_wait_ms:
+    command += ['--max-wait-ms', str(args.max_wait_ms)]
   began = time.perf_counter()
   process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=environ)
   line = process.stdout.readline()
@@ -167,6 +169,8 @@ def main() -> None:
                       help="the started server's devices (pachs serve --devices)")
   parser.add_argument('--buckets', default=None,
                       help="the started server's buckets (pachs serve --buckets; default its own)")
+  parser.add_argument('--max-wait-ms', type=argtypes.positive_float, default=None,
+                      help="the started server's --max-wait-ms (default: none)")
   parser.add_argument('--split', choices=('mesh', 'threads'), default=None,
                       help="how the started server's devices share a batch (pachs serve --split)")
   parser.add_argument('--url', default=None, help='a running server (default: start one)')

@@ -376,6 +376,8 @@ def _serve(args: argparse.Namespace) -> int:
       raise ValueError(f'--buckets {args.buckets!r}: comma-separated powers of two, the largest '
                        '>= --max-batch') from None
   config = serve.ServeConfig(window_s=args.window_ms / 1000, max_batch=args.max_batch,
+                             max_wait_s=None if args.max_wait_ms is None
+                             else args.max_wait_ms / 1000,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
                              devices=args.devices, split=args.split, buckets=buckets)
   import jax  # pylint: disable=import-outside-toplevel
@@ -601,6 +603,9 @@ def _main(words, prefetch=None, guard=None) -> int:
   served.add_argument('--port', type=int, default=8000, help='the port (0: any free one)')
   served.add_argument('--window-ms', type=argtypes.positive_float, default=5.0,
                       help='how long requests are gathered into one search (default 5 ms)')
+  served.add_argument('--max-wait-ms', type=argtypes.positive_float, default=None,
+                      help='the window restarts at each request that arrives, up to this long '
+                      'after the first (default: it does not)')
   served.add_argument('--max-batch', type=argtypes.positive_int, default=16,
                       help='the most episodes in one search call and request (default 16)')
   served.add_argument('--max-queue', type=argtypes.positive_int, default=64,

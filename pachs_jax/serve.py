@@ -45,6 +45,9 @@ class ServeConfig:
   """How the server gathers, bounds and keeps requests.
 
   window_s: after a request arrives, how long (s) the server waits for others to plan with it.
+  max_wait_s: None, or the window restarts at each request that arrives, up to this long (s)
+    after the first: a burst of requests (clients answered together that ask again) is gathered
+    whole.
   max_batch: the most episodes in one search call (and in one request).
   max_queue: the most requests waiting or being planned; one more is answered busy at once.
   max_time_limit_s: the largest time_limit_s a request may ask.
@@ -70,6 +73,7 @@ class ServeConfig:
   """
 
   window_s: float = 0.005
+  max_wait_s: Optional[float] = None
   max_batch: int = 16
   max_queue: int = 64
   max_time_limit_s: float = 60.0
@@ -96,6 +100,11 @@ class ServeConfig:
           name != 'window_s' and value == 0):
         raise ValueError(f'{name} must be a finite number of seconds '
                          f'{">= 0" if name == "window_s" else "> 0"}, got {value!r}')
+    if self.max_wait_s is not None and (
+        isinstance(self.max_wait_s, bool) or not isinstance(self.max_wait_s, (int, float))
+        or not math.isfinite(self.max_wait_s) or self.max_wait_s < self.window_s):
+      raise ValueError(f'max_wait_s must be None or a finite number of seconds >= window_s '
+                       f'{self.window_s}, got {self.max_wait_s!r}')
     if self.split not in SPLITS:
       raise ValueError(f'split must be one of {", ".join(SPLITS)}, got {self.split!r}')
     if self.buckets is not None:
@@ -310,7 +319,8 @@ class Server:
             'split': self.config.split if self.config.devices > 1 else None,
             'buckets': list(self.buckets),
             'max_batch': self.config.max_batch, 'max_queue': self.config.max_queue,
-            'window_s': self.config.window_s, 'max_time_limit_s': self.config.max_time_limit_s,
+            'window_s': self.config.window_s, 'max_wait_s': self.config.max_wait_s,
+            'max_time_limit_s': self.config.max_time_limit_s,
             'queued': self._waiting, 'sessions': len(self._sessions),
             'counters': dict(self.counters)}
 
@@ -468,7 +478,8 @@ class Server:
           break
         pending.append(item)
       # gather: the first request's task, until the window closes or a batch is full
-      deadline = time.perf_counter() + self.config.window_s
+      began = time.perf_counter()
+      deadline = began + self.config.window_s
       while not stopping:
         same = sum(r.episodes for r in pending if r.task == pending[0].task)
         left = deadline - time.perf_counter()
@@ -482,6 +493,9 @@ class Server:
           stopping = True
         else:
           pending.append(item)
+          if self.config.max_wait_s is not None:  # the window restarts, up to max_wait_s
+            deadline = min(time.perf_counter() + self.config.window_s,
+                           began + self.config.max_wait_s)
       batch, rest, size = [], [], 0
       for r in pending:
         if r.task == pending[0].task and size + r.episodes <= self.config.max_batch:

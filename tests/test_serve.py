@@ -132,12 +132,44 @@ def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idl
           [1, MAX_BATCH] if idle else [MAX_BATCH])
 
 
-def test_bad_idle_warm_up_and_split_settings_are_named():
+def test_a_window_that_restarts_gathers_a_burst_of_requests_whole(planner):
+  """Four one-episode requests 0.2 s apart: a 0.3 s window from the first holds two of them;
+  restarting at each request (max_wait_s), it holds all four."""
+  states = _starts(planner, 4, seed=17)
+  for max_wait in (None, 5.0):
+    built = serve.Server({TASK: planner}, serve.ServeConfig(
+        window_s=0.3, max_wait_s=max_wait, max_batch=MAX_BATCH, buckets=(MAX_BATCH,),
+        max_time_limit_s=5.0))
+    built.warm()
+    sizes = [None] * 4
+    with serve.Running(built) as running:
+      asking = [client.Client(running.url) for _ in range(4)]
+      go = threading.Barrier(4)
+
+      def ask(i):
+        go.wait()
+        time.sleep(0.2 * i)
+        sizes[i] = asking[i].plan(jax.tree.map(lambda x: x[i:i + 1], states),
+                                  seed=i).batch['requests']
+      threads = [threading.Thread(target=ask, args=(i,)) for i in range(4)]
+      for t in threads:
+        t.start()
+      for t in threads:
+        t.join()
+      for c in asking:
+        c.close()
+    assert sizes[0] == (2 if max_wait is None else 4), sizes
+
+
+def test_bad_idle_warm_up_split_and_wait_settings_are_named():
   for bad in (-1.0, float('nan'), True, '2'):
     with pytest.raises(ValueError, match='warm_idle_s must be a finite number of seconds'):
       serve.ServeConfig(warm_idle_s=bad)
   with pytest.raises(ValueError, match="split must be one of mesh, threads, got 'shards'"):
     serve.ServeConfig(split='shards')
+  with pytest.raises(ValueError, match='max_wait_s must be None or a finite number of seconds '
+                     '>= window_s 0.005, got 0.001'):
+    serve.ServeConfig(max_wait_s=0.001)
 
 
 def test_concurrent_clients_are_planned_in_one_search_and_get_their_own_answers(server, planner):

@@ -10,7 +10,8 @@
 # (serve_gpus1_2.tgz for `1 2`).
 # BUDGET_S: the whole script's limit (570 s); GPU_OFFSET=g: GPUs g..g+N-1 (beside another job);
 # SPLIT=threads: N > 1 GPUs share a batch in parts, one per GPU (pachs serve --split threads;
-# written as s/gpus<N>-threads/; default mesh).
+# written as s/gpus<N>-threads/; default mesh); MAX_WAIT_MS=m: pachs serve --max-wait-ms m (the
+# window restarts at each request; written as s/gpus<N>[-threads]-wait<m>/).
 set -u
 if [ "$#" -lt 1 ]; then echo "usage: OUT=dir bash $0 N [N ...] (GPU counts)" >&2; exit 2; fi
 END=$((SECONDS + ${BUDGET_S:-570}))
@@ -21,15 +22,16 @@ BENCH="python3 experiments/bench_serve.py --task pusht-obs --backend warp"
 for n in "$@"; do
   if [ "$n" -gt "$have" ]; then echo "gpus.sh: $n GPUs asked, the host has $have" >&2; continue; fi
   first=${GPU_OFFSET:-0}; visible=$(seq -s, $first $((first + n - 1)))
-  name=gpus$n; split=()
-  if [ "$n" -gt 1 ] && [ "${SPLIT:-mesh}" != mesh ]; then name=gpus$n-$SPLIT; split=(--split "$SPLIT"); fi
+  name=gpus$n; extra=()
+  if [ "$n" -gt 1 ] && [ "${SPLIT:-mesh}" != mesh ]; then name=gpus$n-$SPLIT; extra=(--split "$SPLIT"); fi
+  if [ -n "${MAX_WAIT_MS:-}" ]; then name=$name-wait$MAX_WAIT_MS; extra+=(--max-wait-ms "$MAX_WAIT_MS"); fi
   # the buckets these requests use (each takes 30-45 s to warm on an H200)
   if [ "$n" = 1 ]; then clients=1,16; big=30,150; buckets=1,16,256
   else clients=16; big=150; buckets=16,256; fi
   left=$((END - SECONDS)); [ "$left" -gt 0 ] || break  # timeout 0 would mean no limit
   CUDA_VISIBLE_DEVICES=$visible timeout "$left" $BENCH --budget 10000 \
     --clients $clients --requests 20 --max-batch 16 --big $big --devices "$n" --buckets $buckets \
-    "${split[@]}" --out "$o/$name" > "$o/$name.log" 2>&1
+    "${extra[@]}" --out "$o/$name" > "$o/$name.log" 2>&1
   echo "== $name: exit $?"; tail -n 12 "$o/$name.log"
   left=$((END - SECONDS))
   if [ "$n" = 1 ] && [ "$left" -gt 0 ]; then
