@@ -327,7 +327,7 @@ class Session:
       raise ValueError(f'check must be an AnswerCheck or None, got {self.check!r}')
     env, policy, check = self.env, self.actor_critic.deterministic_action, self.check
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
-    self._safe_length = check and jax.jit(
+    self._safe_length = None if check is None else jax.jit(
         lambda *args: safe_length(env, policy, check, *args))
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
