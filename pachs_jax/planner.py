@@ -249,10 +249,11 @@ class Planner:
         raise
 
   def session(self, horizon: Optional[int] = None,
-              candidates: Sequence[str] = replan.DEFAULT_CANDIDATES) -> replan.Session:
+              candidates: Sequence[str] = replan.DEFAULT_CANDIDATES,
+              check: Optional[replan.AnswerCheck] = None) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
-    env, model and config, keeping its last answer between queries (horizon and candidates as
-    there). Where the config has chain lanes the session's search replays the last answer's
+    env, model and config, keeping its last answer between queries (horizon, candidates and
+    check as there). Where the config has chain lanes the session's search replays the last answer's
     remainder and is built apart from `plan`'s, with room for it (once per horizon, shared by
     the sessions of that horizon); otherwise it shares `plan`'s."""
     search = self.search
@@ -262,7 +263,8 @@ class Planner:
         self._replaying[rows] = programs.Programs(pachs.make_search(
             self.env, self.model, self.config, capacities=capacity.Capacities(replay=rows)))
       search = self._replaying[rows]
-    return replan.Session(self.env, self.model, self.config, search, horizon, candidates)
+    return replan.Session(self.env, self.model, self.config, search, horizon, candidates,
+                          check=check)
 
 
 def check_indices(instances, available: int) -> np.ndarray:

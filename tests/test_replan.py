@@ -8,6 +8,7 @@ import pytest
 from conftest import UniformActorCritic
 
 from pachs_jax import replan
+from pachs_jax.envs import base, pusht
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.replan import AnswerKind
 from pachs_jax.search import SearchConfig
@@ -285,6 +286,9 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
   fixed = planner.Planner('pusht-fixed', backend='mujoco-c', budget=400, cache=False)
   session = fixed.session()
   assert not session.replay_remainder and session.search is fixed.search
+  assert session.check is None
+  check = replan.AnswerCheck(pusht.perturb_t, copies=2)
+  assert fixed.session(check=check).check is check
 
 
 class Cliff(PointMassEnv):
@@ -363,3 +367,33 @@ def test_a_session_with_a_check_answers_with_its_safe_length():
 def test_bad_answer_checks_are_refused(kwargs, message):
   with pytest.raises(ValueError, match=message):
     replan.AnswerCheck(**{'perturb': _shift_right, **kwargs})
+
+
+def test_perturb_t_moves_and_turns_the_t_by_its_draws_and_keeps_its_tilt():
+  # two free Ts (arm, x y z, quaternion w x y z): one upright at yaw 0.3, one also tilted 0.2
+  # rad about x; and a planar T (arm, x y yaw)
+  upright = np.array([np.cos(0.15), 0.0, 0.0, np.sin(0.15)])
+  tilted = np.array([np.cos(0.1), np.sin(0.1), 0.0, 0.0])
+  w1, x1, y1, z1 = upright
+  w2, x2, y2, z2 = tilted  # upright * tilted: yaw 0.3 of a T tilted about its own x axis
+  both = np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                   w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+  qpos = np.zeros((2, 14), np.float32)
+  qpos[:, 7:10] = [0.1, 0.2, 0.02]
+  qpos[0, 10:], qpos[1, 10:] = upright, both
+  zeros = lambda n: jnp.zeros((2, n))
+  free = base.NodeState(qpos=jnp.asarray(qpos), qvel=zeros(13), ctrl=zeros(7),
+                        qacc_warmstart=zeros(13), goal=zeros(3), t=jnp.zeros(2, jnp.int32))
+  keys = jax.random.split(jax.random.PRNGKey(4), 2)
+  noise = np.asarray(jax.vmap(lambda k: jax.random.normal(k, (3,)))(keys)) * [0.002, 0.002, 0.05]
+  moved = pusht.perturb_t(free, keys, position_m=0.002, yaw_rad=0.05)
+  before, after = np.asarray(pusht.t_pose(free.qpos)), np.asarray(pusht.t_pose(moved.qpos))
+  np.testing.assert_allclose(after - before, noise, atol=1e-5)
+  np.testing.assert_allclose(pusht.t_tilt(moved.qpos), pusht.t_tilt(free.qpos), atol=1e-5)
+  np.testing.assert_allclose(np.linalg.norm(np.asarray(moved.qpos)[:, 10:], axis=1), 1.0,
+                             atol=1e-6)
+  np.testing.assert_array_equal(moved.qpos[:, 9], free.qpos[:, 9])  # the height stays
+  planar = free.replace(qpos=free.qpos[:, :10].at[:, 9].set(0.3))
+  turned = pusht.perturb_t(planar, keys, position_m=0.002, yaw_rad=0.05)
+  np.testing.assert_allclose(np.asarray(turned.qpos[:, 7:10] - planar.qpos[:, 7:10]), noise,
+                             atol=1e-6)
