@@ -937,31 +937,48 @@ def serving(src: Sources) -> str:
       served_closed_loop(src)])
 
 
+SERVE_GPU_RUN = re.compile(r'gpus(\d+)(-threads)?(-wait([\d.]+))?$')
+
+
 def serving_gpus(src: Sources) -> str:
-  """The server's batches split over 1, 2 and 4 GPUs of one host: 150 episodes at once and 16
-  clients, against one GPU."""
-  runs = {n: src.load(f'serve_gpu/gpus{n}/bench_serve.json') for n in (1, 2, 4)}
-  big = {n: next(b for b in r['big_request'] if b['instances'] == 150) for n, r in runs.items()}
-  many = {n: next(c for c in r['clients'] if c['clients'] == 16) for n, r in runs.items()}
-  alone = next(c for c in runs[1]['clients'] if c['clients'] == 1)
-  rows = [[str(n), runs[n]['provenance']['device'], num(big[n]['latency_median_s']),
-           f'{num(big[1]["latency_median_s"] / big[n]["latency_median_s"], 2)}x',
-           num(big[n]['reaching_goal_median']), num(many[n]['answers_per_s']),
-           num(many[n]['latency_median_s'])] for n in runs]
+  """The server's batches over 1, 2 and 4 GPUs of one host (each `gpus.sh` run in serve_gpu/:
+  gpus<N>[-threads][-wait<ms>]): 150 episodes at once and 16 clients, against one GPU."""
+  folder = os.path.join(src.root, RESULTS, 'serve_gpu')
+  found = sorted((int(m.group(1)), bool(m.group(2)), float(m.group(4) or 0), name)
+                 for name in os.listdir(folder) for m in [SERVE_GPU_RUN.match(name)] if m)
+  runs = {key[:3]: src.load(f'serve_gpu/{key[3]}/bench_serve.json') for key in found}
+  big = {k: next(b for b in r['big_request'] if b['instances'] == 150) for k, r in runs.items()}
+  many = {k: next(c for c in r['clients'] if c['clients'] == 16) for k, r in runs.items()}
+  one = runs[(1, False, 0.0)]
+  alone = next(c for c in one['clients'] if c['clients'] == 1)
+  base = big[(1, False, 0.0)]['latency_median_s']
+  rows = [[str(n), '-' if n == 1 else 'threads' if threads else 'mesh',
+           f'restarting, at most {wait:g} ms' if wait else
+           f'{runs[(n, threads, wait)]["settings"]["window_ms"]:g} ms',
+           runs[(n, threads, wait)]['provenance']['git_revision'],
+           num(big[(n, threads, wait)]['latency_median_s']),
+           f'{num(base / big[(n, threads, wait)]["latency_median_s"], 2)}x',
+           num(big[(n, threads, wait)]['reaching_goal_median']),
+           num(many[(n, threads, wait)]['answers_per_s']),
+           num(many[(n, threads, wait)]['mean_requests_per_batch'], 2)]
+          for n, threads, wait in runs]
   return '\n\n'.join([
-      'The server\'s batches split over the host\'s GPUs in one sharded search (`pachs serve '
-      '--devices N --split mesh`, '
-      '`serve_gpu/gpus.sh N`, one H200 host; the 1- and 2-GPU servers ran at once on GPUs 0 '
-      'and 1-2 of one host, the 4-GPU server alone), 10,000 evaluations per episode: 150 '
-      'episodes asked at once (30 instances x 5 seeds), and 16 clients of one episode each:',
-      table(['GPUs', 'device', '150 episodes: latency (s)', 'vs 1 GPU', 'reaching the goal',
-             '16 clients: answers/s', 'latency (s)'], rows),
+      'The server on several GPUs of one H200 host (`pachs serve --devices N`, `serve_gpu/'
+      'gpus.sh N`; split: `mesh`, one search sharded over the GPUs, or `threads`, a part per '
+      'GPU from its own thread; `--max-wait-ms`: the gathering window restarts at each '
+      'request), 10,000 evaluations per episode: 150 episodes asked at once (30 instances x 5 '
+      f'seeds), and 16 clients of one episode each. At revision '
+      f'`{one["provenance"]["git_revision"]}` the 1- and 2-GPU servers ran at once on GPUs 0 '
+      'and 1-2 of one host, the 4-GPU server alone:',
+      table(['GPUs', 'split', 'gathering window', 'revision', '150 episodes: latency (s)',
+             'vs 1 GPU', 'reaching the goal', '16 clients: answers/s', 'requests per batch'],
+            rows),
       f'On one GPU, one episode alone took {num(alone["search_median_s"])} s and 150 at once '
-      f'{num(big[1]["search_median_s"])} s: 150 times the physics for '
-      f'{num(big[1]["search_median_s"] / alone["search_median_s"], 2)} times the time. Most of '
-      'an iteration\'s cost is a fixed cost per physics call (the kernels of 8 control steps '
-      'of 20 physics steps each), which every GPU pays again when the episodes are split; '
-      'only the part that grows with the worlds is divided.'])
+      f'{num(big[(1, False, 0.0)]["search_median_s"])} s: 150 times the physics for '
+      f'{num(big[(1, False, 0.0)]["search_median_s"] / alone["search_median_s"], 2)} times the '
+      'time. Most of an iteration\'s cost is a fixed cost per physics call (the kernels of 8 '
+      'control steps of 20 physics steps each), which every GPU pays again when the episodes '
+      'are split; only the part that grows with the worlds is divided.'])
 
 
 def five_buckets(run: Dict) -> str:
