@@ -45,9 +45,9 @@ class ServeConfig:
   """How the server gathers, bounds and keeps requests.
 
   window_s: after a request arrives, how long (s) the server waits for others to plan with it.
-  max_wait_s: None, or the window restarts at each request that arrives, up to this long (s)
-    after the first: a burst of requests (clients answered together that ask again) is gathered
-    whole.
+  max_wait_s: None, or the window restarts at each request of the batch's task that arrives,
+    up to this long (s) after the gathering began: a burst of requests (clients answered
+    together that ask again) is gathered whole.
   max_batch: the most episodes in one search call (and in one request).
   max_queue: the most requests waiting or being planned; one more is answered busy at once.
   max_time_limit_s: the largest time_limit_s a request may ask.
@@ -67,7 +67,8 @@ class ServeConfig:
     over them (1: one device, with lane compaction).
   split: how several devices share a batch: 'mesh', one search sharded over them
     (`sharding.ShardedSearch`: the devices in lockstep, every lane simulated), or 'threads',
-    the batch cut into an even part per device (each padded to bucket / devices episodes),
+    the batch cut into an even part per device (each padded to bucket / devices episodes,
+    rounded up),
     each searched by its own one-device session (lane compaction) from its own host thread,
     all at once.
   """
@@ -493,7 +494,8 @@ class Server:
           stopping = True
         else:
           pending.append(item)
-          if self.config.max_wait_s is not None:  # the window restarts, up to max_wait_s
+          if self.config.max_wait_s is not None and item.task == pending[0].task:
+            # the window restarts, up to max_wait_s
             deadline = min(time.perf_counter() + self.config.window_s,
                            began + self.config.max_wait_s)
       batch, rest, size = [], [], 0
@@ -631,14 +633,16 @@ class Server:
                     keys=np.asarray(keys)[:num])
     if self._workers is None:
       return self._answer_on(task, task.session, None, episodes, time_limit_s, bucket)
-    # an even part per device (at most bucket / devices episodes: each device's warm size)
-    size = max(1, bucket // len(self.devices))
+    # an even part per device (at most bucket / devices episodes, rounded up: each device's
+    # warm size)
+    size = -(-bucket // len(self.devices))
     cuts = np.array_split(np.arange(num), min(len(self.devices), num))
     futures = [self._workers.submit(
         self._answer_on, task, task.device_sessions[i], self.devices[i],
         {k: v[rows] for k, v in episodes.items()}, time_limit_s, size)
                for i, rows in enumerate(cuts)]
-    answers = [f.result() for f in futures]
+    concurrent.futures.wait(futures)  # every part done before any error is raised: a retry
+    answers = [f.result() for f in futures]  # must not find a device's session still busy
     join = lambda *xs: np.concatenate(xs)
     merged = jax.tree.map(join, *[{k: v for k, v in a.items() if k != 'follow_s'}
                                   for a in answers])
@@ -651,10 +655,12 @@ class Server:
     num = episodes['keys'].shape[0]
     # every array at the bucket's size, padded on the host with copies of the last episode that
     # do not search (`active`): one set of compiled programs serves every episode count
-    pad = lambda x: jnp.asarray(np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)]))
+    # (on its device: a program compiled for another would raise, not copy)
+    put = jnp.asarray if device is None else lambda x: jax.device_put(x, device)
+    pad = lambda x: put(np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)]))
     with jax.default_device(device) if device is not None else contextlib.nullcontext():
       states = type(session.env.node_spec)(**{k: pad(episodes[k]) for k in task.fields})
-      length = jnp.asarray(np.pad(episodes['length'], (0, bucket - num)))  # padding: none
+      length = put(np.pad(episodes['length'], (0, bucket - num)))  # padding: none
       answer = session.answer(states, pad(episodes['actions']), length,
                               pad(episodes['keys']), time_limit_s, bucket,
                               active=np.arange(bucket) < num)

@@ -215,6 +215,8 @@ def compiled_program(jitted, args: tuple, fingerprint: Optional[str],
   leaves, treedef = jax.tree.flatten(args)
   specs = [jax.ShapeDtypeStruct(np.shape(x), x.dtype) for x in leaves]
   devices = [(d.platform, d.device_kind) for d in jax.devices()]
+  if jax.config.jax_default_device is not None:  # a program for one device of several
+    devices.append(str(jax.config.jax_default_device))
   key = hashlib.sha256(repr((fingerprint, source_digest(), library_versions(), devices,
                              str(treedef),
                              [(s.shape, str(s.dtype)) for s in specs])).encode()).hexdigest()
@@ -312,7 +314,7 @@ def _write(path: str, blob: bytes):
   store only saves time."""
   try:
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    temporary = f'{path}.{os.getpid()}.tmp'
+    temporary = f'{path}.{os.getpid()}.{threading.get_ident()}.tmp'
     with open(temporary, 'wb') as f:
       f.write(blob)
     os.replace(temporary, path)

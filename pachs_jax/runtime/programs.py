@@ -166,6 +166,23 @@ def _wait(future: concurrent.futures.Future, stop: Optional[Callable[[], bool]])
       continue
 
 
+def _in_this_threads_device() -> Callable[[Callable], Callable]:
+  """wrap(fn) -> fn run under this thread's `jax.default_device` (a thread starts without the
+  one its creator set: a program compiled there would be for the default device)."""
+  device = jax.config.jax_default_device
+
+  def wrap(fn):
+    if device is None:
+      return fn
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+      with jax.default_device(device):
+        return fn(*args, **kwargs)
+    return run
+  return wrap
+
+
 def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          config: SearchConfig, key: jax.Array, time_limit_s: Optional[float] = None,
          chunk_iterations: Optional[int] = None, search=None,
@@ -244,8 +261,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   # every program compiled (or loaded from the store) at once, beside the model check; without
   # a time limit or compile_first the smaller loops go on beside the search
   threads = concurrent.futures.ThreadPoolExecutor(len(reachable) + 2)
+  here = _in_this_threads_device()  # the helper threads compile for the caller's device
   try:
-    checked = threads.submit(check_model, env, actor_critic, start_nodes, config.num_actions,
+    checked = threads.submit(here(check_model), env, actor_critic, start_nodes, config.num_actions,
                              stored('model check'), owner)
     if padded != num_instances:
       start_nodes, keys, replay = pad_rows((start_nodes, keys, replay), padded)
@@ -263,12 +281,12 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                    need=memory.tree_bytes((programs[init_name].out_shapes, jax.eval_shape(
                        search.result, programs[init_name].out_shapes))))
     if 'result' not in programs:
-      programs['result'] = threads.submit(compiled_program, search.result,
+      programs['result'] = threads.submit(here(compiled_program), search.result,
                                           (programs[init_name].out_shapes,), stored('result'))
     for lanes in reachable:
       if ('loop', lanes) not in programs:
         programs[('loop', lanes)] = threads.submit(
-            compiled_program,
+            here(compiled_program),
             jax.jit(lambda state, n, shrink, lanes=lanes: search.loop(state, n, lanes, shrink),
                     donate_argnums=0),
             (programs[init_name].out_shapes, steps, shrinking), stored(_loop_name(lanes)),
