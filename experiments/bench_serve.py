@@ -254,7 +254,9 @@ def save(args, health: dict, start_s, code, runs: list, big: list, finished: boo
   lines = [f'# pachs serve: latency and answers per second ({args.task})', '',
            f'Device: {document["provenance"]["device"]}; server devices {args.devices}; physics '
            f'{document["server"]["physics"]}; budget {document["server"]["budget"]} evaluations '
-           f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms.'
+           f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms'
+           + (f', restarting up to {args.max_wait_ms:g} ms' if args.max_wait_ms else '')
+           + (f'; devices split: {args.split or "mesh"}' if args.devices > 1 else '') + '.'
            + (f' Start to ready {start_s[0]:.1f} s, to every bucket warm {start_s[1]:.1f} s.'
               if start_s else ''),
            f'Command: `{document["provenance"]["command"]}` at '
