@@ -45,6 +45,8 @@ def start_server(args, environ: dict) -> tuple:
     command += ['--split', args.split]
   if args.max_wait_ms:
     command += ['--max-wait-ms', str(args.max_wait_ms)]
+  if args.pop_size:
+    command += ['-K', str(args.pop_size)]
   began = time.perf_counter()
   process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=environ)
   line = process.stdout.readline()
@@ -169,6 +171,9 @@ def main() -> None:
                       help="the started server's devices (pachs serve --devices)")
   parser.add_argument('--buckets', default=None,
                       help="the started server's buckets (pachs serve --buckets; default its own)")
+  parser.add_argument('-K', '--pop-size', type=argtypes.positive_int, default=None,
+                      help="the started server's edges per instance and iteration (pachs serve "
+                      "-K; default the task's)")
   parser.add_argument('--max-wait-ms', type=argtypes.positive_float, default=None,
                       help="the started server's --max-wait-ms (default: none)")
   parser.add_argument('--split', choices=('mesh', 'threads'), default=None,
@@ -256,7 +261,8 @@ def save(args, health: dict, start_s, code, runs: list, big: list, finished: boo
            f'{document["server"]["physics"]}; budget {document["server"]["budget"]} evaluations '
            f'per request; buckets {health["buckets"]}; window {args.window_ms:g} ms'
            + (f', restarting up to {args.max_wait_ms:g} ms' if args.max_wait_ms else '')
-           + (f'; devices split: {args.split or "mesh"}' if args.devices > 1 else '') + '.'
+           + (f'; devices split: {args.split or "mesh"}' if args.devices > 1 else '')
+           + (f'; K {args.pop_size}' if args.pop_size else '') + '.'
            + (f' Start to ready {start_s[0]:.1f} s, to every bucket warm {start_s[1]:.1f} s.'
               if start_s else ''),
            f'Command: `{document["provenance"]["command"]}` at '

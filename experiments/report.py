@@ -937,31 +937,31 @@ def serving(src: Sources) -> str:
       served_closed_loop(src)])
 
 
-SERVE_GPU_RUN = re.compile(r'gpus(\d+)(-threads)?(-wait([\d.]+))?$')
+SERVE_GPU_RUN = re.compile(r'gpus(\d+)(-threads)?(-wait([\d.]+))?(-k(\d+))?$')
 
 
 def serving_gpus(src: Sources) -> str:
   """The server's batches over 1, 2 and 4 GPUs of one host (each `gpus.sh` run in serve_gpu/:
-  gpus<N>[-threads][-wait<ms>]): 150 episodes at once and 16 clients, against one GPU."""
+  gpus<N>[-threads][-wait<ms>][-k<K>]): 150 episodes at once and 16 clients, against one
+  GPU."""
   folder = os.path.join(src.root, RESULTS, 'serve_gpu')
-  found = sorted((int(m.group(1)), bool(m.group(2)), float(m.group(4) or 0), name)
+  found = sorted((int(m.group(1)), bool(m.group(2)), float(m.group(4) or 0),
+                  int(m.group(6) or 0), name)
                  for name in os.listdir(folder) for m in [SERVE_GPU_RUN.match(name)] if m)
-  runs = {key[:3]: src.load(f'serve_gpu/{key[3]}/bench_serve.json') for key in found}
+  runs = {key[:4]: src.load(f'serve_gpu/{key[4]}/bench_serve.json') for key in found}
   big = {k: next(b for b in r['big_request'] if b['instances'] == 150) for k, r in runs.items()}
   many = {k: next(c for c in r['clients'] if c['clients'] == 16) for k, r in runs.items()}
-  one = runs[(1, False, 0.0)]
+  default = (1, False, 0.0, 0)
+  one = runs[default]
   alone = next(c for c in one['clients'] if c['clients'] == 1)
-  base = big[(1, False, 0.0)]['latency_median_s']
-  rows = [[str(n), '-' if n == 1 else 'threads' if threads else 'mesh',
-           f'restarting, at most {wait:g} ms' if wait else
-           f'{runs[(n, threads, wait)]["settings"]["window_ms"]:g} ms',
-           runs[(n, threads, wait)]['provenance']['git_revision'],
-           num(big[(n, threads, wait)]['latency_median_s']),
-           f'{num(base / big[(n, threads, wait)]["latency_median_s"], 2)}x',
-           num(big[(n, threads, wait)]['reaching_goal_median']),
-           num(many[(n, threads, wait)]['answers_per_s']),
-           num(many[(n, threads, wait)]['mean_requests_per_batch'], 2)]
-          for n, threads, wait in runs]
+  base = big[default]['latency_median_s']
+  rows = [[str(key[0]), '-' if key[0] == 1 else 'threads' if key[1] else 'mesh',
+           f'restarting, at most {key[2]:g} ms' if key[2] else
+           f'{runs[key]["settings"]["window_ms"]:g} ms', str(key[3] or 'default'),
+           runs[key]['provenance']['git_revision'], num(big[key]['latency_median_s']),
+           f'{num(base / big[key]["latency_median_s"], 2)}x',
+           num(big[key]['reaching_goal_median']), num(many[key]['answers_per_s']),
+           num(many[key]['mean_requests_per_batch'], 2)] for key in runs]
   return '\n\n'.join([
       'The server on several GPUs of one H200 host (`pachs serve --devices N`, `serve_gpu/'
       'gpus.sh N`; split: `mesh`, one search sharded over the GPUs, or `threads`, a part per '
@@ -970,12 +970,12 @@ def serving_gpus(src: Sources) -> str:
       f'seeds), and 16 clients of one episode each. At revision '
       f'`{one["provenance"]["git_revision"]}` the 1- and 2-GPU servers ran at once on GPUs 0 '
       'and 1-2 of one host, the 4-GPU server alone:',
-      table(['GPUs', 'split', 'gathering window', 'revision', '150 episodes: latency (s)',
+      table(['GPUs', 'split', 'gathering window', 'K', 'revision', '150 episodes: latency (s)',
              'vs 1 GPU', 'reaching the goal', '16 clients: answers/s', 'requests per batch'],
             rows),
       f'On one GPU, one episode alone took {num(alone["search_median_s"])} s and 150 at once '
-      f'{num(big[(1, False, 0.0)]["search_median_s"])} s: 150 times the physics for '
-      f'{num(big[(1, False, 0.0)]["search_median_s"] / alone["search_median_s"], 2)} times the '
+      f'{num(big[default]["search_median_s"])} s: 150 times the physics for '
+      f'{num(big[default]["search_median_s"] / alone["search_median_s"], 2)} times the '
       'time. Most of an iteration\'s cost is a fixed cost per physics call (the kernels of 8 '
       'control steps of 20 physics steps each), which every GPU pays again when the episodes '
       'are split; only the part that grows with the worlds is divided.'])

@@ -392,7 +392,8 @@ def _serve(args: argparse.Namespace) -> int:
     _say(f'pachs serve: loading {task}', file=sys.stderr)
     planners[task] = planner.Planner(task, backend=args.backend, budget=args.budget,
                                      cache=not args.no_cache,
-                                     layout=args.layout if task == 'pusht-obs' else None)
+                                     layout=args.layout if task == 'pusht-obs' else None,
+                                     **flags.search_overrides(args))
   server = serve.Server(planners, config)
   server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr), every=args.warm_all)
   return serve.serve_forever(server, args.host, args.port, lambda url: _say(
@@ -614,6 +615,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                       help='the largest time_limit_s a request may ask (default 60 s)')
   served.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the host's first N devices share each batch's search (default 1)")
+  flags.add_search_flags(served, ['pop_size'])
   served.add_argument('--split', choices=('mesh', 'threads'), default='mesh',
                       help='how --devices share a batch: one search sharded over them (mesh, '
                       'the default) or a part per device, each searched from its own thread')

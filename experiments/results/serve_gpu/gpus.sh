@@ -11,7 +11,8 @@
 # BUDGET_S: the whole script's limit (570 s); GPU_OFFSET=g: GPUs g..g+N-1 (beside another job);
 # SPLIT=threads: N > 1 GPUs share a batch in parts, one per GPU (pachs serve --split threads;
 # written as s/gpus<N>-threads/; default mesh); MAX_WAIT_MS=m: pachs serve --max-wait-ms m (the
-# window restarts at each request; written as s/gpus<N>[-threads]-wait<m>/).
+# window restarts at each request; written as s/gpus<N>[-threads]-wait<m>/); K=k: pachs serve -K k
+# (edges per instance and iteration; written with -k<k> last).
 set -u
 if [ "$#" -lt 1 ]; then echo "usage: OUT=dir bash $0 N [N ...] (GPU counts)" >&2; exit 2; fi
 END=$((SECONDS + ${BUDGET_S:-570}))
@@ -25,6 +26,7 @@ for n in "$@"; do
   name=gpus$n; extra=()
   if [ "$n" -gt 1 ] && [ "${SPLIT:-mesh}" != mesh ]; then name=gpus$n-$SPLIT; extra=(--split "$SPLIT"); fi
   if [ -n "${MAX_WAIT_MS:-}" ]; then name=$name-wait$MAX_WAIT_MS; extra+=(--max-wait-ms "$MAX_WAIT_MS"); fi
+  if [ -n "${K:-}" ]; then name=$name-k$K; extra+=(-K "$K"); fi
   # the buckets these requests use (each takes 30-45 s to warm on an H200)
   if [ "$n" = 1 ]; then clients=1,16; big=30,150; buckets=1,16,256
   else clients=16; big=150; buckets=16,256; fi
