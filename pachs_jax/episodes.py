@@ -197,8 +197,9 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     # an answer that a check cut (`replan.AnswerCheck`) is executed up to its safe length, then
     # replanned at once: no policy fill
     safe = getattr(answer, 'safe_length', None)
-    cut = np.zeros(num, bool) if safe is None else running & (np.asarray(safe) < lengths)
-    lengths = np.where(cut, safe, lengths) if safe is not None else lengths
+    safe = lengths if safe is None else np.asarray(safe)
+    cut = running & (safe < lengths)
+    lengths = np.where(cut, safe, lengths)
     log.cut_answers += cut
     actions = answer.actions[:, :execute]
     empty = running & (lengths == 0)

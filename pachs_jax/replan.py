@@ -411,11 +411,12 @@ class Session:
     if rows not in self._compiled:  # compiled before the query's clock, as the search is
       self._compiled[rows] = self._follow.lower(*args).compile()
     if self.check is not None:  # each episode's own keys for its perturbed copies
+      check_starts = jax.tree.map(pad, states)
       check_keys = jax.vmap(lambda k: jax.random.fold_in(k, CHECK_STREAM))(
           pad(instance_keys(key, num)))
-      check_args = (jax.tree.map(pad, states), args[1][:rows], args[2][:rows], check_keys)
-      if rows not in self._checks:
-        self._checks[rows] = self._safe_length.lower(*check_args).compile()
+      if rows not in self._checks:  # (args: the remainders [2 rows], the first row an answer's)
+        self._checks[rows] = self._safe_length.lower(
+            check_starts, args[1][:rows], args[2][:rows], check_keys).compile()
     began = time.perf_counter()
     followed = jax.block_until_ready(self._compiled[rows](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
@@ -443,7 +444,7 @@ class Session:
                           jax.tree.map(grow, policy), horizon)
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
-          check_args[0], answer.actions, answer.length, check_keys))
+          check_starts, answer.actions, answer.length, check_keys))
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
     answer = jax.block_until_ready(answer)
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's time included

@@ -616,9 +616,9 @@ class Server:
     (split 'threads': an even part per device, each padded to bucket / devices, at once)."""
     horizon = task.session.horizon
     num = sum(next(iter(p[0].values())).shape[0] for p in parts)
-    last_actions = np.zeros((bucket, horizon, task.session.env.action_size), np.float32)
-    last_length = np.zeros(bucket, np.int32)
-    executed = np.full(bucket, DIVERGED, np.int32)
+    last_actions = np.zeros((num, horizon, task.session.env.action_size), np.float32)
+    last_length = np.zeros(num, np.int32)
+    executed = np.full(num, DIVERGED, np.int32)
     row = 0
     for states, actions, length, done in parts:
       n = next(iter(states.values())).shape[0]
@@ -626,10 +626,8 @@ class Server:
         last_actions[row:row + n], last_length[row:row + n] = actions, length
         executed[row:row + n] = done
       row += n
-    actions, length = task.remainder(jnp.asarray(last_actions), jnp.asarray(last_length),
-                                     jnp.asarray(executed))
     episodes = {k: np.concatenate([p[0][k] for p in parts]) for k in task.fields}
-    episodes.update(actions=np.asarray(actions)[:num], length=np.asarray(length)[:num],
+    episodes.update(last_actions=last_actions, last_length=last_length, executed=executed,
                     keys=np.asarray(keys)[:num])
     if self._workers is None:
       return self._answer_on(task, task.session, None, episodes, time_limit_s, bucket)
@@ -650,8 +648,9 @@ class Server:
 
   def _answer_on(self, task: Task, session: replan.Session, device, episodes, time_limit_s,
                  bucket) -> Dict[str, np.ndarray]:
-    """`_answer`'s fields of episodes (NodeState fields, actions, length, keys [n, ...] NumPy)
-    planned by session on device (None: the default) in a batch padded to bucket."""
+    """`_answer`'s fields of episodes (NodeState fields, last_actions, last_length, executed,
+    keys [n, ...] NumPy) planned by session on device (None: the default) in a batch padded to
+    bucket, from each last answer's remainder."""
     num = episodes['keys'].shape[0]
     # every array at the bucket's size, padded on the host with copies of the last episode that
     # do not search (`active`): one set of compiled programs serves every episode count
@@ -660,8 +659,11 @@ class Server:
     pad = lambda x: put(np.concatenate([x, np.repeat(x[-1:], bucket - num, axis=0)]))
     with jax.default_device(device) if device is not None else contextlib.nullcontext():
       states = type(session.env.node_spec)(**{k: pad(episodes[k]) for k in task.fields})
-      length = put(np.pad(episodes['length'], (0, bucket - num)))  # padding: none
-      answer = session.answer(states, pad(episodes['actions']), length,
+      # the padding has no last answer
+      actions, length = task.remainder(pad(episodes['last_actions']),
+                                       put(np.pad(episodes['last_length'], (0, bucket - num))),
+                                       pad(episodes['executed']))
+      answer = session.answer(states, actions, length,
                               pad(episodes['keys']), time_limit_s, bucket,
                               active=np.arange(bucket) < num)
       first = lambda x: np.asarray(x)[:num]
