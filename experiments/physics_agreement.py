@@ -53,10 +53,11 @@ from pachs_jax.envs import pusht  # noqa: E402
 
 P = pusht.PushTConfig
 # Every named candidate below is PushTConfig physics fields over the 'planar' preset (the default
-# when they were written); 'faithful' spells out today's defaults.
+# when they were written); 'faithful' spells out the faithful physics with soft blocks (the
+# 'soft-blocks' preset), 'faithful margin3mm' today's defaults.
 BASE = pusht.PHYSICS_PRESETS['planar']
 PLANAR = dict()  # the planar preset itself
-FAITHFUL = {f: getattr(P(), f) for f in pusht.PHYSICS_FIELDS}
+FAITHFUL = {f: getattr(pusht.physics_preset('soft-blocks'), f) for f in pusht.PHYSICS_FIELDS}
 MANISKILL_STEP = dict(physics_dt=0.01, substeps=5)
 HARD = dict(block_solref=(0.005, 1.0), block_solimp=(0.99, 0.999, 0.0005, 0.5, 2))
 # stiff blocks that hold: 2.5 ms steps, MuJoCo's solref clamp (2 dt) met, 20 solver iterations
@@ -85,7 +86,7 @@ PENETRATION = {
     'faithful 1.25ms x40 margin1mm': dict(FINE, block_margin=0.001),
     'faithful 1.25ms x40 margin2mm': dict(FINE, block_margin=0.002),
     'faithful margin2mm': dict(FAITHFUL, block_margin=0.002),
-    'faithful margin3mm': dict(FAITHFUL, **pusht.PHYSICS_PRESETS['hard-blocks']),
+    'faithful margin3mm': dict(FAITHFUL, block_margin=0.003),
     'planar': PLANAR,
     '10ms x5': MANISKILL_STEP,
     '10ms x5 hard': dict(**MANISKILL_STEP, **HARD),

@@ -289,8 +289,8 @@ def faithful(src: Sources) -> str:
                   num(100 * r['tip_height_near_t_median_m'], 2)] for r in policy]
   agree = {r['layout']: r for r in src.load('faithful_gpu/agreement.json')['rows']
            if r['horizon'] == 10}
-  deep = {r['layout']: r for r in src.load('physics/penetration_faithful.json')['rows']
-          if r['physics'] == 'faithful'}
+  deep = {r['layout']: r for r in src.load('physics/penetration_margin3mm.json')['rows']
+          if r['physics'] == 'faithful margin3mm'}  # the default's settings
   candidates = {}
   for r in (src.load('physics/penetration_faithful.json')['rows']
             + src.load('physics/penetration_margins.json')['rows']):
@@ -306,8 +306,8 @@ def faithful(src: Sources) -> str:
                    num(deep[layout]['stick_block_max_mm'], 2)] for layout in LAYOUTS]
   return '\n\n'.join([
       'PushT\'s default physics is ManiSkill PushT-v1\'s: a free T of 0.8 kg under gravity, '
-      'T-table friction 1.65, 20 Hz control of 20 physics steps of 2.5 ms, stiff blocks '
-      '(docs/tasks.md); the shipped PushT models were trained on it with MuJoCo Warp '
+      'T-table friction 1.65, 20 Hz control of 20 physics steps of 2.5 ms, stiff blocks whose '
+      'contacts act from 3 mm (docs/tasks.md); the shipped PushT models were trained on it with MuJoCo Warp '
       '([training](#training-on-the-faithful-physics-with-warp)). Open loop with Warp '
       f'planners, one GPU per call: {settings["instances"]} instances x {settings["rounds"]} '
       f'seeds, {settings["budget"]:,} evaluations per run:',
@@ -344,7 +344,9 @@ def faithful(src: Sources) -> str:
       '60 steps per layout):',
       table(['layout', 'position p90 (mm)', 'angle p90 (deg)', 'position p99 (mm)',
              'T-block max (mm)', 'stick-block max (mm)'], physics_rows),
-      'Candidates for shallower block contacts, the same rollouts (deepest over the five '
+      'How the blocks\' margin was chosen. Candidates for shallower block contacts than blocks '
+      'without a margin ("faithful" in these tables, the preset `soft-blocks`), the same '
+      'rollouts (deepest over the five '
       'layouts; a control step\'s physics on this CPU, one thread, in ms): contact margins '
       'of 1 and 2 mm on the blocks (their contacts act from that distance, so nothing sinks '
       'into the block itself), 1.25 ms steps with the blocks\' solref at its 2-step limit, '
@@ -353,7 +355,7 @@ def faithful(src: Sources) -> str:
             candidate_rows),
       'Again in one run, so that the costs compare (each physics step\'s cost is the median '
       'over the layouts; the margin adds no cost per step): a 3 mm margin at the faithful '
-      'step is the preset `hard-blocks`, the candidate for the default:',
+      'step is the default:',
       table(['physics', 'T-block max (mm)', 'stick-block max (mm)', 'control step (ms)'],
             one_run_candidates(src.load('physics/penetration_margin3mm.json'))),
       'Warp against the MuJoCo C world for the candidates, measured as above but with Warp\'s '
@@ -365,14 +367,14 @@ def faithful(src: Sources) -> str:
                                 'physics/agreement_margin3mm_cpu.json')),
       'The same on the GPU (Warp\'s CUDA kernels, '
       f'{src.load("physics/agreement_hard_gpu.json")["provenance"]["device"]}), the 1.25 ms '
-      'candidate and the default in one run:',
+      'candidate and blocks without a margin in one run:',
       candidate_agreement(src, ('physics/agreement_hard_gpu.json',)),
       hard_blocks_screen(src)])
 
 
 def hard_blocks_screen(src: Sources) -> str:
-  """PACHS on PushT-Obs with the faithful physics and the hard-blocks candidate, MuJoCo C on a
-  CPU, the same instances and budget."""
+  """PACHS on PushT-Obs with blocks without a margin and with the default's 3 mm margin,
+  MuJoCo C on a CPU, the same instances and budget (files named by the presets then)."""
   rows, first = [], None
   for layout in ('gate', 'wall', 'slot', 'two-gaps'):
     cells = []
@@ -384,12 +386,12 @@ def hard_blocks_screen(src: Sources) -> str:
     rows.append([layout] + cells)
   s = first['settings']
   return '\n\n'.join([
-      f'PACHS on PushT-Obs in the candidate\'s physics (planners in MuJoCo C on this CPU, '
+      f'PACHS on PushT-Obs with the 3 mm margin (planners in MuJoCo C on this CPU, '
       f'{s["instances"]} instances x {s["rounds"]} seed, {s["budget"]:,} evaluations), against '
-      'the default on the same instances (two runs at a time on the two cores); a screen '
-      'before the GPU runs that would make it the default:',
-      table(['layout', 'faithful: solved', 'mean cost (solved)', 'wall (s)',
-             'hard-blocks: solved', 'mean cost (solved)', 'wall (s)'], rows)])
+      'blocks without a margin on the same instances (two runs at a time on the two cores); a '
+      'screen before the GPU runs:',
+      table(['layout', 'no margin: solved', 'mean cost (solved)', 'wall (s)',
+             '3 mm margin: solved', 'mean cost (solved)', 'wall (s)'], rows)])
 
 
 def one_run_candidates(run: Dict) -> List[List[str]]:
@@ -460,21 +462,22 @@ def answer_counts(row: Dict) -> str:
       f'; {cut:,} cut by the check' if cut else '')
 
 
-# the closed-loop runs on the faithful physics: file suffix -> what ran
+# the closed-loop runs on the default physics (closed_loop_gpu/): file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default: the search's path, the last answer's remainder replayed in "
               "the search, K 64)"),
     ('parallel', 'parallel rollout (256 copies)'),
+    ('pachs-check', 'PACHS, each answer executed up to the first action one of 8 perturbed '
+                    'copies of its start could not take'),
+)
+# the screens on blocks without a margin (closed_loop_soft_gpu/, the soft-blocks preset)
+SOFT_CLOSED_LOOP_VARIANTS = CLOSED_LOOP_VARIANTS[:2] + (
     ('pachs-q1', 'PACHS, 1 s per query'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
     ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
     ('pachs-nofill-q1', 'PACHS, a short answer not followed by policy actions, 1 s per query'),
     ('pachs-k128', 'PACHS, K 128'),
     ('pachs-k128-q1', 'PACHS, K 128, 1 s per query'),
-    ('pachs-hard', 'PACHS, hard-blocks physics (planners and world)'),
-    ('pachs-check', 'PACHS, each answer executed up to the first action one of 8 perturbed '
-                    'copies of its start could not take'),
-    ('parallel-hard', 'parallel rollout, hard-blocks physics (planners and world)'),
 )
 
 
@@ -487,15 +490,14 @@ def failures(summary: Dict) -> str:
   return str(summary['failures']) + ('' if on_policy is None else f' ({on_policy} on policy steps)')
 
 
-def closed_loop_sessions(src: Sources) -> str:
-  """The closed loop on the faithful physics, one GPU per planner, Warp planners: PACHS
-  against the parallel rollout, and each planner's drop from its own physics to MuJoCo C."""
-  folder = 'closed_loop_gpu'
+def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, str]]):
+  """The closed-loop table's rows of one folder's runs, the rows of the planners' drop from
+  their own physics to MuJoCo C, the first run read, and the layouts without a PACHS run."""
   rows, drops, missing, first = [], [], [], None
   for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
     if not src.exists(f'{folder}/{layout}_pachs.json'):
       missing.append(layout)
-    for variant, label in CLOSED_LOOP_VARIANTS:
+    for variant, label in variants:
       name = f'{folder}/{layout}_{variant}.json'
       if not src.exists(name):
         continue
@@ -521,10 +523,25 @@ def closed_loop_sessions(src: Sources) -> str:
         drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
                       f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                       f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
+  return rows, drops, first, missing
+
+
+CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episode',
+                       '/ rollout\'s', 'iterations per query', 'ms per iteration',
+                       'empty answers', 'T tipped (failed)', 'PACHS answers']
+
+
+def closed_loop_sessions(src: Sources) -> str:
+  """The closed loop on the default physics, one GPU per planner, Warp planners: PACHS
+  against the parallel rollout; and the screens on blocks without a margin, with each
+  planner's drop from its own physics to MuJoCo C."""
+  folder, soft = 'closed_loop_gpu', 'closed_loop_soft_gpu'
+  rows, _, first, missing = closed_loop_rows(src, folder, CLOSED_LOOP_VARIANTS)
+  soft_rows, drops, soft_first, _ = closed_loop_rows(src, soft, SOFT_CLOSED_LOOP_VARIANTS)
   s, prov = first['settings'], first['provenance']
   steps = summary_of(first, 'pachs')['config']['edge_steps']
   return '\n\n'.join([
-      f'PushT-Obs on the faithful physics, the PushT-Fixed model; Warp planners, MuJoCo C '
+      f'PushT-Obs on the default physics, the PushT-Fixed model; Warp planners, MuJoCo C '
       f'worlds, each planner alone on its GPU ({prov["device"]}; `{folder}/run.sh`, one line '
       f'of runs per GPU). {s["instances"]} instances x {s["rounds"]} rounds per layout and '
       f'planner, all {s["instances"] * s["rounds"]} episodes planned together, '
@@ -532,22 +549,24 @@ def closed_loop_sessions(src: Sources) -> str:
       f'{s["max_queries"]} queries; 95% intervals over the instances. gate-mirror and '
       'wall-right are the held-out layouts (`heldout_layouts.py`). PACHS replans through '
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
-      'file is named by what ran (its command names the file it was written as).',
-      table(['layout', 'planner', 'solved', 'edges per query and episode', '/ rollout\'s',
-             'iterations per query', 'ms per iteration', 'empty answers', 'T tipped (failed)',
-             'PACHS answers'],
-            rows),
-      'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
-      'MuJoCo C world, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      'file is named by what ran (its command names the file it was written as, and the '
+      'physics by `--physics hard-blocks`, the default\'s settings).',
+      table(CLOSED_LOOP_COLUMNS, rows),
       'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
       f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
       'iteration one call of one step for every copy). '
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
-      '"-": a run from before the count; "on policy steps": failed while playing an empty '
-      'answer\'s policy action or the policy\'s fill of a short answer).',
-      (f'Not run on the faithful physics: {", ".join(missing)}. ' if missing else '')
-      + 'The variants that lost (the session\'s candidates, K 256, no replay): '
+      '"on policy steps": failed while playing an empty answer\'s policy action or the '
+      'policy\'s fill of a short answer).'
+      + (f' Not run: {", ".join(missing)}.' if missing else ''),
+      'The screens on blocks without a margin (the T sinks up to 3 mm into a block, the stick '
+      f'4.5 mm: the preset `soft-blocks`; `{soft}/`, {soft_first["provenance"]["device"]}, the '
+      'same protocol; "-" in T tipped: a run from before the count):',
+      table(CLOSED_LOOP_COLUMNS, soft_rows),
+      'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
+      'MuJoCo C world, blocks without a margin, same protocol:',
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
+      'The variants that lost (the session\'s candidates, K 256, no replay): '
       '[measured and not kept](#measured-and-not-kept).'])
 
 
@@ -797,6 +816,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'and the T-block maximum 2.1-3.6 mm (0.2-4.3 mm with the margin): at the 2.5 ms step\'s '
      'stiffness limit only a shorter step lowers both (1.25 ms x 40, above)',
      '`57c2f98`: `physics/penetration_impedance.json`'),
+    ('PushT-Obs open loop on blocks without a margin (the default before the 3 mm margin; Warp, '
+     'one H200), and Warp against MuJoCo C on them',
+     'PACHS solved gate 143, wall 149, detour 8 and slot 144 of 150, the rollout 11, 64, 0 and '
+     '44: the same lead as with the margin; superseded by the default\'s runs',
+     '`cdaabdc`: `faithful_gpu/gate.json`, `wall.json`, `detour.json`, `slot.json`, '
+     '`agreement.json`'),
     ('Closed loop on the planar physics (Warp planners, sessions with both candidates)',
      'superseded by the faithful physics\' runs', '`9053f4e`: `closed_loop_gpu/`'),
     ('Closed loop with MJX planners (float32 plans executed in MuJoCo C), also with the plans '
@@ -998,12 +1023,13 @@ def five_buckets(run: Dict) -> str:
 def served_closed_loop(src: Sources) -> str:
   """The closed loop's protocol through a server against the same protocol in process."""
   served = summary_of(src.load('serve_gpu/wall_pachs-served.json'), 'pachs')
-  own = summary_of(src.load('closed_loop_gpu/wall_pachs.json'), 'pachs')
+  own = summary_of(src.load('closed_loop_soft_gpu/wall_pachs.json'), 'pachs')
   prov = src.load('serve_gpu/wall_pachs-served.json')['provenance']
   solved = lambda a: f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
   return (f'The closed loop through a server (`serve_gpu/run.sh`: `pachs serve` and '
           f'`closed_loop.py --server`, {prov["device"]}; wall, the protocol of '
-          '[the closed loop](#closed-loop-on-the-faithful-physics)): PACHS solved '
+          '[the closed loop](#closed-loop-on-the-faithful-physics), blocks without a margin): '
+          'PACHS solved '
           f'{solved(served)} of its episodes, in process {solved(own)}; '
           f'{num(served["evaluations_per_query_mean"])} edges per query and episode against '
           f'{num(own["evaluations_per_query_mean"])}.')

@@ -242,10 +242,12 @@ def test_shelf_on_a_cpu_says_that_it_plans_instance_0_only(monkeypatch, capsys):
 
 
 def test_a_physics_preset_reaches_the_planners_env_and_is_refused_where_it_does_not_apply():
-  env, _ = planner.load_model('pusht-obs', layout='wall', physics='hard-blocks')
-  want = pusht.physics_preset('hard-blocks', variant='obs', layout='wall')
-  assert env.config == want and want.block_margin == 0.003
-  assert env.config != pusht.physics_preset('faithful', variant='obs', layout='wall')
+  env, _ = planner.load_model('pusht-obs', layout='wall', physics='soft-blocks')
+  want = pusht.physics_preset('soft-blocks', variant='obs', layout='wall')
+  assert env.config == want and want.block_margin == 0.0
+  default = pusht.physics_preset('faithful', variant='obs', layout='wall')
+  assert env.config != default and default.block_margin == 0.003
+  assert planner.load_model('pusht-obs', layout='wall')[0].config == default
   with pytest.raises(ValueError, match="task 'shelf' has no option physics"):
     planner.load_model('shelf', physics='planar')
   with pytest.raises(ValueError, match="unknown physics preset 'soft'"):

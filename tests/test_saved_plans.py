@@ -168,7 +168,16 @@ def test_the_shipped_models_record_their_physics_and_a_mismatch_is_said():
   planar = pusht.PushTEnv(pusht.physics_preset('planar'))
   note = checkpoint.physics_mismatch(path, planar)
   assert "trained on other physics than 'pusht-fixed'" in note
-  assert 'physics_dt 0.0025 -> 0.0125' in note and 'and 4 more' in note  # 8 fields differ
+  assert 'physics_dt 0.0025 -> 0.0125' in note and 'and 2 more' in note  # 6 fields differ
+  # a task without obstacles records no block contacts: the model trained on PushT-Fixed meets
+  # any block settings of PushT-Obs without a mismatch, other settings with one
+  assert not set(pusht.BLOCK_FIELDS) & set(default.physics_settings)
+  for physics in ('faithful', 'soft-blocks'):
+    obs = pusht.PushTEnv(pusht.physics_preset(physics, variant='obs', layout='wall'))
+    assert obs.physics_settings['block_margin'] == obs.config.block_margin
+    assert checkpoint.physics_mismatch(path, obs) is None
+  damped = pusht.PushTEnv(pusht.PushTConfig(variant='obs', layout='wall', t_damping=0.7))
+  assert 't_damping 0.5 -> 0.7' in checkpoint.physics_mismatch(path, damped)
 
 
 def test_make_env_builds_the_engine_a_plan_names():

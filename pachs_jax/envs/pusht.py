@@ -53,7 +53,8 @@ class PushTConfig:
   t_damping, t_yaw_damping: planar only: T joint damping (N s / m, N m s / rad).
   solver: MuJoCo's constraint solver, 'Newton' or 'CG'.
   block_solref, block_solimp, block_margin: contact parameters of the T-block and stick-block
-    pairs (None: MuJoCo's defaults; margin in m).
+    pairs (None: MuJoCo's defaults; margin in m: the contacts act from that distance, so that
+    the T and the stick stop at the block's face instead of sinking into it).
   w_angle, w_position, w_reach: cost weights of the three dense terms.
   w_height: free T only: cost weight (per m) of the stick tip's height off the T's half height,
     where a push slides the T; above the T's top it rides over the T and tips it.
@@ -75,7 +76,7 @@ class PushTConfig:
   solver: str = 'Newton'
   block_solref: tuple | None = (0.005, 1.0)
   block_solimp: tuple | None = (0.99, 0.999, 0.001, 0.5, 2.0)
-  block_margin: float = 0.0
+  block_margin: float = 0.003
   w_angle: float = 1.0
   w_position: float = 3.0
   w_reach: float = 0.5
@@ -102,9 +103,11 @@ def config_layout(config: PushTConfig) -> layouts.Layout | None:
 # Named physics settings (`physics_presets`: a light module, for the scripts' flags).
 PHYSICS_PRESETS = physics_presets.PHYSICS_PRESETS
 # The PushTConfig fields that make the physics model (`physics_settings`); the others make the task.
+# BLOCK_FIELDS act only where a layout has blocks.
 PHYSICS_FIELDS = ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations',
                   'table_friction', 'pusher_friction', 't_body', 't_friction_radius', 't_damping',
                   't_yaw_damping', 'solver', 'block_solref', 'block_solimp', 'block_margin')
+BLOCK_FIELDS = ('block_solref', 'block_solimp', 'block_margin')
 T_BODIES = ('planar', 'free')
 SOLVERS = ('Newton', 'CG')
 
@@ -143,10 +146,12 @@ def check_physics(config: PushTConfig) -> None:
                      f'{c.success_coverage!r}')
 
 
-def physics_settings(config: PushTConfig) -> dict:
-  """The config's `PHYSICS_FIELDS` as JSON values (tuples as lists)."""
+def physics_settings(config: PushTConfig, blocks: bool = True) -> dict:
+  """The config's `PHYSICS_FIELDS` as JSON values (tuples as lists); without `blocks` (a task
+  without obstacles) less the `BLOCK_FIELDS`, which simulate nothing there."""
   value = lambda v: list(v) if isinstance(v, tuple) else v
-  return {name: value(getattr(config, name)) for name in PHYSICS_FIELDS}
+  return {name: value(getattr(config, name)) for name in PHYSICS_FIELDS
+          if blocks or name not in BLOCK_FIELDS}
 
 
 def physics_preset(name: str, **fields) -> PushTConfig:
@@ -528,7 +533,7 @@ class PushTEnv(base.Env):
 
   @property
   def physics_settings(self) -> dict:
-    return physics_settings(self.config)
+    return physics_settings(self.config, blocks=self.layout is not None)
 
   @property
   def action_size(self) -> int:

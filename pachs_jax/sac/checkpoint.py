@@ -379,13 +379,16 @@ def trained_physics(path: str) -> Optional[Dict[str, Any]]:
 
 def physics_mismatch(path: str, env: base.Env) -> Optional[str]:
   """A line saying how env's physics model differs from the one the export at path was
-  trained on (None: the same settings, or nothing recorded). Engines that simulate the same
-  settings (MJX, Warp, MuJoCo C) are not a mismatch."""
+  trained on (None: the same settings, or nothing recorded). Only the settings both record are
+  compared (a task without obstacles records no obstacle contacts); engines that simulate the
+  same settings (MJX, Warp, MuJoCo C) are not a mismatch."""
   record = trained_physics(path)
   if record is None or record.get('settings') == env.physics_settings:
     return None
   trained, now = record.get('settings') or {}, env.physics_settings or {}
-  differ = sorted(k for k in set(trained) | set(now) if trained.get(k) != now.get(k))
+  differ = sorted(k for k in set(trained) & set(now) if trained[k] != now[k])
+  if not differ:
+    return None
   shown = ', '.join(f'{k} {trained.get(k)!r} -> {now.get(k)!r}' for k in differ[:4])
   more = f' and {len(differ) - 4} more' if len(differ) > 4 else ''
   return (f'the model at {path} was trained on other physics than {env.name!r} simulates '

@@ -7,7 +7,8 @@
 # rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
 # (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
 # planners' own physics), nofill (a short answer is not followed by policy actions: the next
-# query comes sooner), hard (the hard-blocks physics preset, planners and worlds), check (each
+# query comes sooner), soft (the soft-blocks physics preset, planners and worlds: the screens
+# in ../closed_loop_soft_gpu/), check (each
 # answer executed up to the first action one of 8 perturbed copies of its start could not take:
 # closed_loop.py --check-copies 8).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
@@ -26,7 +27,7 @@ o=$OUT/r; mkdir -p "$o"
 CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp} ${EXTRA:-}"
 if [ "${WARM:-1}" = 1 ]; then  # each physics the runs use
   physics=('')
-  case " $* " in *-hard*) physics+=(hard-blocks) ;; esac
+  case " $* " in *-soft*) physics+=(soft-blocks) ;; esac
   for p in "${physics[@]}"; do
     CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $CL --layout gate --planners pachs --instances 1 \
       --rounds 1 --max-queries 2 ${p:+--physics $p} --out /tmp/warp_kernels.json \
@@ -49,7 +50,7 @@ run() {  # the command line of one run
       q[0-9]*) flags+=(--query-time "${opt#q}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       nofill) flags+=(--fill-with-policy 0) ;;
-      hard) flags+=(--physics hard-blocks) ;;
+      soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac

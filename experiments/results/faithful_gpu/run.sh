@@ -7,8 +7,9 @@
 #   OUT=dir bash experiments/results/faithful_gpu/run.sh 'tasks,agreement' 'gate,wall,detour'
 # (the runs of the results: 2 GPUs; pusht-rand and wall were cut by the limit and ran again alone)
 # GPU_OFFSET=n: the lines start at GPU n (beside another job script); BUDGET_S: the lines' limit;
-# PHYSICS=hard-blocks: every job on that preset (the agreement: the candidate 'faithful
-# margin3mm', the same settings), packed as hard-blocks.tgz.
+# PHYSICS=soft-blocks: every job on that preset (the agreement: physics_agreement.py's
+# candidate 'faithful', the same settings; unset: 'faithful margin3mm', the default's), packed
+# as soft-blocks.tgz.
 set -u
 if [ "$#" -lt 1 ]; then
   echo "usage: OUT=dir bash $0 JOBS [JOBS ...] (one line per GPU; jobs: tasks, agreement," \
@@ -20,9 +21,9 @@ o=$OUT/r; mkdir -p "$o"
 PHYSICS=${PHYSICS:-}
 OL="python3 experiments/open_loop.py --backend warp ${PHYSICS:+--physics $PHYSICS}"
 case $PHYSICS in
-  '') candidate=faithful ;;
-  hard-blocks) candidate='faithful margin3mm' ;;
-  *) echo "run.sh: PHYSICS=$PHYSICS: faithful (unset) or hard-blocks" >&2; exit 2 ;;
+  '') candidate='faithful margin3mm' ;;
+  soft-blocks) candidate=faithful ;;
+  *) echo "run.sh: PHYSICS=$PHYSICS: faithful (unset) or soft-blocks" >&2; exit 2 ;;
 esac
 CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} $OL --task pusht-obs --layout slot --planners pachs-improve --instances 1 --rounds 1 \
   --budget 2000 --out /tmp/warp_kernels.json > "$o/warp_kernels.log" 2>&1
