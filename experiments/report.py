@@ -974,7 +974,8 @@ def serving_gpus(src: Sources) -> str:
                   int(m.group(6) or 0), name)
                  for name in os.listdir(folder) for m in [SERVE_GPU_RUN.match(name)] if m)
   runs = {key[:4]: src.load(f'serve_gpu/{key[4]}/bench_serve.json') for key in found}
-  big = {k: next(b for b in r['big_request'] if b['instances'] == 150) for k, r in runs.items()}
+  big = {k: next((b for b in r['big_request'] if b['instances'] == 150), None)
+         for k, r in runs.items()}  # None: the run ended before that phase
   many = {k: next(c for c in r['clients'] if c['clients'] == 16) for k, r in runs.items()}
   default = (1, False, 0.0, 0)
   one = runs[default]
@@ -983,9 +984,10 @@ def serving_gpus(src: Sources) -> str:
   rows = [[str(key[0]), '-' if key[0] == 1 else 'threads' if key[1] else 'mesh',
            f'restarting, at most {key[2]:g} ms' if key[2] else
            f'{runs[key]["settings"]["window_ms"]:g} ms', str(key[3] or 'default'),
-           runs[key]['provenance']['git_revision'], num(big[key]['latency_median_s']),
-           f'{num(base / big[key]["latency_median_s"], 2)}x',
-           num(big[key]['reaching_goal_median']), num(many[key]['answers_per_s']),
+           runs[key]['provenance']['git_revision'],
+           *([num(big[key]['latency_median_s']), f'{num(base / big[key]["latency_median_s"], 2)}x',
+              num(big[key]['reaching_goal_median'])] if big[key] else ['not reached'] * 3),
+           num(many[key]['answers_per_s']),
            num(many[key]['mean_requests_per_batch'], 2)] for key in runs]
   return '\n\n'.join([
       'The server on several GPUs of one H200 host (`pachs serve --devices N`, `serve_gpu/'
@@ -994,7 +996,8 @@ def serving_gpus(src: Sources) -> str:
       'request), 10,000 evaluations per episode: 150 episodes asked at once (30 instances x 5 '
       f'seeds), and 16 clients of one episode each. At revision '
       f'`{one["provenance"]["git_revision"]}` the 1- and 2-GPU servers ran at once on GPUs 0 '
-      'and 1-2 of one host, the 4-GPU server alone:',
+      'and 1-2 of one host, the 4-GPU server alone ("not reached": the device command\'s '
+      'limit ended the run before that phase):',
       table(['GPUs', 'split', 'gathering window', 'K', 'revision', '150 episodes: latency (s)',
              'vs 1 GPU', 'reaching the goal', '16 clients: answers/s', 'requests per batch'],
             rows),
