@@ -163,6 +163,7 @@ def make_env(task: str, physics: str, layout: Optional[str] = None,
   from pachs_jax import envs  # pylint: disable=import-outside-toplevel  (MuJoCo)
   from pachs_jax.envs import backends, pusht  # pylint: disable=import-outside-toplevel
   env = envs.make(task, layout=layout)
+  physics_settings = _without_unused_blocks(physics_settings, env)
   if physics_settings is not None and physics_settings != env.physics_settings:
     unknown = sorted(set(physics_settings) - set(pusht.PHYSICS_FIELDS))
     if unknown or not isinstance(env, pusht.PushTEnv):
@@ -179,6 +180,17 @@ def make_env(task: str, physics: str, layout: Optional[str] = None,
   return built
 
 
+def _without_unused_blocks(settings: Optional[Dict[str, Any]], env: base.Env
+                           ) -> Optional[Dict[str, Any]]:
+  """settings less the PushT block contacts that env does not record (a task without
+  obstacles: plans saved before such tasks left them out recorded them)."""
+  from pachs_jax.envs import pusht  # pylint: disable=import-outside-toplevel  (MuJoCo)
+  if settings is None:
+    return None
+  recorded = env.physics_settings or {}
+  return {k: v for k, v in settings.items() if k in recorded or k not in pusht.BLOCK_FIELDS}
+
+
 def replay(env: base.Env, plan: Plan) -> Replay:
   """Applies the plan's actions from its start state through `env.evaluate` (the physics the
   search used, one world) and returns the states reached and their costs. ValueError when the
@@ -187,9 +199,9 @@ def replay(env: base.Env, plan: Plan) -> Replay:
     raise ValueError(f'this plan was made with {plan.physics} physics and env {env.name!r} '
                      f'simulates with {env.physics}, where it reaches other states: replay it '
                      f"on saved_plans.make_env(task, {plan.physics!r}, layout, settings)")
-  if plan.physics_settings is not None and plan.physics_settings != env.physics_settings:
-    differ = sorted(k for k in plan.physics_settings
-                    if plan.physics_settings[k] != (env.physics_settings or {}).get(k))
+  settings = _without_unused_blocks(plan.physics_settings, env)
+  if settings is not None and settings != env.physics_settings:
+    differ = sorted(k for k in settings if settings[k] != (env.physics_settings or {}).get(k))
     raise ValueError(f'this plan was made with other physics settings than env {env.name!r} '
                      f'simulates ({", ".join(differ[:4])}), where it reaches other states: '
                      'replay it on saved_plans.make_env(task, physics, layout, '

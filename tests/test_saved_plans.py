@@ -1,6 +1,7 @@
 """`plans`: each instance's plan as actions and states, its JSON form, and its replay through the
 env's own transition, against the search's own path."""
 
+import dataclasses
 import json
 
 import jax
@@ -152,7 +153,15 @@ def test_a_plan_refuses_other_physics_settings_and_make_env_builds_them():
   assert other.config.t_damping == 0.7 and other.physics_settings == back.physics_settings
   planar = saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=pusht.physics_settings(
       pusht.physics_preset('planar')))
-  assert planar.config.t_body == 'planar' and planar.config.block_solimp is None
+  assert planar.config.t_body == 'planar'  # block contacts act nowhere on pusht-fixed
+  assert planar.physics_settings == pusht.physics_settings(pusht.physics_preset('planar'),
+                                                           blocks=False)
+  # a plan saved when tasks without obstacles recorded block contacts replays as before
+  old = dataclasses.replace(plan, physics_settings=pusht.physics_settings(env.config))
+  assert set(pusht.BLOCK_FIELDS) <= set(old.physics_settings)
+  assert saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=old.physics_settings
+                              ).physics_settings == env.physics_settings
+  saved_plans.replay(env, old)
   with pytest.raises(ValueError, match="takes no physics settings t_damping"):
     saved_plans.make_env('shelf', 'jax', physics_settings={'t_damping': 0.7})
 
