@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pachs_jax.envs import base
+from pachs_jax.envs import base, physics_presets
 from pachs_jax.search.baselines import common
 
 NODE_FIELDS = ('qpos', 'qvel', 'ctrl', 'qacc_warmstart', 't')  # the goal is stored once
@@ -163,13 +163,15 @@ def make_env(task: str, physics: str, layout: Optional[str] = None,
   from pachs_jax import envs  # pylint: disable=import-outside-toplevel  (MuJoCo)
   from pachs_jax.envs import backends, pusht  # pylint: disable=import-outside-toplevel
   env = envs.make(task, layout=layout)
-  physics_settings = _without_unused_blocks(physics_settings, env)
-  if physics_settings is not None and physics_settings != env.physics_settings:
+  differ = (physics_presets.differing_settings(physics_settings, env.physics_settings or {})
+            if physics_settings is not None else [])
+  if differ:
     unknown = sorted(set(physics_settings) - set(pusht.PHYSICS_FIELDS))
     if unknown or not isinstance(env, pusht.PushTEnv):
       raise ValueError(f'task {task!r} takes no physics settings '
                        f'{", ".join(unknown or sorted(physics_settings))}')
-    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in physics_settings.items()}
+    fields = {k: tuple(v) if isinstance(v, list) else v
+              for k, v in physics_settings.items() if k in differ}
     env = pusht.PushTEnv(dataclasses.replace(env.config, **fields))
   if physics == env.physics:
     return env
@@ -180,17 +182,6 @@ def make_env(task: str, physics: str, layout: Optional[str] = None,
   return built
 
 
-def _without_unused_blocks(settings: Optional[Dict[str, Any]], env: base.Env
-                           ) -> Optional[Dict[str, Any]]:
-  """settings less the PushT block contacts that env does not record (a task without
-  obstacles: plans saved before such tasks left them out recorded them)."""
-  from pachs_jax.envs import pusht  # pylint: disable=import-outside-toplevel  (MuJoCo)
-  if settings is None:
-    return None
-  recorded = env.physics_settings or {}
-  return {k: v for k, v in settings.items() if k in recorded or k not in pusht.BLOCK_FIELDS}
-
-
 def replay(env: base.Env, plan: Plan) -> Replay:
   """Applies the plan's actions from its start state through `env.evaluate` (the physics the
   search used, one world) and returns the states reached and their costs. ValueError when the
@@ -199,9 +190,9 @@ def replay(env: base.Env, plan: Plan) -> Replay:
     raise ValueError(f'this plan was made with {plan.physics} physics and env {env.name!r} '
                      f'simulates with {env.physics}, where it reaches other states: replay it '
                      f"on saved_plans.make_env(task, {plan.physics!r}, layout, settings)")
-  settings = _without_unused_blocks(plan.physics_settings, env)
-  if settings is not None and settings != env.physics_settings:
-    differ = sorted(k for k in settings if settings[k] != (env.physics_settings or {}).get(k))
+  differ = (physics_presets.differing_settings(plan.physics_settings, env.physics_settings or {})
+            if plan.physics_settings is not None else [])
+  if differ:
     raise ValueError(f'this plan was made with other physics settings than env {env.name!r} '
                      f'simulates ({", ".join(differ[:4])}), where it reaches other states: '
                      'replay it on saved_plans.make_env(task, physics, layout, '

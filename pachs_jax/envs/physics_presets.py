@@ -20,3 +20,15 @@ PHYSICS_PRESETS = {
                    block_margin=0.0),
 }
 NAMES = tuple(PHYSICS_PRESETS)
+
+# The contact settings of PushT's blocks: a task without obstacles records none of them.
+BLOCK_FIELDS = ('block_solref', 'block_solimp', 'block_margin')
+
+
+def differing_settings(recorded: dict, simulated: dict) -> list:
+  """The sorted names of the physics settings (`Env.physics_settings`) whose values differ
+  between a record (a model's, a saved plan's) and an env; a block field counts only where both
+  hold it, every other field also where one of them lacks it."""
+  unused = {k for k in BLOCK_FIELDS if k not in recorded or k not in simulated}
+  return sorted(k for k in (set(recorded) | set(simulated)) - unused
+                if recorded.get(k) != simulated.get(k))

@@ -107,7 +107,7 @@ PHYSICS_PRESETS = physics_presets.PHYSICS_PRESETS
 PHYSICS_FIELDS = ('physics_dt', 'substeps', 'solver_iterations', 'ls_iterations',
                   'table_friction', 'pusher_friction', 't_body', 't_friction_radius', 't_damping',
                   't_yaw_damping', 'solver', 'block_solref', 'block_solimp', 'block_margin')
-BLOCK_FIELDS = ('block_solref', 'block_solimp', 'block_margin')
+BLOCK_FIELDS = physics_presets.BLOCK_FIELDS
 T_BODIES = ('planar', 'free')
 SOLVERS = ('Newton', 'CG')
 

@@ -23,7 +23,7 @@ import orbax.checkpoint as ocp
 import tensorstore as ts
 
 from pachs_jax.runtime import files
-from pachs_jax.envs import base
+from pachs_jax.envs import base, physics_presets
 from pachs_jax.sac import config as config_lib
 from pachs_jax.sac.actor_critic import ActorCriticParams, ModelConfig, SacActorCritic
 from pachs_jax.sac.digest import params_hash
@@ -379,14 +379,14 @@ def trained_physics(path: str) -> Optional[Dict[str, Any]]:
 
 def physics_mismatch(path: str, env: base.Env) -> Optional[str]:
   """A line saying how env's physics model differs from the one the export at path was
-  trained on (None: the same settings, or nothing recorded). Only the settings both record are
-  compared (a task without obstacles records no obstacle contacts); engines that simulate the
-  same settings (MJX, Warp, MuJoCo C) are not a mismatch."""
+  trained on (None: the same settings, or nothing recorded; `physics_presets.
+  differing_settings`); engines that simulate the same settings (MJX, Warp, MuJoCo C) are not a
+  mismatch."""
   record = trained_physics(path)
-  if record is None or record.get('settings') == env.physics_settings:
+  if record is None:
     return None
   trained, now = record.get('settings') or {}, env.physics_settings or {}
-  differ = sorted(k for k in set(trained) & set(now) if trained[k] != now[k])
+  differ = physics_presets.differing_settings(trained, now)
   if not differ:
     return None
   shown = ', '.join(f'{k} {trained.get(k)!r} -> {now.get(k)!r}' for k in differ[:4])
