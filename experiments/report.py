@@ -464,14 +464,20 @@ def answer_counts(row: Dict) -> str:
 
 # the closed-loop runs on the default physics (closed_loop_gpu/): file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
-    ('pachs', "PACHS (the default: the search's path, the last answer's remainder replayed in "
-              "the search, K 64)"),
+    ('pachs-k128', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
+                   "replayed in the search, K 128)"),
+    ('pachs', 'PACHS, K 64 (the default at 3 s before)'),
     ('parallel', 'parallel rollout (256 copies)'),
-    ('pachs-check', 'PACHS, each answer executed up to the first action one of 8 perturbed '
+    ('pachs-check', 'PACHS, K 64, each answer executed up to the first action one of 8 perturbed '
                     'copies of its start could not take'),
+    ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
+    ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
 # the screens on blocks without a margin (closed_loop_soft_gpu/, the soft-blocks preset)
-SOFT_CLOSED_LOOP_VARIANTS = CLOSED_LOOP_VARIANTS[:2] + (
+SOFT_CLOSED_LOOP_VARIANTS = (
+    ('pachs', "PACHS (the search's path, the last answer's remainder replayed in the search, "
+              "K 64)"),
+    ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
     ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
@@ -536,7 +542,7 @@ def closed_loop_sessions(src: Sources) -> str:
   against the parallel rollout; and the screens on blocks without a margin, with each
   planner's drop from its own physics to MuJoCo C."""
   folder, soft = 'closed_loop_gpu', 'closed_loop_soft_gpu'
-  rows, _, first, missing = closed_loop_rows(src, folder, CLOSED_LOOP_VARIANTS)
+  rows, default_drops, first, missing = closed_loop_rows(src, folder, CLOSED_LOOP_VARIANTS)
   soft_rows, drops, soft_first, _ = closed_loop_rows(src, soft, SOFT_CLOSED_LOOP_VARIANTS)
   s, prov = first['settings'], first['provenance']
   steps = summary_of(first, 'pachs')['config']['edge_steps']
@@ -559,6 +565,9 @@ def closed_loop_sessions(src: Sources) -> str:
       '"on policy steps": failed while playing an empty answer\'s policy action or the '
       'policy\'s fill of a short answer).'
       + (f' Not run: {", ".join(missing)}.' if missing else ''),
+      'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
+      'MuJoCo C world, same protocol:',
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops),
       'The screens on blocks without a margin (the T sinks up to 3 mm into a block, the stick '
       f'4.5 mm: the preset `soft-blocks`; `{soft}/`, {soft_first["provenance"]["device"]}, the '
       'same protocol; "-" in T tipped: a run from before the count):',
@@ -848,7 +857,20 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('The planar-physics PushT-Fixed model on the faithful physics (the fine-tuning\'s start)',
      '1 of 16 canonical instances solved in MuJoCo C, 10 T tipped: its tip rode at the T\'s '
      'top edge (4.6 cm)', '`5476e47`: `training/policy_physics.json`'),
+    ('A wider pop for a small request (toward the server\'s 0.5 s for one PushT-Obs episode '
+     'at 10,000 evaluations): one search of 5 episodes, Warp, one H200',
+     lambda src: pop_size_screen(src, 'serve_gpu/lone_pop_size.json'),
+     'in this tree: `serve_gpu/lone_pop_size.json`'),
 )
+
+
+def pop_size_screen(src: Sources, name: str) -> str:
+  """Search time and goals found per K of a lone_pop_size screen."""
+  runs = sorted(src.load(name)['runs'], key=lambda r: -r['pop_size'])
+  return ('; '.join(f'K {r["pop_size"]}: {r["search_time_s"]:.2f} s, {r["found"]} of '
+                    f'{r["instances"]} found' for r in runs)
+          + ': the time falls far less than the iterations (each costs more with K) and '
+          'the wider searches find no goal; K stays the task\'s')
 
 
 def training_run(src: Sources, name: str) -> str:
@@ -1209,13 +1231,17 @@ def closed_loop_headline(src: Sources) -> str:
       pachs, rollout = (summary_of(src.load(n), planner)
                         for n, planner in zip(names, ('pachs', 'parallel')))
       pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
+  wider = [(layout, summary_of(src.load(name), 'pachs')) for layout in LAYOUTS + (
+      'gate-mirror', 'wall-right') if src.exists(name := f'{folder}/{layout}_pachs-k128.json')]
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' (gate-mirror and wall-right held out; '
-          '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
+          + ', '.join(pairs) + ' (K 64; gate-mirror and wall-right held out); with K 128, '
+          'the default at 3 s per query, PACHS solved '
+          + ', '.join(f'{layout} {pct(a["success_rate"])}' for layout, a in wider)
+          + ' ([results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:

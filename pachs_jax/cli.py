@@ -301,14 +301,15 @@ def _loop(args: argparse.Namespace) -> int:
                                cache=not args.no_cache, layout=args.layout)
   if planning.physics_note is not None:
     print(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
-  env, config = planning.env, planning.config
+  env, session = planning.env, planning.session(query_time_s=args.query_time)
+  config = session.config
   worlds = episodes.Worlds(env, planning.canonical(instances))
   print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '
         f'{env.physics} physics: {args.query_time:g} s per query, {args.execute} actions '
-        f'executed, at most {args.max_queries} queries, budget {config.budget}',
-        flush=True)
+        f'executed, at most {args.max_queries} queries, budget {config.budget}, '
+        f'K {config.pop_size}', flush=True)
   import jax  # pylint: disable=import-outside-toplevel
-  log = episodes.run(planning.session(), worlds, args.query_time, args.execute,
+  log = episodes.run(session, worlds, args.query_time, args.execute,
                      args.max_queries, jax.random.PRNGKey(args.seed))
   names = replan.AnswerKind.NAMES
   rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),

@@ -3,6 +3,7 @@ docs/task_defaults.md), its shipped actor-critic, and a result table."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import warnings
@@ -180,10 +181,12 @@ class Planner:
     else:
       self.config = command_config(task, on_cpu, c_physics, budget, **overrides)
       self._num_instances = envs.spec(task).num_instances
+    self._replan_spec = (None if isinstance(task, envs.Env) or overrides.get('pop_size')
+                         is not None or on_cpu else envs.spec(task))  # K from the query time
     self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
                                     prefetch=prefetch)
     self._canonical = None
-    self._replaying = {}  # horizon -> the sessions' search, with room to replay that many actions
+    self._replaying = {}  # (horizon, K) -> the sessions' search, with room to replay the horizon
 
   @property
   def num_instances(self) -> int:
@@ -250,21 +253,35 @@ class Planner:
 
   def session(self, horizon: Optional[int] = None,
               candidates: Sequence[str] = replan.DEFAULT_CANDIDATES,
-              check: Optional[replan.AnswerCheck] = None) -> replan.Session:
+              check: Optional[replan.AnswerCheck] = None,
+              query_time_s: Optional[float] = None) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
     env, model and config, keeping its last answer between queries (horizon, candidates and
-    check as there). Where the config has chain lanes the session's search replays the last answer's
-    remainder and is built apart from `plan`'s, with room for it (once per horizon, shared by
-    the sessions of that horizon); otherwise it shares `plan`'s."""
+    check as there). query_time_s: the seconds its queries will last, which on an accelerator
+    choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one. Where the
+    config has chain lanes the session's search replays the last answer's remainder and is
+    built apart from `plan`'s, with room for it (once per horizon and K, shared by the
+    sessions that have them); otherwise it shares `plan`'s where the K is the same."""
+    config = self.replan_config(query_time_s)
+    rows = int(self.env.episode_length) if horizon is None else horizon
+    rows = rows if config.rollout_lanes else 0
     search = self.search
-    if self.config.rollout_lanes:
-      rows = int(self.env.episode_length) if horizon is None else horizon
-      if rows not in self._replaying:
-        self._replaying[rows] = programs.Programs(pachs.make_search(
-            self.env, self.model, self.config, capacities=capacity.Capacities(replay=rows)))
-      search = self._replaying[rows]
-    return replan.Session(self.env, self.model, self.config, search, horizon, candidates,
+    if rows or config != self.config:
+      if (rows, config.pop_size) not in self._replaying:
+        self._replaying[rows, config.pop_size] = programs.Programs(pachs.make_search(
+            self.env, self.model, config, capacities=capacity.Capacities(replay=rows)))
+      search = self._replaying[rows, config.pop_size]
+    return replan.Session(self.env, self.model, config, search, horizon, candidates,
                           check=check)
+
+  def replan_config(self, query_time_s: Optional[float]) -> SearchConfig:
+    """The SearchConfig of a replanning session whose queries last query_time_s seconds: this
+    planner's, with the task's K for that query time (`TaskSpec.replan_pop_size`; on an
+    accelerator, when the planner was given no K)."""
+    pop_size = (None if self._replan_spec is None
+                else self._replan_spec.replan_pop_size(query_time_s, on_cpu=False))
+    return self.config if pop_size is None else dataclasses.replace(self.config,
+                                                                    pop_size=pop_size)
 
 
 def check_indices(instances, available: int) -> np.ndarray:

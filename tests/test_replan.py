@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import UniformActorCritic
 
-from pachs_jax import replan
+from pachs_jax import envs, replan
 from pachs_jax.envs import base, pusht
 from pachs_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from pachs_jax.replan import AnswerKind
@@ -289,6 +289,23 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
   assert session.check is None
   check = replan.AnswerCheck(pusht.perturb_t, copies=2)
   assert fixed.session(check=check).check is check
+  # on a CPU the query time leaves K as it is; on an accelerator (the task's rule, forced here)
+  # a 3 s session pops 128 in a search of its own, built once, and a 1 s one keeps 64
+  assert obs.session(query_time_s=3.0).search is first.search
+  obs._replan_spec = envs.spec('pusht-obs')  # pylint: disable=protected-access
+  long_a, long_b = obs.session(query_time_s=3.0), obs.session(query_time_s=2.5)
+  assert long_a.config.pop_size == long_b.config.pop_size == 128 != obs.config.pop_size
+  assert long_a.search is long_b.search and long_a.search is not first.search
+  assert long_a.search.search.sizes.replay == obs.env.episode_length
+  assert obs.session(query_time_s=1.0).search is first.search
+
+
+def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
+  obs = envs.spec('pusht-obs')
+  assert [obs.replan_pop_size(t, on_cpu=False) for t in (3.0, 2.0, 1.99, 1.0, None)] == [
+      128, 128, None, None, None]
+  assert obs.replan_pop_size(3.0, on_cpu=True) is None
+  assert envs.spec('pusht-fixed').replan_pop_size(3.0, on_cpu=False) is None
 
 
 class Cliff(PointMassEnv):

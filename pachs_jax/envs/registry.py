@@ -26,6 +26,9 @@ class TaskSpec:
   cpu_overrides: SearchConfig field values that replace either at the CPU budget of `pachs plan`.
   options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`; PushT:
     'physics', a name of `pusht.PHYSICS_PRESETS`).
+  replan_pop_sizes: (seconds, K) pairs, longest first: on an accelerator, a replanning session
+    whose queries last at least that many seconds pops K edges per iteration (`replan_pop_size`;
+    none: search_defaults' K at every query time).
   """
 
   name: str
@@ -36,6 +39,7 @@ class TaskSpec:
   original_search: Optional[Mapping[str, Any]] = None
   cpu_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
   options: Tuple[str, ...] = ()
+  replan_pop_sizes: Tuple[Tuple[float, int], ...] = ()
 
   def algorithm_defaults(self, algorithm: str = 'pachs') -> Mapping[str, Any]:
     """The SearchConfig field values of an algorithm of `ALGORITHMS`; ValueError naming them."""
@@ -43,6 +47,13 @@ class TaskSpec:
       return self.search_defaults
     return self.original_search or dict(self.search_defaults, edge_steps=1, rollout_share=0.0,
                                         uniform_share=0.0)
+
+  def replan_pop_size(self, query_time_s: Optional[float], on_cpu: bool) -> Optional[int]:
+    """K of PACHS replanning with queries of query_time_s seconds (`replan_pop_sizes`); None:
+    the search defaults' (on a CPU, where a wider pop costs its time, and without a clock)."""
+    if on_cpu or query_time_s is None:
+      return None
+    return next((k for seconds, k in self.replan_pop_sizes if query_time_s >= seconds), None)
 
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
@@ -81,6 +92,10 @@ _SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'budget': 100_000}
 _PUSHT = dict(_SEARCH, edge_steps=8, realtime_answer='min_cost')
 _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal='improve',
                   improve_allowance=3.0, uniform_share=0.25)
+# PushT-Obs replanning on a GPU: queries of 2 s or more pop K = 128 (at 3 s, 11-17 iterations a
+# query and 0.86-1.2x the rollout's edges; K 64: 0.66-0.77x); shorter ones keep 64 (at 1 s K 128
+# gets 3-5 iterations, too shallow). docs/task_defaults.md.
+_PUSHT_OBS_REPLAN_POP_SIZES = ((2.0, 128),)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,
@@ -91,7 +106,7 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout', 'physics')),
+             options=('layout', 'physics'), replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}
