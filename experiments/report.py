@@ -464,12 +464,12 @@ def answer_counts(row: Dict) -> str:
 
 # the closed-loop runs on the default physics (closed_loop_gpu/): file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
-    ('pachs-k128', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
-                   "replayed in the search, K 128)"),
-    ('pachs', 'PACHS, K 64 (the default at 3 s before)'),
+    ('pachs', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
+              "replayed in the search, K 128)"),
+    ('pachs-k64', 'PACHS, K 64 (the default at 3 s before)'),
     ('parallel', 'parallel rollout (256 copies)'),
-    ('pachs-check', 'PACHS, K 64, each answer executed up to the first action one of 8 perturbed '
-                    'copies of its start could not take'),
+    ('pachs-k64-check', 'PACHS, K 64, each answer executed up to the first action one of 8 '
+                        'perturbed copies of its start could not take'),
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
@@ -555,8 +555,10 @@ def closed_loop_sessions(src: Sources) -> str:
       f'{s["max_queries"]} queries; 95% intervals over the instances. gate-mirror and '
       'wall-right are the held-out layouts (`heldout_layouts.py`). PACHS replans through '
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
-      'file is named by what ran (its command names the file it was written as, and the '
-      'physics by `--physics hard-blocks`, the default\'s settings).',
+      'file is named by what ran in today\'s terms (`run.sh` runs it by that name); a renamed '
+      'run\'s command names the file it was written as: the K 64 runs were written when K 64 '
+      'was the default, some naming the physics `--physics hard-blocks` (the default\'s '
+      'settings), and the default\'s runs with `-K 128`.',
       table(CLOSED_LOOP_COLUMNS, rows),
       'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
       f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
@@ -564,7 +566,7 @@ def closed_loop_sessions(src: Sources) -> str:
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
       '"on policy steps": failed while playing an empty answer\'s policy action or the '
       'policy\'s fill of a short answer).'
-      + (f' Not run: {", ".join(missing)}.' if missing else ''),
+      + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else ''),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops),
@@ -1223,7 +1225,7 @@ def closed_loop_headline(src: Sources) -> str:
   """The README's closed-loop sentence: PACHS against the rollout on each layout run."""
   folder, pairs, devices = 'closed_loop_gpu', [], set()
   for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
-    names = [f'{folder}/{layout}_{planner}.json' for planner in ('pachs', 'parallel')]
+    names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs-k64', 'parallel')]
     if all(src.exists(n) for n in names):
       devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
                   for n in names}
@@ -1232,7 +1234,7 @@ def closed_loop_headline(src: Sources) -> str:
                         for n, planner in zip(names, ('pachs', 'parallel')))
       pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
   wider = [(layout, summary_of(src.load(name), 'pachs')) for layout in LAYOUTS + (
-      'gate-mirror', 'wall-right') if src.exists(name := f'{folder}/{layout}_pachs-k128.json')]
+      'gate-mirror', 'wall-right') if src.exists(name := f'{folder}/{layout}_pachs.json')]
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '

@@ -3,9 +3,9 @@
 # otherwise), one line of runs per GPU of the host, each line alone on its GPU, one run after
 # another, all within one device command (570 s): 20 instances x 5 rounds per run.
 # A run is LAYOUT/VARIANT; a variant is a planner, pachs (replan.Session, the search's path
-# and the last answer's remainder replayed in its search, by default) or parallel (the parallel
-# rollout), then options joined by '-': remainder, policy (the session's candidates), k<N>
-# (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
+# and the last answer's remainder replayed in its search, by default; K the task's for the
+# query time) or parallel (the parallel rollout), then options joined by '-': remainder, policy
+# (the session's candidates), k<N> (N edges per iteration), q<S> (S seconds per query), planner-world (the plans executed in the
 # planners' own physics), nofill (a short answer is not followed by policy actions: the next
 # query comes sooner), soft (the soft-blocks physics preset, planners and worlds: the screens
 # in ../closed_loop_soft_gpu/), check (each
