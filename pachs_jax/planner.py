@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import math
+import numbers
 import os
 import warnings
 from typing import Callable, List, Optional, Sequence
@@ -277,7 +279,13 @@ class Planner:
   def replan_config(self, query_time_s: Optional[float]) -> SearchConfig:
     """The SearchConfig of a replanning session whose queries last query_time_s seconds: this
     planner's, with the task's K for that query time (`TaskSpec.replan_pop_size`; on an
-    accelerator, when the planner was given no K)."""
+    accelerator, when the planner was given no K); ValueError unless query_time_s is None or
+    a finite number of seconds > 0."""
+    if query_time_s is not None and (
+        isinstance(query_time_s, bool) or not isinstance(query_time_s, numbers.Real)
+        or not math.isfinite(query_time_s) or query_time_s <= 0):
+      raise ValueError(f'query_time_s must be a number of seconds > 0 or None, got '
+                       f'{query_time_s!r}')
     pop_size = (None if self._replan_spec is None
                 else self._replan_spec.replan_pop_size(query_time_s, on_cpu=False))
     return self.config if pop_size is None else dataclasses.replace(self.config,

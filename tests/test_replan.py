@@ -298,6 +298,9 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
   assert long_a.search is long_b.search and long_a.search is not first.search
   assert long_a.search.search.sizes.replay == obs.env.episode_length
   assert obs.session(query_time_s=1.0).search is first.search
+  for bad in (0, -1.0, float('nan'), float('inf'), '3', True):
+    with pytest.raises(ValueError, match='query_time_s must be a number of seconds > 0'):
+      obs.session(query_time_s=bad)
 
 
 def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
