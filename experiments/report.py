@@ -480,8 +480,6 @@ SOFT_CLOSED_LOOP_VARIANTS = (
     ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
-    ('pachs-nofill', 'PACHS, a short answer not followed by policy actions'),
-    ('pachs-nofill-q1', 'PACHS, a short answer not followed by policy actions, 1 s per query'),
     ('pachs-k128', 'PACHS, K 128'),
     ('pachs-k128-q1', 'PACHS, K 128, 1 s per query'),
 )
@@ -577,7 +575,7 @@ def closed_loop_sessions(src: Sources) -> str:
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, blocks without a margin, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
-      'The variants that lost (the session\'s candidates, K 256, no replay): '
+      'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill): '
       '[measured and not kept](#measured-and-not-kept).'])
 
 
@@ -859,6 +857,15 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('The planar-physics PushT-Fixed model on the faithful physics (the fine-tuning\'s start)',
      '1 of 16 canonical instances solved in MuJoCo C, 10 T tipped: its tip rode at the T\'s '
      'top edge (4.6 cm)', '`5476e47`: `training/policy_physics.json`'),
+    ('Closed loop on blocks without a margin (the `soft-blocks` preset, the default before '
+     'the 3 mm margin) on gate, slot, detour and wall-right, K 64',
+     'PACHS / rollout 94% / 62%, 72% / 53%, 4% / 1%, 85% / 42%: superseded by the default\'s '
+     'runs', '`a1346a3`: `closed_loop_soft_gpu/gate_*`, `slot_*`, `detour_*`, `wall-right_*`'),
+    ('Closed loop: a short answer not followed by policy actions (the next query comes sooner; '
+     '`--fill-with-policy 0`), soft blocks, K 64',
+     'at 3 s level (wall 89% against 90%, gate-mirror 77% against 78%); at 1 s wall 82% against '
+     '66% but gate-mirror 22% against 27%, with 14 empty answers: the fill stays',
+     '`a1346a3`: `closed_loop_soft_gpu/*_pachs-nofill*.json`'),
     ('A wider pop for a small request (toward the server\'s 0.5 s for one PushT-Obs episode '
      'at 10,000 evaluations): one search of 5 episodes, Warp, one H200',
      lambda src: pop_size_screen(src, 'serve_gpu/lone_pop_size.json'),
