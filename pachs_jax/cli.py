@@ -298,7 +298,8 @@ def _loop(args: argparse.Namespace) -> int:
   with warnings.catch_warnings():  # (its physics note is said below, as a note)
     warnings.simplefilter('ignore', UserWarning)
     planning = planner.Planner(args.task, args.checkpoint, args.backend, args.budget,
-                               cache=not args.no_cache, layout=args.layout)
+                               cache=not args.no_cache, layout=args.layout,
+                               pop_size=args.pop_size)
   if planning.physics_note is not None:
     print(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
   env, session = planning.env, planning.session(query_time_s=args.query_time)
@@ -574,6 +575,7 @@ def _main(words, prefetch=None, guard=None) -> int:
   loop.add_argument('--budget', type=argtypes.positive_int, default=None,
                     help="edge evaluations per query and episode (default: the task's)")
   loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
+  flags.add_search_flags(loop, ['pop_size'])  # default: the task's for the query time
   loop.add_argument('--backend', default='auto', choices=registry.BACKENDS,
                     help="the planner's physics (the world is MuJoCo C)")
   loop.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),

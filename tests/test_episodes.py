@@ -112,10 +112,11 @@ def test_pachs_loop_runs_episodes_and_writes_rows_and_a_video(tmp_path):
   rows, video = tmp_path / 'loop.json', tmp_path / 'loop.gif'
   code = cli.main(['loop', '--task', 'pusht-obs', '--layout', 'wall', '--instances', '0,3',
                    '--query-time', '0.5', '--max-queries', '2', '--execute', '4',
-                   '--budget', '512', '--json', str(rows), '--video', str(video),
+                   '--budget', '512', '-K', '32', '--json', str(rows), '--video', str(video),
                    '--show-instance', '3'])
   assert code == 0
   saved = json.loads(rows.read_text())
+  assert saved['config']['pop_size'] == 32
   assert (saved['physics'], saved['world'], saved['layout']) == ('mujoco-c', 'mujoco-c', 'wall')
   assert [r['instance'] for r in saved['rows']] == [0, 3]
   for row in saved['rows']:
@@ -131,7 +132,8 @@ def test_pachs_loop_refuses_bad_arguments_in_one_line(capsys):
   for argv, message in ((['--query-time', '0'], '--query-time: must be a positive number'),
                         (['--task', 'pusht-fixed', '--layout', 'wall'], '--layout applies to'),
                         (['--instances', '40'], 'instances must lie in 0..29'),
-                        (['--show-instance', '5'], '5')):
+                        (['--show-instance', '5'], '5'),
+                        (['-K', '0'], '--pop-size/-K')):
     try:
       code = cli.main(['loop'] + argv)
     except SystemExit as exit_info:
