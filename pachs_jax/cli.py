@@ -389,13 +389,18 @@ def _serve(args: argparse.Namespace) -> int:
   tasks = list(dict.fromkeys(args.task or ['pusht-obs']))
   if args.layout is not None and 'pusht-obs' not in tasks:
     raise ValueError(f'--layout applies to --task pusht-obs, not {", ".join(tasks)}')
+  from pachs_jax import envs  # pylint: disable=import-outside-toplevel
   planners = {}
   for task in tasks:
     _say(f'pachs serve: loading {task}', file=sys.stderr)
+    overrides = flags.search_overrides(args)
+    if overrides.get('pop_size') is None:  # K for the clients' query time, as Planner.session
+      overrides['pop_size'] = envs.spec(task).replan_pop_size(
+          args.query_time, on_cpu=jax.default_backend() == 'cpu')
     planners[task] = planner.Planner(task, backend=args.backend, budget=args.budget,
                                      cache=not args.no_cache,
                                      layout=args.layout if task == 'pusht-obs' else None,
-                                     **flags.search_overrides(args))
+                                     **overrides)
   server = serve.Server(planners, config)
   server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr), every=args.warm_all)
   return serve.serve_forever(server, args.host, args.port, lambda url: _say(
@@ -619,6 +624,9 @@ def _main(words, prefetch=None, guard=None) -> int:
   served.add_argument('--devices', type=argtypes.positive_int, default=1,
                       help="the host's first N devices share each batch's search (default 1)")
   flags.add_search_flags(served, ['pop_size'])
+  served.add_argument('--query-time', type=argtypes.positive_float, default=None,
+                      help="the seconds the clients' queries mostly last: on a GPU it chooses "
+                      "K as `pachs loop --query-time` does (default: the task's K)")
   served.add_argument('--split', choices=('mesh', 'threads'), default='mesh',
                       help='how --devices share a batch: one search sharded over them (mesh, '
                       'the default) or a part per device, each searched from its own thread')

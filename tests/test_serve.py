@@ -323,7 +323,8 @@ def test_pachs_serve_refuses_bad_flags_in_one_line(capsys):
                         (['--task', 'shelf', '--layout', 'wall'], '--layout applies to'),
                         (['--buckets', '3,16'], 'buckets must be powers of two'),
                         (['--buckets', '1,x'], "--buckets '1,x': comma-separated"),
-                        (['-K', '0'], 'argument --pop-size/-K: must be a positive integer')):
+                        (['-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
+                        (['--query-time', '0'], '--query-time: must be a positive number')):
     with pytest.raises(SystemExit) as exit_info:
       cli.main(['serve'] + argv)
     assert exit_info.value.code == 2
