@@ -514,9 +514,13 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
       a = summary_of(p, planner)
       edges = a['evaluations_per_query_mean']
       is_pachs = planner == 'pachs'
+      ratio = '-'
+      if rollout and is_pachs:  # per query, and per second of query (a search may stop early)
+        theirs = rollout['evaluations_per_query_mean']
+        per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
+        ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
       rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                   num(edges), num(edges / rollout['evaluations_per_query_mean'], 2)
-                   if rollout and is_pachs else '-', num(a['iterations_per_query_mean'], 1),
+                   num(edges), ratio, num(a['iterations_per_query_mean'], 1),
                    num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
                    str(a['empty_answers']),
                    failures(a),
@@ -531,7 +535,7 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
 
 
 CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episode',
-                       '/ rollout\'s', 'iterations per query', 'ms per iteration',
+                       '/ rollout\'s (per second of query)', 'iterations per query', 'ms per iteration',
                        'empty answers', 'T tipped (failed)', 'PACHS answers']
 
 
@@ -558,6 +562,9 @@ def closed_loop_sessions(src: Sources) -> str:
       'was the default, some naming the physics `--physics hard-blocks` (the default\'s '
       'settings), and the default\'s runs with `-K 128`.',
       table(CLOSED_LOOP_COLUMNS, rows),
+      '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
+      'second of query (a PACHS query ends before its time once every episode\'s search has '
+      'stopped, its goal found and improved). '
       'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
       f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
       'iteration one call of one step for every copy). '
