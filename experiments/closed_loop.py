@@ -35,7 +35,8 @@ def build_parser() -> argtypes.OneLineParser:
   parser.add_argument('--planners', default=','.join(PLANNERS))
   parser.add_argument('--rounds', type=argtypes.positive_int, default=5)
   parser.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
-                      help='s per planning query')
+                      help="s per planning query; with Warp or MJX physics on a GPU it also "
+                      "chooses PACHS's K, the task's for that query time, unless -K is given")
   parser.add_argument('--execute', type=argtypes.positive_int, default=10,
                       help='actions executed per query')
   parser.add_argument('--max-queries', type=argtypes.positive_int, default=30)
@@ -178,7 +179,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     overrides = flags.search_overrides(args)
     if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
       overrides['pop_size'] = envs.spec(task).replan_pop_size(
-          args.query_time, on_cpu=jax.default_backend() == 'cpu')
+          args.query_time, on_cpu=jax.default_backend() == 'cpu' or env.physics == 'mujoco-c')
     config = planner.default_config(task, algorithm, budget=args.budget, **overrides)
     check = None
     if args.check_copies:
@@ -277,6 +278,9 @@ def served_query(task: str, args, num: int):
   if served['budget'] != args.budget:
     raise SystemExit(f'closed_loop.py: --budget {args.budget} differs from the server\'s '
                      f'{served["budget"]} for {task}')
+  if args.pop_size is not None and served.get('pop_size') != args.pop_size:
+    raise SystemExit(f'closed_loop.py: -K {args.pop_size} differs from the server\'s '
+                     f'{served.get("pop_size")} for {task}')
   size = health['max_batch']
   parts = [slice(i, min(i + size, num)) for i in range(0, num, size)]
   clients = [client.Client(args.server, task) for _ in parts]
@@ -305,6 +309,7 @@ def served_query(task: str, args, num: int):
              'remainder_steps': join(lambda a: a.remainder['steps']),
              'remainder_goal': join(lambda a: a.remainder['reaches_goal'])})
   return query, (f'served by {args.server} ({health["backend"]}, budget {served["budget"]}, '
+                 f'K {served.get("pop_size")}, '
                  f'max batch {size}, buckets {health["buckets"]})')
 
 

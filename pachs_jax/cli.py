@@ -396,7 +396,8 @@ def _serve(args: argparse.Namespace) -> int:
     overrides = flags.search_overrides(args)
     if overrides.get('pop_size') is None:  # K for the clients' query time, as Planner.session
       overrides['pop_size'] = envs.spec(task).replan_pop_size(
-          args.query_time, on_cpu=jax.default_backend() == 'cpu')
+          args.query_time,
+          on_cpu=jax.default_backend() == 'cpu' or args.backend == 'mujoco-c')
     planners[task] = planner.Planner(task, backend=args.backend, budget=args.budget,
                                      cache=not args.no_cache,
                                      layout=args.layout if task == 'pusht-obs' else None,
@@ -404,7 +405,9 @@ def _serve(args: argparse.Namespace) -> int:
   server = serve.Server(planners, config)
   server.warm(lambda text: _say(f'pachs serve: {text}', file=sys.stderr), every=args.warm_all)
   return serve.serve_forever(server, args.host, args.port, lambda url: _say(
-      f'pachs serve: ready on {url} ({", ".join(tasks)}; batches of up to {args.max_batch} '
+      f'pachs serve: ready on {url} '
+      f'({", ".join(f"{t} K {planners[t].config.pop_size}" for t in tasks)}; '
+      f'batches of up to {args.max_batch} '
       f'episodes gathered for {args.window_ms:g} ms)'))
 
 
@@ -572,7 +575,9 @@ def _main(words, prefetch=None, guard=None) -> int:
   loop.add_argument('--instances', default='0', help="canonical instances, e.g. '0-3' or '0,4' "
                     "(default: 0); each an episode")
   loop.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
-                    help='wall-clock seconds per query, for all episodes together (default 3)')
+                    help='wall-clock seconds per query, for all episodes together (default '
+                    "3); on a GPU it also chooses K, the task's for that query time, unless -K "
+                    'is given')
   loop.add_argument('--execute', type=argtypes.positive_int, default=10,
                     help='actions of each answer executed before the next query (default 10)')
   loop.add_argument('--max-queries', type=argtypes.positive_int, default=30,
@@ -580,7 +585,7 @@ def _main(words, prefetch=None, guard=None) -> int:
   loop.add_argument('--budget', type=argtypes.positive_int, default=None,
                     help="edge evaluations per query and episode (default: the task's)")
   loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')
-  flags.add_search_flags(loop, ['pop_size'])  # default: the task's for the query time
+  flags.add_search_flags(loop, ['pop_size'])
   loop.add_argument('--backend', default='auto', choices=registry.BACKENDS,
                     help="the planner's physics (the world is MuJoCo C)")
   loop.add_argument('--checkpoint', default=None, type=argtypes.path('a model directory'),

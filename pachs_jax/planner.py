@@ -183,12 +183,13 @@ class Planner:
     else:
       self.config = command_config(task, on_cpu, c_physics, budget, **overrides)
       self._num_instances = envs.spec(task).num_instances
-    self._replan_spec = (None if isinstance(task, envs.Env) or overrides.get('pop_size')
-                         is not None or on_cpu else envs.spec(task))  # K from the query time
+    self._replan_spec = (  # K from the query time: where the edges are simulated on a GPU
+        None if isinstance(task, envs.Env) or overrides.get('pop_size') is not None or on_cpu
+        or c_physics else envs.spec(task))
     self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
                                     prefetch=prefetch)
     self._canonical = None
-    self._replaying = {}  # (horizon, K) -> the sessions' search, with room to replay the horizon
+    self._replaying = {}  # (replayed actions, K) -> the sessions' search (0: no chain lanes)
 
   @property
   def num_instances(self) -> int:
@@ -264,6 +265,9 @@ class Planner:
     config has chain lanes the session's search replays the last answer's remainder and is
     built apart from `plan`'s, with room for it (once per horizon and K, shared by the
     sessions that have them); otherwise it shares `plan`'s where the K is the same."""
+    if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int)
+                                or horizon < 1):  # before a search is built for it
+      raise ValueError(f'horizon must be a positive int, got {horizon!r}')
     config = self.replan_config(query_time_s)
     rows = int(self.env.episode_length) if horizon is None else horizon
     rows = rows if config.rollout_lanes else 0

@@ -170,6 +170,10 @@ def make_env(task: str, physics: str, layout: Optional[str] = None,
     if unknown or not isinstance(env, pusht.PushTEnv):
       raise ValueError(f'task {task!r} takes no physics settings '
                        f'{", ".join(unknown or sorted(physics_settings))}')
+    missing = [k for k in differ if k not in physics_settings]
+    if missing:
+      raise ValueError(f'the physics settings record lacks {", ".join(missing)}, which task '
+                       f'{task!r} simulates: the plan cannot be replayed where it was made')
     fields = {k: tuple(v) if isinstance(v, list) else v
               for k, v in physics_settings.items() if k in differ}
     env = pusht.PushTEnv(dataclasses.replace(env.config, **fields))

@@ -165,6 +165,7 @@ class Task:
   def describe(self) -> dict:
     env = self.session.env
     return {'warm': self.warm, 'warm_buckets': list(self.warm_buckets), 'budget': self.budget,
+            'pop_size': int(self.session.config.pop_size),
             'horizon': int(self.session.horizon),
             'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
             'node_fields': {k: {'shape': list(s), 'dtype': d.name}

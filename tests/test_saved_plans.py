@@ -164,6 +164,9 @@ def test_a_plan_refuses_other_physics_settings_and_make_env_builds_them():
   saved_plans.replay(env, old)
   with pytest.raises(ValueError, match="takes no physics settings t_damping"):
     saved_plans.make_env('shelf', 'jax', physics_settings={'t_damping': 0.7})
+  partial = {k: v for k, v in env.physics_settings.items() if k != 'solver'}
+  with pytest.raises(ValueError, match='record lacks solver, which task .pusht-fixed. simulates'):
+    saved_plans.make_env('pusht-fixed', 'mjx', physics_settings=partial)
 
 
 def test_the_shipped_models_record_their_physics_and_a_mismatch_is_said():

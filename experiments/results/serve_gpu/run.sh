@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The closed loop through `pachs serve` on one GPU (Warp), within one device command: a server
 # for LAYOUT, the closed loop's protocol through it (closed_loop.py --server: 20 instances x 5
-# rounds, 3 s queries, MuJoCo C worlds), to set beside the in-process closed loop of
-# closed_loop_gpu; then requests of 30 episodes to that server at the task's budget
+# rounds, 3 s queries, MuJoCo C worlds; the server's K that of 3 s queries, as in process), to
+# set beside the in-process closed loop of closed_loop_gpu; then requests of 30 episodes to that server at the task's budget
 # (bench_serve.py --url). One bucket, the one every batch of the closed loop takes, so that no
 # smaller bucket's warm-up while idle delays a query. The latency and throughput benchmark on 1
 # and N GPUs: gpus.sh.
@@ -13,7 +13,7 @@ END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 export PYTHONFAULTHANDLER=1  # a server that dies in native code says where
 CUDA_VISIBLE_DEVICES=${GPU_OFFSET:-0} python3 -m pachs_jax.cli serve --task pusht-obs \
-  --layout "$layout" --backend warp --port 0 --max-batch 128 --buckets 128 \
+  --layout "$layout" --backend warp --port 0 --max-batch 128 --buckets 128 --query-time 3 \
   > "$o/server.log" 2>&1 &
 server=$!
 url=''
