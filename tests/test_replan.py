@@ -307,6 +307,19 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
       obs.session(horizon=bad)
 
 
+def test_a_planner_on_an_accelerator_takes_k_from_the_query_time_unless_its_edges_run_on_cpus(
+    monkeypatch):
+  # a GPU host as the Planner sees it: MJX edges take the task's K for the query time; MuJoCo
+  # C edges (CPU threads) and an explicit K keep theirs
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
+  monkeypatch.setattr(planner.jax, 'default_backend', lambda: 'gpu')
+  on_gpu = planner.Planner('pusht-obs', backend='mjx', budget=400, cache=False)
+  assert on_gpu.replan_config(3.0).pop_size == 128 and on_gpu.replan_config(1.0).pop_size == 64
+  for kwargs in (dict(backend='mujoco-c'), dict(backend='mjx', pop_size=32)):
+    kept = planner.Planner('pusht-obs', budget=400, cache=False, **kwargs)
+    assert kept.replan_config(3.0) == kept.config
+
+
 def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
   obs = envs.spec('pusht-obs')
   assert [obs.replan_pop_size(t, on_cpu=False) for t in (3.0, 2.0, 1.99, 1.0, None)] == [
