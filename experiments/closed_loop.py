@@ -90,7 +90,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import stats  # noqa: E402
-from pachs_jax import envs, planner, replan, trees  # noqa: E402
+from pachs_jax import planner, replan, trees  # noqa: E402
 from pachs_jax.runtime import anytime, signals  # noqa: E402
 from pachs_jax import episodes as episodes_lib  # noqa: E402
 from pachs_jax.episodes import Worlds  # noqa: E402
@@ -178,8 +178,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     algorithm = 'original' if name == 'pachs-original' else 'pachs'
     overrides = flags.search_overrides(args)
     if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
-      overrides['pop_size'] = envs.spec(task).replan_pop_size(
-          args.query_time, on_cpu=jax.default_backend() == 'cpu' or env.physics == 'mujoco-c')
+      overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, env.physics)
     config = planner.default_config(task, algorithm, budget=args.budget, **overrides)
     check = None
     if args.check_copies:

@@ -535,7 +535,8 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
 
 
 CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episode',
-                       '/ rollout\'s (per second of query)', 'iterations per query', 'ms per iteration',
+                       '/ rollout\'s (per second of query)', 'iterations per query',
+                       'ms per iteration',
                        'empty answers', 'T tipped (failed)', 'PACHS answers']
 
 

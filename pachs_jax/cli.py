@@ -389,15 +389,12 @@ def _serve(args: argparse.Namespace) -> int:
   tasks = list(dict.fromkeys(args.task or ['pusht-obs']))
   if args.layout is not None and 'pusht-obs' not in tasks:
     raise ValueError(f'--layout applies to --task pusht-obs, not {", ".join(tasks)}')
-  from pachs_jax import envs  # pylint: disable=import-outside-toplevel
   planners = {}
   for task in tasks:
     _say(f'pachs serve: loading {task}', file=sys.stderr)
     overrides = flags.search_overrides(args)
     if overrides.get('pop_size') is None:  # K for the clients' query time, as Planner.session
-      overrides['pop_size'] = envs.spec(task).replan_pop_size(
-          args.query_time,
-          on_cpu=jax.default_backend() == 'cpu' or args.backend == 'mujoco-c')
+      overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, args.backend)
     planners[task] = planner.Planner(task, backend=args.backend, budget=args.budget,
                                      cache=not args.no_cache,
                                      layout=args.layout if task == 'pusht-obs' else None,

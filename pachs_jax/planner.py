@@ -44,6 +44,16 @@ def default_config(task: Optional[str], algorithm: str = 'pachs',
   return SearchConfig(**values)
 
 
+def replan_pop_size(task: str, query_time_s: Optional[float], physics: str) -> Optional[int]:
+  """The K of a task's replanning with queries of query_time_s seconds where its edges are
+  simulated with `physics` (an `Env.physics` or a backend name): the task's for that query time
+  on an accelerator (`TaskSpec.replan_pop_size`); None (the search defaults') on a CPU-only
+  machine and with MuJoCo C physics, whose CPU threads pay for a wider pop in time."""
+  if jax.default_backend() == 'cpu' or physics == 'mujoco-c':
+    return None
+  return envs.spec(task).replan_pop_size(query_time_s)
+
+
 def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
                    budget: Optional[int] = None, algorithm: str = 'pachs',
                    **explicit) -> SearchConfig:
@@ -183,9 +193,9 @@ class Planner:
     else:
       self.config = command_config(task, on_cpu, c_physics, budget, **overrides)
       self._num_instances = envs.spec(task).num_instances
-    self._replan_spec = (  # K from the query time: where the edges are simulated on a GPU
-        None if isinstance(task, envs.Env) or overrides.get('pop_size') is not None or on_cpu
-        or c_physics else envs.spec(task))
+    # the task whose K for the query time a session takes (None: a user's task, or a given K)
+    self._replan_task = (None if isinstance(task, envs.Env)
+                         or overrides.get('pop_size') is not None else task)
     self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
                                     prefetch=prefetch)
     self._canonical = None
@@ -290,8 +300,8 @@ class Planner:
         or not math.isfinite(query_time_s) or query_time_s <= 0):
       raise ValueError(f'query_time_s must be a number of seconds > 0 or None, got '
                        f'{query_time_s!r}')
-    pop_size = (None if self._replan_spec is None
-                else self._replan_spec.replan_pop_size(query_time_s, on_cpu=False))
+    pop_size = (None if self._replan_task is None
+                else replan_pop_size(self._replan_task, query_time_s, self.env.physics))
     return self.config if pop_size is None else dataclasses.replace(self.config,
                                                                     pop_size=pop_size)
 

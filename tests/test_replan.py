@@ -273,7 +273,7 @@ def test_executed_must_match_the_episodes(env, session):
     session.plan(jax.tree.map(lambda x: x[:2], nodes), executed=[1, 1])
 
 
-def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
+def test_a_planner_s_sessions_share_one_replaying_search_per_horizon(monkeypatch):
   # PushT-Obs has chain lanes: its sessions replay, in a search apart from `plan`'s, built
   # once per horizon; PushT-Fixed has none: its sessions share `plan`'s search
   from pachs_jax import planner  # pylint: disable=import-outside-toplevel
@@ -293,7 +293,8 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon():
   # a 3 s session pops 128 in a search of its own, built once, and a 1 s one keeps 64
   if jax.default_backend() == 'cpu':
     assert obs.session(query_time_s=3.0).search is first.search
-  obs._replan_spec = envs.spec('pusht-obs')  # pylint: disable=protected-access
+  monkeypatch.setattr(planner, 'replan_pop_size',
+                      lambda task, seconds, physics: envs.spec(task).replan_pop_size(seconds))
   long_a, long_b = obs.session(query_time_s=3.0), obs.session(query_time_s=2.5)
   assert long_a.config.pop_size == long_b.config.pop_size == 128 != obs.config.pop_size
   assert long_a.search is long_b.search and long_a.search is not first.search
@@ -321,11 +322,14 @@ def test_a_planner_on_an_accelerator_takes_k_from_the_query_time_unless_its_edge
 
 
 def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
   obs = envs.spec('pusht-obs')
-  assert [obs.replan_pop_size(t, on_cpu=False) for t in (3.0, 2.0, 1.99, 1.0, None)] == [
+  assert [obs.replan_pop_size(t) for t in (3.0, 2.0, 1.99, 1.0, None)] == [
       128, 128, None, None, None]
-  assert obs.replan_pop_size(3.0, on_cpu=True) is None
-  assert envs.spec('pusht-fixed').replan_pop_size(3.0, on_cpu=False) is None
+  assert planner.replan_pop_size('pusht-obs', 3.0, 'mujoco-c') is None
+  if jax.default_backend() == 'cpu':
+    assert planner.replan_pop_size('pusht-obs', 3.0, 'mjx') is None
+  assert envs.spec('pusht-fixed').replan_pop_size(3.0) is None
 
 
 class Cliff(PointMassEnv):

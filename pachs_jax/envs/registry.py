@@ -48,12 +48,11 @@ class TaskSpec:
     return self.original_search or dict(self.search_defaults, edge_steps=1, rollout_share=0.0,
                                         uniform_share=0.0)
 
-  def replan_pop_size(self, query_time_s: Optional[float], on_cpu: bool) -> Optional[int]:
-    """K of PACHS replanning with queries of query_time_s seconds (`replan_pop_sizes`); None:
-    the search defaults' (below every threshold, without a clock, and where the edges are
-    simulated on a CPU, on_cpu: a CPU-only machine or MuJoCo C physics, where a wider pop costs
-    its time)."""
-    if on_cpu or query_time_s is None:
+  def replan_pop_size(self, query_time_s: Optional[float]) -> Optional[int]:
+    """K of PACHS replanning on an accelerator with queries of query_time_s seconds
+    (`replan_pop_sizes`); None: the search defaults' (below every threshold, and without a
+    clock). `planner.replan_pop_size` adds where the edges are simulated."""
+    if query_time_s is None:
       return None
     return next((k for seconds, k in self.replan_pop_sizes if query_time_s >= seconds), None)
 

@@ -2,8 +2,8 @@
 # The closed loop through `pachs serve` on one GPU (Warp), within one device command: a server
 # for LAYOUT, the closed loop's protocol through it (closed_loop.py --server: 20 instances x 5
 # rounds, 3 s queries, MuJoCo C worlds; the server's K that of 3 s queries, as in process), to
-# set beside the in-process closed loop of closed_loop_gpu; then requests of 30 episodes to that server at the task's budget
-# (bench_serve.py --url). One bucket, the one every batch of the closed loop takes, so that no
+# set beside the in-process closed loop of closed_loop_gpu; then requests of 30 episodes to
+# that server at the task's budget (bench_serve.py --url). One bucket, the one every batch of the closed loop takes, so that no
 # smaller bucket's warm-up while idle delays a query. The latency and throughput benchmark on 1
 # and N GPUs: gpus.sh.
 #   OUT=dir bash experiments/results/serve_gpu/run.sh [LAYOUT]   (GPU_OFFSET=n: on GPU n)
