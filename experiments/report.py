@@ -468,8 +468,6 @@ CLOSED_LOOP_VARIANTS = (
               "replayed in the search, K 128)"),
     ('pachs-k64', 'PACHS, K 64 (the default at 3 s before)'),
     ('parallel', 'parallel rollout (256 copies)'),
-    ('pachs-k64-check', 'PACHS, K 64, each answer executed up to the first action one of 8 '
-                        'perturbed copies of its start could not take'),
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
@@ -874,6 +872,18 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'at 3 s level (wall 89% against 90%, gate-mirror 77% against 78%); at 1 s wall 82% against '
      '66% but gate-mirror 22% against 27%, with 14 empty answers: the fill stays',
      '`a1346a3`: `closed_loop_soft_gpu/*_pachs-nofill*.json`'),
+    ('Closed loop: each answer executed up to the first action one of 8 perturbed copies of '
+     'its start could not take (`--check-copies 8`, 1 mm / 0.01 rad), K 64, default physics',
+     'wall 87% against 88%, gate-mirror 76% against 80%, two-gaps 37% against 32%; Ts tipped '
+     '7, 13, 28 against 10, 16, 36; 101, 139 and 236 answers cut: off by default',
+     '`4304295`: `closed_loop_gpu/*_pachs-k64-check.json`'),
+    ('Closed loop on blocks without a margin, wall in the planners\' own physics, K 64',
+     'PACHS 99% (90% in MuJoCo C), rollout 72% (64%): superseded by the default physics\' '
+     'runs', '`4304295`: `closed_loop_soft_gpu/wall_*-planner-world*`'),
+    ('The server warming every bucket (1, 4, 16, 64, 256) before it was ready (one H200)',
+     'start to ready 212 s; one client 2.08 s, its search 2.07 s: the server now answers once '
+     'its largest bucket is warm and warms the others while idle',
+     '`4304295`: `serve_gpu/gpus1_five_buckets/`'),
     ('A wider pop for a small request (toward the server\'s 0.5 s for one PushT-Obs episode '
      'at 10,000 evaluations): one search of 5 episodes, Warp, one H200',
      lambda src: pop_size_screen(src, 'serve_gpu/lone_pop_size.json'),
@@ -997,7 +1007,6 @@ def serving(src: Sources) -> str:
       f'which the search {num(t_big["search_median_s"])} s; '
       f'{num(t_big["reaching_goal_median"])} of them reached the goal.',
       serving_gpus(src),
-      five_buckets(src.load('serve_gpu/gpus1_five_buckets/bench_serve.json')),
       served_closed_loop(src)])
 
 
@@ -1046,20 +1055,6 @@ def serving_gpus(src: Sources) -> str:
       'time. Most of an iteration\'s cost is a fixed cost per physics call (the kernels of 8 '
       'control steps of 20 physics steps each), which every GPU pays again when the episodes '
       'are split; only the part that grows with the worlds is divided.'])
-
-
-def five_buckets(run: Dict) -> str:
-  """The GPU server warming every bucket before it was ready (a run cut short after one client)."""
-  server, alone = run['server'], run['clients'][0]
-  return (f'The same server warming each of its buckets ({", ".join(map(str, server["buckets"]))} '
-          f'episodes) before it was ready, at revision `{run["provenance"]["git_revision"]}`: '
-          f'start to ready {num(server["start_to_ready_s"], 1)} s (beside another job on the '
-          f'host\'s second GPU; the run ended at its time limit after the one-client phase). One '
-          f'client alone, its requests now padded to 1 episode: latency '
-          f'{num(alone["latency_median_s"])} s, search {num(alone["search_median_s"])} s. The '
-          'server now answers once its largest bucket is warm and warms the others while no '
-          'request comes ([serving.md](serving.md)); `bench_serve.py` measures after every '
-          'bucket is warm.')
 
 
 def served_closed_loop(src: Sources) -> str:
