@@ -497,6 +497,9 @@ def _main(words, prefetch=None, guard=None) -> int:
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
+  if words[:1] == ['loop'] and any(w.startswith('playground:') or w.startswith('--task=playground:')
+                                   for w in words) and any(w.startswith('--video') for w in words):
+    os.environ.setdefault('MUJOCO_GL', 'egl')  # a Playground task's video: MuJoCo's renderer
   from pachs_jax import envs  # start-up path: lazy, after MUJOCO_GL is chosen
   from pachs_jax.envs import layouts, registry
   pusht_tasks = [t for t in envs.TASKS if t.startswith('pusht')]
@@ -565,8 +568,11 @@ def _main(words, prefetch=None, guard=None) -> int:
                          'PACHS_COMPILATION_CACHE=DIR or =0 also sets it)')
   plan.set_defaults(func=_plan)
   loop = sub.add_parser('loop', help='closed loop: plan, execute the first actions in a MuJoCo C '
-                        'world, observe, plan again (PushT)')
-  loop.add_argument('--task', default='pusht-obs', choices=pusht_tasks)
+                        'world, observe, plan again (PushT, Playground tasks)')
+  loop.add_argument('--task', '--env', dest='task', default='pusht-obs',
+                    choices=_TaskChoices(pusht_tasks), metavar='TASK',
+                    help=f'{", ".join(pusht_tasks)} (default pusht-obs), or playground:NAME '
+                    '(its world: its MuJoCo model in MuJoCo C, its own step around it)')
   loop.add_argument('--layout', default=None, choices=layouts.NAMES,
                     help=f'pusht-obs only: the obstacle layout (default: {layouts.DEFAULT})')
   loop.add_argument('--instances', default='0', help="canonical instances, e.g. '0-3' or '0,4' "
@@ -591,7 +597,7 @@ def _main(words, prefetch=None, guard=None) -> int:
                     help='write the per-episode rows and settings as JSON')
   loop.add_argument('--video', default=None, type=argtypes.path('a file'),
                     help="write a GIF of one episode's world, the plan being executed drawn "
-                    'dashed')
+                    'dashed (Playground tasks: rendered by MuJoCo, OpenGL)')
   loop.add_argument('--show-instance', type=int, default=None,
                     help='the instance --video shows (default: the first)')
   loop.add_argument('--no-cache', action='store_true',

@@ -1,6 +1,7 @@
-"""Plan, execute, observe: PushT episodes in MuJoCo C worlds (float64) driven by a replanning
-session (`replan.Session`): each query's first actions run in the worlds, which are observed and
-planned from again (docs/closed_loop.md)."""
+"""Plan, execute, observe: episodes in MuJoCo C worlds (float64) driven by a replanning session
+(`replan.Session`): each query's first actions run in the worlds, which are observed and planned
+from again (docs/closed_loop.md). PushT's worlds are `world.World`s, a Playground task's
+`playground_world.PlaygroundWorld`s."""
 
 from __future__ import annotations
 
@@ -13,24 +14,37 @@ import jax.numpy as jnp
 import numpy as np
 
 from pachs_jax import replan
-from pachs_jax.envs import base
+from pachs_jax.envs import base, playground, playground_world
 from pachs_jax.envs import world as world_lib
 
 
-class Worlds:
-  """E PushT worlds in MuJoCo C, each with its success bookkeeping and the states it went
-  through.
+def make_worlds(env: base.Env, num: int,
+                perturbation: Optional[world_lib.Perturbation] = None) -> list:
+  """num MuJoCo C worlds of env: `world.World`s of a PushT env (any backend), or
+  `playground_world.PlaygroundWorld`s of a Playground task (one `WorldSteps` shared)."""
+  if isinstance(env, playground.PlaygroundEnv):
+    if perturbation is not None:
+      raise ValueError(f'a perturbation applies to the PushT worlds, not to {env.name}')
+    steps = playground_world.WorldSteps(env)
+    return [playground_world.PlaygroundWorld(env, steps) for _ in range(num)]
+  return [world_lib.World(env, perturbation) for _ in range(num)]
 
-  env: the PushT env (any backend) whose model and control rule the worlds use.
+
+class Worlds:
+  """E worlds in MuJoCo C (`make_worlds`), each with its success bookkeeping and the states it
+  went through.
+
+  env: the PushT env (any backend) or Playground task whose model and control rule the worlds
+    use.
   starts: NodeState [E] the episodes' start states.
-  perturbation: a `world_lib.Perturbation` of the worlds' models (None: the env's model).
+  perturbation: a `world_lib.Perturbation` of PushT worlds' models (None: the env's model).
   """
 
   def __init__(self, env: base.Env, starts: base.NodeState,
                perturbation: Optional[world_lib.Perturbation] = None):
     self.env = env
     self.num = num = jax.tree.leaves(starts)[0].shape[0]
-    self.worlds = [world_lib.World(env, perturbation) for _ in range(num)]
+    self.worlds = make_worlds(env, num, perturbation)
     self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
                   for i, w in enumerate(self.worlds)]
     self.visited: List[List[base.NodeState]] = [[node] for node in self.nodes]
@@ -123,10 +137,14 @@ class Log:
 
 def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarray:
   """frames [F, H, W, 3] uint8 of what episode's world did, the plan being executed drawn
-  dashed (`render.loop_frames`)."""
-  from pachs_jax.envs import render  # pylint: disable=import-outside-toplevel  (matplotlib)
+  dashed: PushT drawn from above with title (`render.loop_frames`), a Playground task by
+  MuJoCo's renderer (`playground_video.loop_frames`, no title)."""
   states = worlds.trajectory(episode)
   plans = log.executed_plans(episode, len(states.t))
+  if isinstance(worlds.env, playground.PlaygroundEnv):
+    from pachs_jax.envs import playground_video  # pylint: disable=import-outside-toplevel
+    return playground_video.loop_frames(worlds.env, states, plans)
+  from pachs_jax.envs import render  # pylint: disable=import-outside-toplevel  (matplotlib)
   return render.loop_frames(worlds.env, states, plans, title)
 
 

@@ -340,8 +340,9 @@ class Session:
 
   def _check_states(self, states) -> int:
     """E, the episodes of states [E] (ValueError unless the env's NodeState [E, ...])."""
-    if not isinstance(states, base.NodeState):
-      raise ValueError(f'states must be the env\'s NodeState [E, ...], got '
+    want = type(self.env.node_spec)
+    if type(states) is not want:  # pylint: disable=unidiomatic-typecheck
+      raise ValueError(f'states must be the env\'s {want.__name__} [E, ...], got '
                        f'{type(states).__name__}')
     return check_start_nodes(states, self.env)
 

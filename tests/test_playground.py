@@ -174,3 +174,97 @@ def test_warp_implementation_restores_and_matches_jax(env):
   np.testing.assert_allclose(np.asarray(warp_out.next_node.qpos),
                              np.asarray(jax_out.next_node.qpos), atol=1e-5)
   np.testing.assert_allclose(np.asarray(warp_out.cost), np.asarray(jax_out.cost), atol=1e-5)
+
+
+def _c_rollout(env, node, actions, n_substeps):
+  """qpos [T, nq] float64 of a MuJoCo C rollout of env's MjModel from node (no batch axis)
+  with ctrl = each action, run here by hand: the reference of the world."""
+  import mujoco  # pylint: disable=import-outside-toplevel
+  model = env.playground_env.mj_model
+  data = mujoco.MjData(model)
+  data.qpos[:], data.qvel[:] = np.asarray(node.qpos), np.asarray(node.qvel)
+  data.time = float(node.sim['time'])
+  mujoco.mj_forward(model, data)
+  out = []
+  for action in actions:
+    data.ctrl[:] = action
+    mujoco.mj_step(model, data, nstep=n_substeps)
+    out.append(data.qpos.copy())
+  return np.stack(out)
+
+
+def test_world_simulates_in_mujoco_c_and_observes_with_the_envs_step(env):
+  """A Playground world's states are MuJoCo C's (a rollout by hand, float64 kept between
+  steps), its observations, rewards and goal flags those the env's own step computes from them:
+  each world step is close to the env's MJX step from the same node."""
+  from pachs_jax.envs import playground_world, world  # pylint: disable=import-outside-toplevel
+  steps = playground_world.WorldSteps(env)
+  start = jax.tree.map(lambda x: x[0], env.canonical_instances(1))
+  actions = np.asarray(jax.random.uniform(jax.random.PRNGKey(3), (12, env.action_size),
+                                          jnp.float32, -1.0, 1.0))
+  np.testing.assert_array_equal(np.asarray(steps.control(start, actions[0])), actions[0])
+  worlds = playground_world.PlaygroundWorld(env, steps)
+  nodes = [worlds.reset(start)] + worlds.execute(actions)
+  states = world.stack_nodes(nodes)
+  want = _c_rollout(env, start, actions, steps.n_substeps)
+  np.testing.assert_array_equal(states.qpos[1:], want.astype(np.float32))
+  np.testing.assert_array_equal(np.asarray(worlds.data.qpos), want[-1])  # float64 carried
+  assert np.abs(np.diff(states.qpos, axis=0)).max() > 1e-4  # it moved
+  np.testing.assert_array_equal(states.t, np.arange(13))
+  mjx = jax.jit(env.evaluate)(jax.tree.map(lambda x: x[:-1], states), actions)
+  np.testing.assert_allclose(states.qpos[1:], np.asarray(mjx.next_node.qpos), atol=1e-4)
+  np.testing.assert_allclose(states.obs[1:], np.asarray(mjx.next_node.obs), atol=1e-4)
+  np.testing.assert_allclose(states.reward[1:], np.asarray(mjx.next_node.reward), atol=1e-3)
+  # the goal flag: the env's rule (near_target) on the world's own state
+  np.testing.assert_array_equal(states.success[1:],
+                                states.metrics['reward/near_target'][1:] >= 1.0)
+
+
+def test_world_refuses_an_env_whose_step_does_not_simulate_once(env):
+  import copy  # pylint: disable=import-outside-toplevel
+  from pachs_jax.envs import playground_world  # pylint: disable=import-outside-toplevel
+  raw = env.playground_env
+
+  class Twice(type(raw)):
+    def step(self, state, action):
+      return super().step(super().step(state, action), action)
+
+  twice = copy.copy(raw)
+  twice.__class__ = Twice
+  with pytest.raises(ValueError, match="its step called mujoco_playground's mjx_env.step 2 "
+                     'times; a MuJoCo C world runs an env whose step calls it once'):
+    playground_world.WorldSteps(playground.PlaygroundEnv(twice, env.config))
+
+
+def test_pachs_loop_on_a_playground_task_writes_rows_and_a_rendered_video(tmp_path):
+  """`pachs loop --task playground:ReacherEasy`: its episodes in MuJoCo C worlds reach the
+  goal through a session with the shipped model, and the video is MuJoCo's rendering of the
+  world, the plan drawn over it."""
+  import json  # pylint: disable=import-outside-toplevel
+  import os  # pylint: disable=import-outside-toplevel
+  import subprocess  # pylint: disable=import-outside-toplevel
+  import sys  # pylint: disable=import-outside-toplevel
+  from PIL import Image  # pylint: disable=import-outside-toplevel
+  rows, video = tmp_path / 'loop.json', tmp_path / 'loop.gif'
+  # a process of its own: MuJoCo picks its OpenGL back end on import, here the command's
+  environ = {k: v for k, v in os.environ.items() if k != 'MUJOCO_GL'}
+  proc = subprocess.run([sys.executable, '-m', 'pachs_jax.cli', 'loop', '--task',
+                         'playground:ReacherEasy', '--instances', '0-1', '--query-time', '1',
+                         '--max-queries', '6', '--json', str(rows), '--video', str(video)],
+                        capture_output=True, text=True, env=environ, timeout=600, check=False)
+  assert proc.returncode == 0, proc.stderr
+  saved = json.loads(rows.read_text())
+  assert saved['task'] == 'playground:ReacherEasy' and saved['world'] == 'mujoco-c'
+  assert [r['instance'] for r in saved['rows']] == [0, 1]
+  assert any(r['success'] for r in saved['rows'])
+  for row in saved['rows']:
+    assert sum(row[k] for k in ('none', 'goal_path', 'partial_path', 'remainder',
+                                'policy')) == row['queries']
+  with Image.open(video) as gif:  # a frame per world state of instance 0, each one different
+    assert gif.n_frames == saved['rows'][0]['steps'] + 1
+    assert gif.size == (320, 240)
+    frames = []
+    for i in range(gif.n_frames):
+      gif.seek(i)
+      frames.append(np.asarray(gif.convert('RGB'), np.int16))
+  assert all(np.abs(a - b).max() > 0 for a, b in zip(frames[:-1], frames[1:]))
