@@ -1,9 +1,10 @@
-"""Closed loop, PushT: plans made with MJX (float32) executed in MuJoCo C worlds (float64).
+"""Closed loop: plans made with MJX or Warp (float32) executed in MuJoCo C worlds (float64).
 
 The protocol is the original's (README, 'Closed loop'); all episodes of a planner share each
 query's wall clock; `--perturb` scales the worlds' parameters (`world_lib.Perturbation`);
 `--world planner` executes the plans in the planners' own edge physics instead, so that they
-transfer (up to the numerics of another batch size)."""
+transfer (up to the numerics of another batch size). PushT tasks, and Playground tasks
+(`--task playground:NAME`: worlds `playground_world.PlaygroundWorld`)."""
 
 from __future__ import annotations
 
@@ -27,11 +28,20 @@ COMPACT_FRACTIONS = (0.75, 0.5, 0.25, 0.125)
 WORLDS = ('mujoco-c', 'planner')
 
 
+def _task(text: str) -> str:
+  """--task: a PushT task or 'playground:NAME' (NAME checked when its env is made)."""
+  if text in ('pusht-fixed', 'pusht-rand', 'pusht-obs') or (
+      text.startswith('playground:') and len(text) > len('playground:')):
+    return text
+  raise argparse.ArgumentTypeError(f"{text!r}: pusht-fixed, pusht-rand, pusht-obs or "
+                                   'playground:NAME')
+
+
 def build_parser() -> argtypes.OneLineParser:
   """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
   parser = argtypes.OneLineParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--task', default='pusht-fixed',
-                      choices=['pusht-fixed', 'pusht-rand', 'pusht-obs'])
+  parser.add_argument('--task', default='pusht-fixed', type=_task,
+                      help="pusht-fixed (default), pusht-rand, pusht-obs or playground:NAME")
   parser.add_argument('--planners', default=','.join(PLANNERS))
   parser.add_argument('--rounds', type=argtypes.positive_int, default=5)
   parser.add_argument('--query-time', type=argtypes.positive_float, default=3.0,
@@ -332,9 +342,11 @@ class SessionAnswers:
   generated, the T off the table square or tipped over: why it had nothing to say); iterations,
   search and follow seconds per query (after the first, which compiles); and, where the
   remainder is followed, after a goal answer executed as given, whether its remainder still
-  reaches the goal from the world's state (how well goal paths survive the world)."""
+  reaches the goal from the world's state (how well goal paths survive the world).
+  is_pusht: the T's counts apply (a PushT task)."""
 
-  def __init__(self):
+  def __init__(self, is_pusht: bool):
+    self.is_pusht = is_pusht
     self.kinds = np.zeros(len(replan.AnswerKind.NAMES), np.int64)
     self.empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
                          'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0,
@@ -354,12 +366,13 @@ class SessionAnswers:
       empty['evaluated'] += int(evaluated[nothing].sum())
       empty['invalid_edges'] += int(info['invalid'][nothing].sum())
       empty['only_start_generated'] += int(np.sum(info['generated'][nothing] <= 1))
-      outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0
-      empty['t_off_table'] += int(np.sum(outside & nothing))
-      empty['t_off_table_queries'] += int(np.sum(outside & running))
-      tipped = np.asarray(pusht.t_tilt(nodes.qpos)) >= pusht.MAX_T_TILT
-      empty['t_tipped'] += int(np.sum(tipped & nothing))
-      empty['t_tipped_queries'] += int(np.sum(tipped & running))
+      if self.is_pusht:
+        outside = np.asarray(pusht.box_excess(nodes.qpos)) > 0
+        empty['t_off_table'] += int(np.sum(outside & nothing))
+        empty['t_off_table_queries'] += int(np.sum(outside & running))
+        tipped = np.asarray(pusht.t_tilt(nodes.qpos)) >= pusht.MAX_T_TILT
+        empty['t_tipped'] += int(np.sum(tipped & nothing))
+        empty['t_tipped_queries'] += int(np.sum(tipped & running))
     if info.get('remainder_followed') and self.previous_goal is not None:
       kept = running & self.previous_goal & (np.asarray(executed) < replan.DIVERGED)
       self.survival[0] += int(kept.sum())
@@ -397,7 +410,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
   query_times, compile_s = [], [None]
   empty_answers, actions_per_query, evaluations_per_query = [0], [], []
   by_query = []  # [running episodes, goal answers] per query
-  answers = SessionAnswers()
+  answers = SessionAnswers(is_pusht=task.startswith('pusht'))
 
   def on_answer(q, nodes, running, executed, answer, elapsed):
     answers.add(q, answer.info, nodes, running, answer.evaluated, executed, answer.found)
@@ -441,6 +454,8 @@ def main():
   if args.check_copies and args.server:
     parser.error('--check-copies checks the answers of an in-process PACHS, not --server')
   common.check_layout(parser, args.task, args.layout)
+  if args.task.startswith('playground:') and (args.perturb or args.check_copies):
+    parser.error('--perturb and --check-copies apply to the PushT tasks')
   common.check_physics(parser, args.task, args.physics)
   common.task_instances(args.task, args.instances, parser)
   names = [n for n in args.planners.split(',') if n]
@@ -500,8 +515,8 @@ def main():
 
 def run_one(name, args, env, model, starts, perturbation, payload, out, stop) -> None:
   """One planner's episodes, their row added to payload and the files written."""
-  episodes = (Worlds(env, starts, perturbation) if args.world == 'mujoco-c'
-              else PlannerWorldEpisodes(env, starts))
+  episodes = (Worlds(env, starts, perturbation if args.perturb else None)
+              if args.world == 'mujoco-c' else PlannerWorldEpisodes(env, starts))
   start = time.perf_counter()
   info = run_planner(name, args.task, env, model, episodes, args,
                      jax.random.PRNGKey(args.seed), stop)
