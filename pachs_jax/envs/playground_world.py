@@ -47,7 +47,8 @@ class WorldSteps:
   the worlds of one env.
 
   env: the `playground.PlaygroundEnv` (MJX's JAX or Warp implementation).
-  control(node, action [A]) -> ctrl [nu] float32: the control the env's step applies.
+  control(node, action [A]) -> ctrl [nu] float32: the control the env's step applies (to the
+    action sanitized as the planner's edges do: `base.sanitize_actions`).
   finish(node, action [A], fields) -> the node after the step, where fields (dict of the
     public mjx.Data fields, `FIELDS`) is the simulated data.
   n_substeps: physics steps per control step (the env's).
@@ -71,7 +72,7 @@ class WorldSteps:
         calls.append(_Call(jnp.asarray(ctrl, jnp.float32), int(n_substeps)))
         return data
       with _mjx_env_step_replaced(record):
-        env.playground_env.step(env.state_from_node(node), action)
+        env.playground_env.step(env.state_from_node(node), base.sanitize_actions(action)[0])
       if len(calls) != 1:
         raise ValueError(f'{env.name}: its step called mujoco_playground\'s mjx_env.step '
                          f'{len(calls)} times; a MuJoCo C world runs an env whose step calls '
@@ -91,7 +92,7 @@ class WorldSteps:
         finished.append(True)
         return simulated
       with _mjx_env_step_replaced(simulate):
-        stepped = env.playground_env.step(state, action)
+        stepped = env.playground_env.step(state, base.sanitize_actions(action)[0])
       return env.node_from_state(stepped, node.t + 1)
 
     self.finish = jax.jit(finish).lower(node, action, self.field_specs).compile()
