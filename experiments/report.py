@@ -888,6 +888,14 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'at 10,000 evaluations): one search of 5 episodes, Warp, one H200',
      lambda src: pop_size_screen(src, 'serve_gpu/lone_pop_size.json'),
      'in this tree: `serve_gpu/lone_pop_size.json`'),
+    ('Closed loop on Playground\'s reachers at `closed_loop.py`\'s default budget, 100,000 '
+     'evaluations per query and episode (this 2-core CPU, 60 episodes per task, 3 s per query)',
+     'on a CPU the session\'s search allocates and fills arrays sized by the budget for every '
+     'episode at each query: PACHS spent 213 ms an iteration (7.6 ms at 5,000), evaluated '
+     '40-112 edges per query, answered mostly partial paths of about 2 actions and let the '
+     'policy fill the rest; steps to the goal 24.1 and 24.6 against 20.3 and 23.5 at 5,000: '
+     'the Playground runs use 5,000',
+     'runs at `bee0241`, not committed'),
 )
 
 
@@ -947,6 +955,10 @@ def physics(src: Sources) -> str:
       table(['physics'] + list(LAYOUTS), deep_rows)])
 
 
+PLAYGROUND_LOOP_PLANNERS = {'single': 'the policy alone', 'parallel': 'parallel rollout (256 copies)',
+                            'pachs': "PACHS (the task's search, replanning session)"}
+
+
 def playground(src: Sources) -> str:
   """MuJoCo Playground's reacher tasks: the policy, the parallel rollout and PACHS."""
   rows = []
@@ -955,11 +967,33 @@ def playground(src: Sources) -> str:
     for s in p['summaries']:
       rows.append([p['task'].split(':')[-1], s['planner'], f'{s["solved"]}/{s["instances"]}',
                    num(s['mean_cost_solved']), num(s['mean_evaluated']), num(s['wall_s'])])
+  loop, first = [], None
+  for name in ('closed_loop_playground_cpu/reachereasy.json',
+               'closed_loop_playground_cpu/reacherhard.json'):
+    p = src.load(name)
+    first = first or p
+    for a in p['summary']:
+      loop.append([p['task'].split(':')[-1], PLAYGROUND_LOOP_PLANNERS[a['planner']],
+                   f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
+                   num(a['steps_to_success_mean']), num(a.get('queries_per_episode_mean')),
+                   num(a.get('evaluations_per_query_mean')), num(a.get('query_time_s_mean'))])
+  s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
       'The shipped Playground models on their 30 canonical instances (budgets in the planner '
       'names):',
       table(['task', 'planner', 'solved', 'mean cost (solved)', 'mean evaluations', 'wall (s)'],
-            rows)])
+            rows),
+      f'In closed loop (`closed_loop.py --task playground:NAME`, {prov["device"]}): MJX '
+      'planners, each episode\'s world the task\'s MuJoCo model in MuJoCo C around the env\'s '
+      f'own step (docs/closed_loop.md); {s["instances"]} instances x {s["rounds"]} rounds, '
+      f'{s["query_time"]:g} s per query for all episodes together, {s["execute"]} actions '
+      f'executed per query, at most {s["max_queries"]} queries (the episode\'s 200 steps), '
+      f'{s["budget"]:,} evaluations per query and episode ([the ledger](#measured-and-not-kept) '
+      'has the runs at 100,000); '
+      '95% intervals over the instances. Steps: world steps to the goal, the solved episodes\' '
+      'mean (the policy alone: its steps):',
+      table(['task', 'planner', 'solved', 'steps to the goal', 'queries per episode',
+             'edges per query and episode', 'query (s)'], loop)])
 
 
 def bench_serve_rows(data: Dict) -> List[List[str]]:
