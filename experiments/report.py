@@ -888,14 +888,6 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'at 10,000 evaluations): one search of 5 episodes, Warp, one H200',
      lambda src: pop_size_screen(src, 'serve_gpu/lone_pop_size.json'),
      'in this tree: `serve_gpu/lone_pop_size.json`'),
-    ('Closed loop on Playground\'s reachers at `closed_loop.py`\'s default budget, 100,000 '
-     'evaluations per query and episode (this 2-core CPU, 60 episodes per task, 3 s per query)',
-     'on a CPU the session\'s search allocates and fills arrays sized by the budget for every '
-     'episode at each query: PACHS spent 213 ms an iteration (7.6 ms at 5,000), evaluated '
-     '40-112 edges per query, answered mostly partial paths of about 2 actions and let the '
-     'policy fill the rest; steps to the goal 24.1 and 24.6 against 20.3 and 23.5 at 5,000: '
-     'the Playground runs use 5,000',
-     'runs at `bee0241`, not committed'),
 )
 
 
@@ -988,8 +980,7 @@ def playground(src: Sources) -> str:
       f'own step (docs/closed_loop.md); {s["instances"]} instances x {s["rounds"]} rounds, '
       f'{s["query_time"]:g} s per query for all episodes together, {s["execute"]} actions '
       f'executed per query, at most {s["max_queries"]} queries (the episode\'s 200 steps), '
-      f'{s["budget"]:,} evaluations per query and episode ([the ledger](#measured-and-not-kept) '
-      'has the runs at 100,000); '
+      f'{s["budget"]:,} evaluations per query and episode; '
       '95% intervals over the instances. Steps: world steps to the goal, the solved episodes\' '
       'mean (the policy alone: its steps):',
       table(['task', 'planner', 'solved', 'steps to the goal', 'queries per episode',
