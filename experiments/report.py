@@ -877,6 +877,14 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'wall 87% against 88%, gate-mirror 76% against 80%, two-gaps 37% against 32%; Ts tipped '
      '7, 13, 28 against 10, 16, 36; 101, 139 and 236 answers cut: off by default',
      '`4304295`: `closed_loop_gpu/*_pachs-k64-check.json`'),
+    ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
+     'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
+     'against 5,760: superseded by the default physics\' run with K 128',
+     '`b5c3c48`: `serve_gpu/wall_pachs-served.json`'),
+    ('The server at the task\'s budget with K 64 (one request of 30 PushT-Obs episodes, '
+     '100,000 evaluations each, one H200)',
+     '29.7 s, of which the search 29.7 s; 29 reached the goal: superseded by the server of '
+     'K 128 (`--query-time 3`)', '`b5c3c48`: `serve_gpu/task_budget/bench_serve.json`'),
     ('Closed loop on blocks without a margin, wall in the planners\' own physics, K 64',
      'PACHS 99% (90% in MuJoCo C), rollout 72% (64%): superseded by the default physics\' '
      'runs', '`4304295`: `closed_loop_soft_gpu/wall_*-planner-world*`'),
@@ -1028,9 +1036,11 @@ def serving(src: Sources) -> str:
       f'{num(g_server["start_to_every_bucket_warm_s"], 1)} s. {g_big}',
       table(header, bench_serve_rows(gpu)),
       f'At the task\'s budget ({task_budget["server"]["budget"]:,} evaluations per episode), '
-      f'one request of {t_big["instances"]} episodes: {num(t_big["latency_median_s"])} s, of '
-      f'which the search {num(t_big["search_median_s"])} s; '
-      f'{num(t_big["reaching_goal_median"])} of them reached the goal.',
+      f'the server of `serve_gpu/run.sh` (K {served_pop_size(src)}, '
+      f'{task_budget["provenance"]["device"]}): one request of {t_big["instances"]} episodes: '
+      f'{num(t_big["latency_median_s"])} s, of which the search '
+      f'{num(t_big["search_median_s"])} s; {num(t_big["reaching_goal_median"])} of them '
+      'reached the goal.',
       serving_gpus(src),
       served_closed_loop(src)])
 
@@ -1085,16 +1095,24 @@ def serving_gpus(src: Sources) -> str:
 def served_closed_loop(src: Sources) -> str:
   """The closed loop's protocol through a server against the same protocol in process."""
   served = summary_of(src.load('serve_gpu/wall_pachs-served.json'), 'pachs')
-  own = summary_of(src.load('closed_loop_soft_gpu/wall_pachs.json'), 'pachs')
+  own = summary_of(src.load('closed_loop_gpu/wall_pachs.json'), 'pachs')
   prov = src.load('serve_gpu/wall_pachs-served.json')['provenance']
   solved = lambda a: f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
-  return (f'The closed loop through a server (`serve_gpu/run.sh`: `pachs serve` and '
-          f'`closed_loop.py --server`, {prov["device"]}; wall, the protocol of '
-          '[the closed loop](#closed-loop-on-the-faithful-physics), blocks without a margin): '
-          'PACHS solved '
+  return (f'The closed loop through a server (`serve_gpu/run.sh`: `pachs serve --query-time 3`, '
+          f'K {served_pop_size(src)}, and `closed_loop.py --server`, {prov["device"]}; wall, the '
+          'protocol of [the closed loop](#closed-loop-on-the-faithful-physics)): PACHS solved '
           f'{solved(served)} of its episodes, in process {solved(own)}; '
           f'{num(served["evaluations_per_query_mean"])} edges per query and episode against '
           f'{num(own["evaluations_per_query_mean"])}.')
+
+
+def served_pop_size(src: Sources) -> str:
+  """The K of the server that `serve_gpu/run.sh` started (its closed loop's config names
+  it)."""
+  config = summary_of(src.load('serve_gpu/wall_pachs-served.json'), 'pachs')['config']
+  found = re.search(r'\bK (\d+)', str(config))
+  return found.group(1) if found else '?'
+
 
 
 def training(src: Sources) -> str:
@@ -1257,10 +1275,16 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
 
 
 def closed_loop_headline(src: Sources) -> str:
-  """The README's closed-loop sentence: PACHS against the rollout on each layout run."""
-  folder, pairs, devices = 'closed_loop_gpu', [], set()
-  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
-    names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs-k64', 'parallel')]
+  """The README's closed-loop sentence: PACHS (today's default at 3 s, else the K 64 runs
+  where the default has not run on every layout) against the rollout on each layout run."""
+  folder, layouts_run = 'closed_loop_gpu', LAYOUTS + ('gate-mirror', 'wall-right')
+  with_rollout = [layout for layout in layouts_run
+                  if src.exists(f'{folder}/{layout}_parallel.json')]
+  default = all(src.exists(f'{folder}/{layout}_pachs.json') for layout in with_rollout)
+  variant = 'pachs' if default else 'pachs-k64'
+  pairs, devices = [], set()
+  for layout in with_rollout:
+    names = [f'{folder}/{layout}_{v}.json' for v in (variant, 'parallel')]
     if all(src.exists(n) for n in names):
       devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
                   for n in names}
@@ -1268,17 +1292,19 @@ def closed_loop_headline(src: Sources) -> str:
       pachs, rollout = (summary_of(src.load(n), planner)
                         for n, planner in zip(names, ('pachs', 'parallel')))
       pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
-  wider = [(layout, summary_of(src.load(name), 'pachs')) for layout in LAYOUTS + (
-      'gate-mirror', 'wall-right') if src.exists(name := f'{folder}/{layout}_pachs.json')]
+  wider = [(layout, summary_of(src.load(name), 'pachs')) for layout in layouts_run
+           if src.exists(name := f'{folder}/{layout}_pachs.json')]
+  which = ('(K 128, the default at 3 s per query; gate-mirror and wall-right held out; '
+           if default else '(K 64; gate-mirror and wall-right held out); with K 128, the '
+           'default at 3 s per query, PACHS solved ' + ', '.join(
+               f'{layout} {pct(a["success_rate"])}' for layout, a in wider) + ' (')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' (K 64; gate-mirror and wall-right held out); with K 128, '
-          'the default at 3 s per query, PACHS solved '
-          + ', '.join(f'{layout} {pct(a["success_rate"])}' for layout, a in wider)
-          + ' ([results](docs/results.md#closed-loop-on-the-faithful-physics)).')
+          + ', '.join(pairs) + ' ' + which
+          + '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:
