@@ -466,7 +466,6 @@ def answer_counts(row: Dict) -> str:
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
               "replayed in the search, K 128)"),
-    ('pachs-k64', 'PACHS, K 64 (the default at 3 s before)'),
     ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
@@ -557,9 +556,9 @@ def closed_loop_sessions(src: Sources) -> str:
       'wall-right are the held-out layouts (`heldout_layouts.py`). PACHS replans through '
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
       'file is named by what ran in today\'s terms (`run.sh` runs it by that name); a renamed '
-      'run\'s command names the file it was written as: the K 64 runs were written when K 64 '
-      'was the default, some naming the physics `--physics hard-blocks` (the default\'s '
-      'settings), and the default\'s runs with `-K 128`.',
+      'run\'s command names the file it was written as: the rollout\'s runs some naming the '
+      'physics `--physics hard-blocks` (the default\'s settings), the default\'s runs on '
+      'wall, two-gaps and gate-mirror with `-K 128`.',
       table(CLOSED_LOOP_COLUMNS, rows),
       '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
       'second of query (a PACHS query ends before its time once every episode\'s search has '
@@ -877,6 +876,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'wall 87% against 88%, gate-mirror 76% against 80%, two-gaps 37% against 32%; Ts tipped '
      '7, 13, 28 against 10, 16, 36; 101, 139 and 236 answers cut: off by default',
      '`4304295`: `closed_loop_gpu/*_pachs-k64-check.json`'),
+    ('Closed loop at 3 s per query with K 64 (the default before; default physics, one H200 '
+     'per planner, 100 episodes per layout)',
+     'solved gate 83%, slot 64%, wall 88%, detour 2%, two-gaps 32%, gate-mirror 80%, '
+     'wall-right 86% against K 128\'s 94, 65, 91, 4, 46, 76 and 82%, with 0.60-0.77x the '
+     'rollout\'s edges per query (K 128: 0.86-1.2x)',
+     '`0be5a14`: `closed_loop_gpu/*_pachs-k64.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
@@ -1275,16 +1280,11 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
 
 
 def closed_loop_headline(src: Sources) -> str:
-  """The README's closed-loop sentence: PACHS (today's default at 3 s, else the K 64 runs
-  where the default has not run on every layout) against the rollout on each layout run."""
-  folder, layouts_run = 'closed_loop_gpu', LAYOUTS + ('gate-mirror', 'wall-right')
-  with_rollout = [layout for layout in layouts_run
-                  if src.exists(f'{folder}/{layout}_parallel.json')]
-  default = all(src.exists(f'{folder}/{layout}_pachs.json') for layout in with_rollout)
-  variant = 'pachs' if default else 'pachs-k64'
-  pairs, devices = [], set()
-  for layout in with_rollout:
-    names = [f'{folder}/{layout}_{v}.json' for v in (variant, 'parallel')]
+  """The README's closed-loop sentence: PACHS (today's default) against the rollout on each
+  layout run."""
+  folder, pairs, devices = 'closed_loop_gpu', [], set()
+  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
+    names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs', 'parallel')]
     if all(src.exists(n) for n in names):
       devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
                   for n in names}
@@ -1292,19 +1292,13 @@ def closed_loop_headline(src: Sources) -> str:
       pachs, rollout = (summary_of(src.load(n), planner)
                         for n, planner in zip(names, ('pachs', 'parallel')))
       pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
-  wider = [(layout, summary_of(src.load(name), 'pachs')) for layout in layouts_run
-           if src.exists(name := f'{folder}/{layout}_pachs.json')]
-  which = ('(K 128, the default at 3 s per query; gate-mirror and wall-right held out; '
-           if default else '(K 64; gate-mirror and wall-right held out); with K 128, the '
-           'default at 3 s per query, PACHS solved ' + ', '.join(
-               f'{layout} {pct(a["success_rate"])}' for layout, a in wider) + ' (')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' ' + which
-          + '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
+          + ', '.join(pairs) + ' (gate-mirror and wall-right held out; '
+          '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:

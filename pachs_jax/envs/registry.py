@@ -93,8 +93,8 @@ _SEARCH = {'weight': 2.0, 'num_actions': 8, 'pop_size': 64, 'budget': 100_000}
 _PUSHT = dict(_SEARCH, edge_steps=8, realtime_answer='min_cost')
 _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal='improve',
                   improve_allowance=3.0, uniform_share=0.25)
-# PushT-Obs replanning on a GPU: queries of 2 s or more pop K = 128 (at 3 s, 11-17 iterations a
-# query and 0.86-1.2x the rollout's edges; K 64: 0.66-0.77x); shorter ones keep 64 (at 1 s K 128
+# PushT-Obs replanning on a GPU: queries of 2 s or more pop K = 128 (at 3 s, 10-17 iterations a
+# query and 0.86-1.2x the rollout's edges; K 64: 0.60-0.77x); shorter ones keep 64 (at 1 s K 128
 # gets 3-5 iterations, too shallow). docs/task_defaults.md.
 _PUSHT_OBS_REPLAN_POP_SIZES = ((2.0, 128),)
 
