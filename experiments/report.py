@@ -973,12 +973,18 @@ def playground(src: Sources) -> str:
       rows.append([p['task'].split(':')[-1], s['planner'], f'{s["solved"]}/{s["instances"]}',
                    num(s['mean_cost_solved']), num(s['mean_evaluated']), num(s['wall_s'])])
   loop, first = [], None
+  protocol = ('instances', 'rounds', 'query_time', 'execute', 'max_queries', 'budget')
   for name in ('closed_loop_playground_cpu/reachereasy.json',
                'closed_loop_playground_cpu/reacherhard.json'):
     p = src.load(name)
     first = first or p
+    differ = [k for k in protocol if p['settings'][k] != first['settings'][k]]
+    if differ or p['provenance']['device'] != first['provenance']['device']:
+      raise ValueError(f'{name}: its runs differ from the first Playground closed loop\'s in '
+                       f'{", ".join(differ) or "device"}; the table states one protocol')
     for a in p['summary']:
-      loop.append([p['task'].split(':')[-1], PLAYGROUND_LOOP_PLANNERS[a['planner']],
+      loop.append([p['task'].split(':')[-1],
+                   PLAYGROUND_LOOP_PLANNERS.get(a['planner'], a['planner']),
                    f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
                    num(a['steps_to_success_mean']), num(a.get('queries_per_episode_mean')),
                    num(a.get('evaluations_per_query_mean')), num(a.get('query_time_s_mean'))])
@@ -992,7 +998,8 @@ def playground(src: Sources) -> str:
       'planners, each episode\'s world the task\'s MuJoCo model in MuJoCo C around the env\'s '
       f'own step (docs/closed_loop.md); {s["instances"]} instances x {s["rounds"]} rounds, '
       f'{s["query_time"]:g} s per query for all episodes together, {s["execute"]} actions '
-      f'executed per query, at most {s["max_queries"]} queries (the episode\'s 200 steps), '
+      f'executed per query, at most {s["max_queries"]} queries '
+      f'({s["max_queries"] * s["execute"]} steps), '
       f'{s["budget"]:,} evaluations per query and episode; '
       '95% intervals over the instances. Steps: world steps to the goal, the solved episodes\' '
       'mean (the policy alone: its steps):',

@@ -497,8 +497,8 @@ def _main(words, prefetch=None, guard=None) -> int:
     # MuJoCo picks its OpenGL backend on import; only a GIF needs one (a machine without EGL
     # fails to import mujoco when MUJOCO_GL=egl is set).
     os.environ.setdefault('MUJOCO_GL', 'egl')
-  if words[:1] == ['loop'] and any(w.startswith('playground:') or w.startswith('--task=playground:')
-                                   for w in words) and any(w.startswith('--video') for w in words):
+  if words[:1] == ['loop'] and any(w.split('=')[-1].startswith('playground:') for w in words) \
+      and any(w.startswith('--video') for w in words):
     os.environ.setdefault('MUJOCO_GL', 'egl')  # a Playground task's video: MuJoCo's renderer
   from pachs_jax import envs  # start-up path: lazy, after MUJOCO_GL is chosen
   from pachs_jax.envs import layouts, registry

@@ -113,11 +113,15 @@ def write_gif(path: str, env, frames: np.ndarray, num_states: int) -> str:
 
 
 def control_hz(env) -> float:
-  """Transitions per second of simulated time (PushT: 1 / (physics_dt * substeps)); 10 for an
-  env without a duration (the shelf's kinematic edges). An animation plays at this speed."""
+  """Transitions per second of simulated time (PushT: 1 / (physics_dt * substeps); a Playground
+  task: 1 / its env's dt); 10 for an env without a duration (the shelf's kinematic edges). An
+  animation plays at this speed."""
   config = getattr(env, 'config', None)
   if hasattr(config, 'physics_dt') and hasattr(config, 'substeps'):
     return 1.0 / (config.physics_dt * config.substeps)
+  dt = getattr(getattr(env, 'playground_env', None), 'dt', None)
+  if dt:
+    return 1.0 / float(dt)
   return 10.0
 
 

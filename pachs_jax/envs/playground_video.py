@@ -67,8 +67,10 @@ def loop_frames(env, states: base.NodeState, plans: Sequence[Optional[base.NodeS
   try:
     renderer = mujoco.Renderer(model, height, width)
   except Exception as err:  # pylint: disable=broad-except  (GL back ends fail in many ways)
-    raise ValueError(f'MuJoCo could not render {env.name} ({type(err).__name__}: {err}); '
-                     'without a display set MUJOCO_GL=egl (or osmesa)') from None
+    message = ' '.join(str(err).split())
+    raise ValueError(f'MuJoCo could not render {env.name} ({type(err).__name__}: {message}); '
+                     'without a display, MUJOCO_GL=egl or osmesa gives MuJoCo an OpenGL '
+                     'context') from None
   try:
     body = moving_body(body_positions(model, states))
     paths = {id(p): body_positions(model, p)[:, body] for p in plans if p is not None}

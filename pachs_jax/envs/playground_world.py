@@ -3,8 +3,11 @@ into a control and the simulated state into its observation, reward, metrics and
 MuJoCo C simulates in between (docs/closed_loop.md).
 
 A Playground env's step calls `mjx_env.step(model, data, ctrl, n_substeps)` once; the world
-traces the env's step twice with that call replaced: once to read the control it asks for, and
-once to hand it MuJoCo C's result, every public field of mjx.Data taken from the world's MjData.
+traces the env's step twice with that call replaced: once to read the control it asks for (and
+the state fields it changed before simulating, e.g. a push in xfrc_applied), and once to hand it
+MuJoCo C's result, every public field of mjx.Data taken from the world's MjData. The
+replacement is module-wide while a `WorldSteps` is built: no other thread may trace a
+Playground step then.
 """
 
 from __future__ import annotations
@@ -36,10 +39,16 @@ def _mjx_env_step_replaced(step: Callable):
 
 @dataclasses.dataclass(frozen=True)
 class _Call:
-  """What the env's step asked of `mjx_env.step` while traced: its control [nu] and
-  n_substeps."""
+  """What the env's step asked of `mjx_env.step` while traced: its control [nu], the data it
+  passed and n_substeps."""
   ctrl: jax.Array
+  data: object
   n_substeps: int
+
+
+# the integration-state fields an env's step may set before simulating, which the world then
+# takes over (ctrl comes as the call's own argument; time is the world's)
+EDITABLE_FIELDS = tuple(f for f in playground.STATE_FIELDS if f not in ('ctrl', 'time'))
 
 
 class WorldSteps:
@@ -47,8 +56,10 @@ class WorldSteps:
   the worlds of one env.
 
   env: the `playground.PlaygroundEnv` (MJX's JAX or Warp implementation).
-  control(node, action [A]) -> ctrl [nu] float32: the control the env's step applies (to the
-    action sanitized as the planner's edges do: `base.sanitize_actions`).
+  control(node, action [A]) -> (ctrl [nu] float32, edits): the control the env's step applies
+    (to the action sanitized as the planner's edges do: `base.sanitize_actions`) and, per
+    `EDITABLE_FIELDS` field of the env's Data, (the value the step passed to the physics, []
+    bool whether the step changed it from the node's).
   finish(node, action [A], fields) -> the node after the step, where fields (dict of the
     public mjx.Data fields, `FIELDS`) is the simulated data.
   n_substeps: physics steps per control step (the env's).
@@ -69,15 +80,19 @@ class WorldSteps:
     def control(node, action):
       def record(model, data, ctrl, n_substeps=1):
         del model
-        calls.append(_Call(jnp.asarray(ctrl, jnp.float32), int(n_substeps)))
+        calls.append(_Call(jnp.asarray(ctrl, jnp.float32), data, int(n_substeps)))
         return data
+      state = env.state_from_node(node)
       with _mjx_env_step_replaced(record):
-        env.playground_env.step(env.state_from_node(node), base.sanitize_actions(action)[0])
+        env.playground_env.step(state, base.sanitize_actions(action)[0])
       if len(calls) != 1:
         raise ValueError(f'{env.name}: its step called mujoco_playground\'s mjx_env.step '
                          f'{len(calls)} times; a MuJoCo C world runs an env whose step calls '
                          'it once')
-      return calls[0].ctrl
+      passed = calls[0].data
+      edits = {f: (getattr(passed, f), jnp.any(getattr(passed, f) != getattr(state.data, f)))
+               for f in EDITABLE_FIELDS if f in self.fields}
+      return calls[0].ctrl, edits
 
     self.control = jax.jit(control).lower(node, action).compile()
     self.n_substeps = calls[0].n_substeps
@@ -123,7 +138,10 @@ class PlaygroundWorld:
 
   def reset(self, node: base.NodeState) -> base.NodeState:
     """Puts the world into a single node's state (its integration state,
-    `playground.STATE_FIELDS`); returns the node."""
+    `playground.STATE_FIELDS`); returns the node. ValueError for a node with a batch axis."""
+    if np.shape(node.qpos) != (self.model.nq,):
+      raise ValueError(f'reset takes one node of {self.env.name} (qpos [{self.model.nq}]), got '
+                       f'qpos of shape {np.shape(node.qpos)}')
     state = jax.tree.map(np.asarray, self.env.state_from_node(node).data)
     for field in playground.STATE_FIELDS:
       value = getattr(state, field, None)
@@ -151,8 +169,12 @@ class PlaygroundWorld:
                        f'got {actions.shape}')
     nodes = []
     for action in actions:
-      ctrl = np.asarray(self.steps.control(self._node, action), np.float64)
-      self.data.ctrl[:] = ctrl.reshape(self.data.ctrl.shape)
+      ctrl, edits = self.steps.control(self._node, action)
+      for field, (value, changed) in edits.items():  # what the env's step set before simulating
+        if bool(changed):
+          getattr(self.data, field)[...] = np.asarray(value).reshape(
+              getattr(self.data, field).shape)
+      self.data.ctrl[:] = np.asarray(ctrl, np.float64).reshape(self.data.ctrl.shape)
       mujoco.mj_step(self.model, self.data, nstep=self.steps.n_substeps)
       self._node = jax.tree.map(np.asarray, self.steps.finish(
           self._node, action, self.steps.fields_of(self.data)))
