@@ -61,7 +61,7 @@ class WorldSteps:
     `EDITABLE_FIELDS` field of the env's Data, (the value the step passed to the physics, []
     bool whether the step changed it from the node's).
   finish(node, action [A], fields) -> the node after the step, where fields (dict of the
-    public mjx.Data fields, `FIELDS`) is the simulated data.
+    public mjx.Data fields, `fields`; `fields_of` an MjData's) is the simulated data.
   n_substeps: physics steps per control step (the env's).
   Raises ValueError when the env's step does not call `mjx_env.step` exactly once.
   """
