@@ -1,14 +1,6 @@
-"""A MuJoCo C world (float64) for a MuJoCo Playground task: the env's own `step` turns an action
-into a control and the simulated state into its observation, reward, metrics and goal, and
-MuJoCo C simulates in between (docs/closed_loop.md).
-
-A Playground env's step calls `mjx_env.step(model, data, ctrl, n_substeps)` once; the world
-traces the env's step twice with that call replaced: once to read the control it asks for (and
-the state fields it changed before simulating, e.g. a push in xfrc_applied), and once to hand it
-MuJoCo C's result, every public field of mjx.Data taken from the world's MjData. The
-replacement is module-wide while a `WorldSteps` is built: no other thread may trace a
-Playground step then.
-"""
+"""A MuJoCo C world (float64) for a MuJoCo Playground task: MuJoCo C simulates, the env's own
+`step` supplies the control and the observation, reward and goal around it (how, and the
+module-wide replacement of `mjx_env.step` while its programs compile: docs/closed_loop.md)."""
 
 from __future__ import annotations
 
@@ -169,12 +161,12 @@ class PlaygroundWorld:
                        f'got {actions.shape}')
     nodes = []
     for action in actions:
-      ctrl, edits = self.steps.control(self._node, action)
+      ctrl, edits = jax.tree.map(np.asarray, self.steps.control(self._node, action))
       for field, (value, changed) in edits.items():  # what the env's step set before simulating
-        if bool(changed):
+        if changed:
           getattr(self.data, field)[...] = np.asarray(value).reshape(
               getattr(self.data, field).shape)
-      self.data.ctrl[:] = np.asarray(ctrl, np.float64).reshape(self.data.ctrl.shape)
+      self.data.ctrl[:] = ctrl.reshape(self.data.ctrl.shape)
       mujoco.mj_step(self.model, self.data, nstep=self.steps.n_substeps)
       self._node = jax.tree.map(np.asarray, self.steps.finish(
           self._node, action, self.steps.fields_of(self.data)))
