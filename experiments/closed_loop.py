@@ -69,10 +69,6 @@ def build_parser() -> argtypes.OneLineParser:
                       help="1: each PACHS search's first chain lane replays the last answer's "
                       'remainder (replan.Session.replay_remainder); 0: not; default: where '
                       'the search has chain lanes')
-  parser.add_argument('--keep-cells', type=int, default=0, choices=[0, 1],
-                      help="1: each PACHS search's chains count the nodes of the episode's "
-                      'earlier searches per coarse cell, restarting away from where they went '
-                      '(replan.Session.keep_cells); 0 (default): each search counts its own')
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--check-copies', type=argtypes.integer(low=0), default=0,
@@ -202,8 +198,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     session = replan.Session(env, model, config, candidates=args.candidates,
                              replay_remainder=(None if args.replay_remainder is None
                                                else bool(args.replay_remainder)),
-                             chunk_iterations=args.chunk_iterations, check=check,
-                             keep_cells=bool(args.keep_cells))
+                             chunk_iterations=args.chunk_iterations, check=check)
 
     def query(nodes, keys, executed, running):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
@@ -458,8 +453,6 @@ def main():
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   if args.check_copies and args.server:
     parser.error('--check-copies checks the answers of an in-process PACHS, not --server')
-  if args.keep_cells and args.server:
-    parser.error('--keep-cells keeps the counts of an in-process PACHS, not --server')
   common.check_layout(parser, args.task, args.layout)
   if args.task.startswith('playground:') and (args.perturb or args.check_copies):
     parser.error('--perturb and --check-copies apply to the PushT tasks')
@@ -482,9 +475,6 @@ def main():
       if args.replay_remainder and not config.rollout_lanes:
         parser.error(f'--replay-remainder 1: {name} on {args.task} has no chain lanes to '
                      'replay the remainder in (rollout share 0)')
-      if args.keep_cells and (name != 'pachs' or config.chain_restart != 'novel'):
-        parser.error(f'--keep-cells: {name} on {args.task} does not restart chains at novel '
-                     'cells (--chain-restart novel)')
   if args.server is not None and args.physics is not None:
     parser.error('--physics with --server: the server plans on the physics it was started with')
   if args.server is not None and 'pachs' in names:

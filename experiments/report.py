@@ -882,6 +882,17 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'wall-right 86% against K 128\'s 94, 65, 91, 4, 46, 76 and 82%, with 0.60-0.77x the '
      'rollout\'s edges per query (K 128: 0.86-1.2x)',
      '`0be5a14`: `closed_loop_gpu/*_pachs-k64.json`'),
+    ('Closed loop: each query searches to its clock\'s end, improving a goal it found '
+     '(`--improve-allowance inf` instead of 3; default physics, K 128, one H200)',
+     'edges per query 0.92-1.15x the rollout\'s (wall 9,994, gate 9,423, gate-mirror 9,396), '
+     'but no more episodes solved: wall 89% against 91%, gate 93% against 94%, gate-mirror 75% '
+     'against 76%, and wall took 8.7 queries an episode against 5.9: the default\'s queries '
+     'still end once every search has improved its goal', '`796d8ed`: `closed_loop_gpu/*_pachs-full.json`'),
+    ('Closed loop: each search starts from the episode\'s last search\'s nodes per coarse '
+     'cell, so that its chains restart away from where the earlier searches went '
+     '(`Session.keep_cells`; default physics, K 128, one H200)',
+     'fewer episodes solved: wall 84% against 91%, gate 87% against 94%, detour 3% against '
+     '4%; the code left the tree', '`796d8ed`: `closed_loop_gpu/*_pachs-cells.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',

@@ -277,9 +277,6 @@ class Session:
     room for it); None: wherever it can (a search built here gets the room).
   check: an `AnswerCheck` of each answer's first actions (None: none; `Answer.safe_length` is
     the length).
-  keep_cells: each search starts from the last one's nodes per coarse cell
-    (`SearchResult.nodes_per_cell`), so that its chains restart away from where the episode's
-    earlier searches went (one device; a search whose chains restart at novel cells).
   """
 
   env: base.Env
@@ -292,7 +289,6 @@ class Session:
   mesh: Optional[object] = None
   replay_remainder: Optional[bool] = None
   check: Optional[AnswerCheck] = None
-  keep_cells: bool = False
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -327,13 +323,6 @@ class Session:
     if self.replay_remainder and self.search.search.sizes.replay < self.horizon:
       raise ValueError(f'the search replays paths of at most {self.search.search.sizes.replay} '
                        f'actions, the session keeps {self.horizon} (Capacities.replay)')
-    if not isinstance(self.keep_cells, bool):
-      raise ValueError(f'keep_cells must be a bool, got {self.keep_cells!r}')
-    if self.keep_cells and self.mesh is not None:
-      raise ValueError('keep_cells searches on one device (mesh=None)')
-    if self.keep_cells and self.config.chain_restart != 'novel':
-      raise ValueError("keep_cells needs chains that restart at novel cells "
-                       "(SearchConfig.chain_restart='novel')")
     if self.check is not None and not isinstance(self.check, AnswerCheck):
       raise ValueError(f'check must be an AnswerCheck or None, got {self.check!r}')
     env, policy, check = self.env, self.actor_critic.deterministic_action, self.check
@@ -386,22 +375,18 @@ class Session:
       length = jnp.zeros((num,), jnp.int32)
     else:
       actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
-    cells = (self.last.search.nodes_per_cell
-             if self.keep_cells and self.last is not None else None)
-    self.last = self.answer(states, actions, length, key, time_limit_s, active=active,
-                            cells=cells)
+    self.last = self.answer(states, actions, length, key, time_limit_s, active=active)
     return self.last
 
   def answer(self, states: base.NodeState, actions: jax.Array, length: jax.Array,
              key: jax.Array = None, time_limit_s: Optional[float] = None,
-             bucket: Optional[int] = None, active=None, cells=None) -> Answer:
+             bucket: Optional[int] = None, active=None) -> Answer:
     """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
     [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
     that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
     `plan`, active as there. The remainder is followed where 'remainder' is a candidate and replayed by the
     search where replay_remainder. bucket: a power of two >= E that the follow and the search are
-    padded to (one compiled program for every E up to it; None: E's own bucket). cells: [E, C]
-    nodes per coarse cell the search starts from (`programs.plan`; None: none)."""
+    padded to (one compiled program for every E up to it; None: E's own bucket)."""
     num = self._check_states(states)
     key = jax.random.PRNGKey(0) if key is None else key
     _check_query(time_limit_s, active, num)
@@ -444,9 +429,6 @@ class Session:
       left = max(time_limit_s - (time.perf_counter() - began)
                  - self.timing.get('choose_s', 0.0), 1e-3)
     if self._sharded is not None:
-      if cells is not None:
-        raise ValueError('cells: a search over a mesh starts from no counts (keep_cells is '
-                         'one device)')
       result = self._sharded.plan(states, key, time_limit_s=left, min_bucket=bucket,
                                   replay=replay)
       # on the default device, as one device's search leaves it: the follow and the choice
@@ -455,8 +437,7 @@ class Session:
     else:
       result = programs.plan(self.env, self.actor_critic, states, self.config, key,
                              time_limit_s=left, chunk_iterations=self.chunk_iterations,
-                             search=self.search, min_bucket=bucket, replay=replay, live=active,
-                             cells=cells)
+                             search=self.search, min_bucket=bucket, replay=replay, live=active)
     choosing = time.perf_counter()
     # the choice (and the check) in the padded batch too (its rows after num dropped)
     grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)

@@ -247,8 +247,7 @@ def test_a_stop_request_ends_a_planners_episodes_before_the_next_query():
   args = closed_loop.argparse.Namespace(
       budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
       candidates=(), replay_remainder=0, chunk_iterations=1, max_queries=30, execute=10,
-      query_time=1.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0,
-      keep_cells=0)
+      query_time=1.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0)
   worlds = closed_loop.Worlds(env, starts)
   info = closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
                                  jax.random.PRNGKey(0), stop=lambda: True)

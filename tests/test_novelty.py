@@ -156,28 +156,3 @@ def test_chain_restart_validation():
     SearchConfig(chain_restart='random')
   with pytest.raises(ValueError, match='coarsening'):
     rules_lib.restart_novel(coarsening=0)
-
-
-def test_a_search_counts_on_top_of_an_earlier_search_s_cells(novel_search):
-  # a replanning session's next search starts from the last one's counts
-  env, _, search, state = novel_search
-  earlier = np.asarray(search.result(state).nodes_per_cell)
-  np.testing.assert_array_equal(earlier, np.asarray(state.visits.nodes_per_cell))
-  assert earlier.shape == (len(STARTS), search.num_cells)
-  nodes = env.node(STARTS, GOALS)
-  keys = jax.random.split(jax.random.PRNGKey(4), len(STARTS))
-  fresh = search.init(nodes, keys)
-  again = search.init(nodes, keys, cells=earlier)
-  np.testing.assert_array_equal(np.asarray(again.visits.nodes_per_cell),
-                                earlier + np.asarray(fresh.visits.nodes_per_cell))
-  done = search.run(again)
-  counts = np.asarray(search.result(done).nodes_per_cell)
-  node_cell = np.asarray(done.visits.node_cell)
-  for i in range(len(STARTS)):  # its own nodes, each once, on top of the earlier counts
-    own = node_cell[i][node_cell[i] != novelty.NO_CELL]
-    np.testing.assert_array_equal(counts[i] - earlier[i],
-                                  np.bincount(own, minlength=counts.shape[1]))
-  with pytest.raises(ValueError, match=r'cells must be \[6, 2048\] integer counts'):
-    search.init(nodes, keys, cells=earlier[:, :8])
-  with pytest.raises(ValueError, match=r'cells must be \[6, 2048\] integer counts'):
-    search.init(nodes, keys, cells=earlier.astype(np.float32))

@@ -438,26 +438,3 @@ def test_perturb_t_moves_and_turns_the_t_by_its_draws_and_keeps_its_tilt():
   turned = pusht.perturb_t(planar, keys, position_m=0.002, yaw_rad=0.05)
   np.testing.assert_allclose(np.asarray(turned.qpos[:, 7:10] - planar.qpos[:, 7:10]), noise,
                              atol=1e-6)
-
-
-def test_a_session_that_keeps_cells_starts_each_search_from_the_last_one_s_counts(env):
-  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=64, rollout_share=0.5,
-                        chain_restart='novel')
-  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, keep_cells=True)
-  nodes = _nodes(env, [[-0.3, -0.3], [0.4, 0.0]], [[0.3, 0.2], [-0.3, 0.1]])
-  first = jax.tree.map(np.asarray, session.plan(nodes, key=jax.random.PRNGKey(0)))
-  counts = first.search.nodes_per_cell
-  np.testing.assert_array_equal(counts.sum(axis=1), first.search.generated)
-  second = jax.tree.map(np.asarray, session.plan(nodes, executed=[0, 0],
-                                                 key=jax.random.PRNGKey(1)))
-  grown = second.search.nodes_per_cell - counts
-  assert (grown >= 0).all()
-  np.testing.assert_array_equal(grown.sum(axis=1), second.search.generated)
-  session.reset()  # new episodes count from nothing
-  third = jax.tree.map(np.asarray, session.plan(nodes, key=jax.random.PRNGKey(1)))
-  np.testing.assert_array_equal(third.search.nodes_per_cell.sum(axis=1), third.search.generated)
-  with pytest.raises(ValueError, match="keep_cells needs chains that restart at novel cells"):
-    replan.Session(env, TowardGoal(DIM), SearchConfig(budget=16, rollout_share=0.5),
-                   keep_cells=True)
-  with pytest.raises(ValueError, match='keep_cells must be a bool'):
-    replan.Session(env, TowardGoal(DIM), config, keep_cells=1)

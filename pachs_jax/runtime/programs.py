@@ -190,7 +190,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
          started: Optional[Callable[[], object]] = None,
-         compile_first: bool = False, replay=None, live=None, cells=None) -> SearchResult:
+         compile_first: bool = False, replay=None, live=None) -> SearchResult:
   """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
@@ -221,8 +221,6 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     'running', no path).
   replay: paths from the starts (actions [I, T, A], length [I]) that the search's first chain
     lane replays (`search.replay`; a replanning query's last answer; None: none).
-  cells: [I, C] int32 nodes per coarse cell that the chains' restarts count as visited (a
-    replanning query's last `SearchResult.nodes_per_cell`; None: none).
   """
   if time_limit_s is not None and (isinstance(time_limit_s, bool)
                                    or not isinstance(time_limit_s, numbers.Real)
@@ -248,11 +246,6 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
   stored = lambda name: fingerprint and f'{fingerprint} {name}'
   compiled_program = functools.partial(compile_cache.compiled_program, prefetch=owner.prefetch)
   keys = instance_keys(key, num_instances)
-  if cells is not None and (np.shape(cells) != (num_instances, search.num_cells)
-                            or not np.issubdtype(np.result_type(cells), np.integer)):
-    raise ValueError(f'cells must be [{num_instances}, {search.num_cells}] integer counts (an '
-                     f'earlier search\'s nodes_per_cell), got {np.shape(cells)} '
-                     f'{np.result_type(cells)}')
   if min_bucket is None:
     min_bucket = 1 if jax.default_backend() == 'cpu' else 32
   padded = bucket_size(num_instances, min_bucket)
@@ -273,14 +266,13 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     checked = threads.submit(here(check_model), env, actor_critic, start_nodes, config.num_actions,
                              stored('model check'), owner)
     if padded != num_instances:
-      start_nodes, keys, replay, cells = pad_rows((start_nodes, keys, replay, cells), padded)
+      start_nodes, keys, replay = pad_rows((start_nodes, keys, replay), padded)
     searched = np.arange(padded) < num_instances
     if live is not None:
       searched[:num_instances] &= np.asarray(live, bool).reshape(num_instances)
     live = jax.device_put(searched)
-    init_name = 'init' + (' replay' if replay is not None else '') + (
-        ' cells' if cells is not None else '')
-    init_args = (start_nodes, keys, live, replay, cells)
+    init_name, init_args = (('init', (start_nodes, keys, live)) if replay is None else
+                            ('init replay', (start_nodes, keys, live, replay)))
     new = init_name not in programs
     if new:
       programs[init_name] = compiled_program(search.init, init_args, stored(init_name))

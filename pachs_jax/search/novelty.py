@@ -30,17 +30,14 @@ def coarse_cells(cells: jax.Array, coarsening: int, num_cells: int) -> jax.Array
   return (lattice_lib.hash_keys(coarse) & jnp.uint32(num_cells - 1)).astype(jnp.int32)
 
 
-def init(start_cell: jax.Array, pool_size: int, num_cells: int, prior=None) -> Visits:
+def init(start_cell: jax.Array, pool_size: int, num_cells: int) -> Visits:
   """Visits of pools of pool_size nodes and num_cells (a power of two) hashed cells, holding
-  each instance's start node (pool index 0) in its cell start_cell [I], on top of prior
-  [I, num_cells] int32 counts (an earlier search's `nodes_per_cell`; None: none)."""
+  each instance's start node (pool index 0) in its cell start_cell [I]."""
   if num_cells < 1 or num_cells & (num_cells - 1):
     raise ValueError(f'num_cells must be a power of two, got {num_cells}')
   num_instances = start_cell.shape[0]
   rows = jnp.arange(num_instances)
-  counts = (jnp.zeros((num_instances, num_cells), jnp.int32) if prior is None
-            else jnp.asarray(prior, jnp.int32))
-  nodes_per_cell = counts.at[rows, start_cell].add(1)
+  nodes_per_cell = jnp.zeros((num_instances, num_cells), jnp.int32).at[rows, start_cell].add(1)
   node_cell = jnp.full((num_instances, pool_size), NO_CELL, jnp.int32).at[:, 0].set(start_cell)
   return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 

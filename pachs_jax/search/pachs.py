@@ -67,13 +67,10 @@ class Lanes(NamedTuple):
 class Search:
   """PACHS bound to one environment, actor-critic and config (jitted functions).
 
-  init(start_nodes [I], keys [I, 2], live [I] bool, replay=None, cells=None) -> SearchState
-    with the start states' dummy edges in OPEN; instances that are not live (padding) start
-    stopped; replay: paths from the starts (actions [I, T, A], length [I]) that the first chain
-    lane replays (`replay`; T at most capacities.replay); cells: [I, num_cells] int32 nodes per
-    coarse cell that chain restarts count as visited (an earlier search's
-    `SearchResult.nodes_per_cell`; None: none).
-  num_cells: C, the coarse cells its chain restarts count nodes in.
+  init(start_nodes [I], keys [I, 2], live [I] bool, replay=None) -> SearchState with the start
+    states' dummy edges in OPEN; instances that are not live (padding) start stopped; replay:
+    paths from the starts (actions [I, T, A], length [I]) that the first chain lane replays
+    (`replay`; T at most capacities.replay).
   loop(state, num_iterations, lanes, shrink=True) -> state after at most num_iterations more
     iterations laid out as `lanes` (a `Lanes`; None: Lanes()), with shrink (a traced bool)
     stopping early once another layout applies to the active instances (the input state's
@@ -97,7 +94,6 @@ class Search:
   config: SearchConfig
   capacities: capacity_lib.Capacities
   sizes: capacity_lib.Sizes
-  num_cells: int
 
   def lanes_of(self, num_active: int, num_instances: int) -> Lanes:
     return lanes_of(self.config, num_active, num_instances)
@@ -355,16 +351,9 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
   k, n, r, steps = config.pop_size, config.num_actions, config.rollout_lanes, rules.edges.steps
   slots, dummy = parts.slots, n  # edge slots per node; the dummy edge's slot
 
-  num_cells = rules.restart.num_cells(sizes.pool)
-
-  def init(start_nodes: base.NodeState, keys: jax.Array, live=None, replay=None,
-           cells=None) -> SearchState:
+  def init(start_nodes: base.NodeState, keys: jax.Array, live=None,
+           replay=None) -> SearchState:
     num_instances = check_start_nodes(start_nodes, env)
-    if cells is not None and (jnp.shape(cells) != (num_instances, num_cells)
-                              or not jnp.issubdtype(jnp.result_type(cells), jnp.integer)):
-      raise ValueError(f'cells must be [{num_instances}, {num_cells}] integer counts (an '
-                       f'earlier search\'s nodes_per_cell), got {jnp.shape(cells)} '
-                       f'{jnp.result_type(cells)}')
     start_cells = env.lattice_key(start_nodes, resolution)
     pool, table = phases.start(start_nodes, env.is_goal(start_nodes), start_cells,
                                sizes.pool, sizes.table, n, env.action_size, steps)
@@ -373,7 +362,7 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                        dummy_heap=phases.push_start(dummy_heap, dummy),
                        rng=instance_keys(keys, num_instances),
                        chain=jnp.zeros((num_instances, r), jnp.int32),
-                       visits=rules.restart.visits(start_cells, sizes.pool, cells),
+                       visits=rules.restart.visits(start_cells, sizes.pool),
                        lanes_offered=jnp.zeros((num_instances,), jnp.int32),
                        incumbent=improve.init(num_instances, config.budget),
                        replay=replay_lib.init(num_instances, sizes.replay, env.action_size,
@@ -418,9 +407,8 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
                                  sizes.path, state.incumbent)
     offered = state.lanes_offered * steps
     return out.replace(lane_utilization=jnp.where(
-        offered > 0, state.evaluated / jnp.maximum(offered, 1), 0.0).astype(jnp.float32),
-                       nodes_per_cell=state.visits.nodes_per_cell)
+        offered > 0, state.evaluated / jnp.maximum(offered, 1), 0.0).astype(jnp.float32))
 
   return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='lanes', donate_argnums=0),
                 run=jax.jit(run), result=jax.jit(result), config=config,
-                capacities=capacities, sizes=sizes, num_cells=num_cells)
+                capacities=capacities, sizes=sizes)

@@ -64,9 +64,6 @@ class SearchResult:
     the first goal was found (-1: none); first_goal_cost: [I] float32 that goal's path cost
     (inf: none). None from a planner whose first goal is its answer (evaluated, iterations and
     cost say it).
-  nodes_per_cell: [I, C] int32 PACHS's nodes generated per hashed coarse cell, the counts it
-    started from included (`novelty.Visits`; a replanning session's next search starts from
-    them); None from other planners.
   """
 
   found: jax.Array
@@ -90,4 +87,3 @@ class SearchResult:
   first_goal_evaluated: Optional[jax.Array] = None
   first_goal_iterations: Optional[jax.Array] = None
   first_goal_cost: Optional[jax.Array] = None
-  nodes_per_cell: Optional[jax.Array] = None

@@ -49,9 +49,7 @@ def actor_edges(env, actor_critic, steps: int) -> Edges:
 class Restart(NamedTuple):
   """Where a chain of the actor's edges restarts.
 
-  visits(start_cells [I, L], pool_size, prior=None) -> the `novelty.Visits` the rule keeps, on
-    top of prior [I, C] counts per cell (an earlier search's; None: none).
-  num_cells(pool_size) -> C, the cells it counts nodes in.
+  visits(start_cells [I, L], pool_size) -> the `novelty.Visits` the rule keeps.
   record(visits, nodes [I, K], new [I, K], cells [I, K, L]) -> visits with the new nodes.
   choose(pool, visits, keys [I, 2], fits [I, P] bool, num) -> [I, num] restart nodes (or one
     for all).
@@ -60,16 +58,14 @@ class Restart(NamedTuple):
   visits: Callable
   record: Callable
   choose: Callable
-  num_cells: Callable
 
 
 def restart_at_start() -> Restart:
   """Chains restart at the start state: they are rollouts of the actor (visits: one cell and
   one node, never read)."""
   return Restart(
-      lambda cells, pool_size, prior=None: novelty.init(
-          jnp.zeros(cells.shape[:1], jnp.int32), 1, 1, prior),
-      lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX, lambda pool_size: 1)
+      lambda cells, pool_size: novelty.init(jnp.zeros(cells.shape[:1], jnp.int32), 1, 1),
+      lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
 def restart_novel(coarsening: int = 4) -> Restart:
@@ -79,11 +75,9 @@ def restart_novel(coarsening: int = 4) -> Restart:
   coarsening = positive_int('restart_novel', 'coarsening', coarsening)
   coarse = lambda cells, num_cells: novelty.coarse_cells(cells, coarsening, num_cells)
 
-  num_cells = lambda pool_size: next_pow2(2 * pool_size)
-
-  def visits(cells, pool_size, prior=None):
-    return novelty.init(coarse(cells, num_cells(pool_size)), pool_size, num_cells(pool_size),
-                        prior)
+  def visits(cells, pool_size):
+    num_cells = next_pow2(2 * pool_size)
+    return novelty.init(coarse(cells, num_cells), pool_size, num_cells)
 
   def record(visits, node, new, cells):
     return novelty.add(visits, node, new, coarse(cells, visits.nodes_per_cell.shape[1]))
@@ -93,7 +87,7 @@ def restart_novel(coarsening: int = 4) -> Restart:
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
     return novelty.sample(visits, keys, eligible, num)
 
-  return Restart(visits, record, choose, num_cells)
+  return Restart(visits, record, choose)
 
 
 def best_f_answer(pool, slots: int):
