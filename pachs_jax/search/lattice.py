@@ -94,7 +94,9 @@ def _probe(table: LatticeTable, keys: jax.Array, mask: jax.Array, claim: bool):
     if claim:
       rival = (slot[:, None, :] == slot[:, :, None]) & free[:, None, :] & earlier[None]
       wins = free & ~jnp.any(rival, axis=2)
-      target = jnp.where(wins, slot, capacity)
+      # (~match: no claim where the key is found, which wins already implies; it orders the
+      # keys' read before their write, so that XLA writes the table in place)
+      target = jnp.where(wins & ~match, slot, capacity)
       table = table.replace(
           keys=table.keys.at[rows, target].set(keys, mode='drop'),
           occupied=table.occupied.at[rows, target].set(True, mode='drop'),
