@@ -674,6 +674,7 @@ def speed(src: Sources) -> str:
   baseline = src.load('bench_compact_baseline.json')['rows'][0]
   scale = [[r['K'], r['devices'], num(r['wall_s']), f'{r["speedup"]:.2f}x', r['found']]
            for r in src.load('bench_scale.json')['rows']]
+  reacher = src.load('bench_search_reacher_cpu.json')['rows'][0]
   return '\n\n'.join([
       '`pachs plan --task pusht-obs` (30 instances) on one GPU with Warp physics (`--backend '
       'auto` picks it), today\'s default, process wall and the search time it prints (s), one '
@@ -695,6 +696,11 @@ def speed(src: Sources) -> str:
       'accepted), against `env.evaluate` alone at the same batch:',
       table(['instances', 'K', 'edges evaluated', 'wall (s)', 'edges/s', 'search / raw',
              'lanes used'], search),
+      f'On a CPU-only machine the search\'s own arrays grow with the budget: '
+      f'{reacher["instances"]} Playground ReacherEasy instances at {num(reacher["budget"])} '
+      f'evaluations each (MJX, K {reacher["K"]}) searched {reacher["iterations"]} iterations '
+      f'in {num(reacher["wall_s"])} s ({reacher["wall_s"] / reacher["iterations"] * 1e3:.1f} ms '
+      f'each), {reacher["search_over_raw"]:.3f} of raw env steps at the same batch.',
       f'Compaction (simulating only the live instances\' edges), {compact["runs_per_device"]} '
       f'PushT-Obs runs, K {compact["K"]}, MJX: {num(compact["wall_s"])} s against '
       f'{num(baseline["wall_s"])} s without ({compact["found"]} and {baseline["found"]} found).',
