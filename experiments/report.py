@@ -888,6 +888,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'wall-right 86% against K 128\'s 94, 65, 91, 4, 46, 76 and 82%, with 0.60-0.77x the '
      'rollout\'s edges per query (K 128: 0.86-1.2x)',
      '`0be5a14`: `closed_loop_gpu/*_pachs-k64.json`'),
+    ('The lattice table\'s probe loop writing a claim without first reading the slot\'s keys '
+     '(XLA then copied the whole table at every probe round; CPU, 64 ReacherEasy instances at '
+     '100,000 evaluations, MJX, K 16)',
+     'the same search (737 iterations, 55,776 evaluations, 64 goals) in 34.6 s against 11.0 s; '
+     'first call with compiling 50.5 s against 28.0 s',
+     '`78eaed8`: `bench_search_reacher_cpu_table_copied.json`'),
     ('Closed loop: each query searches to its clock\'s end, improving a goal it found '
      '(`--improve-allowance inf` instead of 3; default physics, K 128, one H200)',
      'edges per query 0.92-1.15x the rollout\'s (wall 9,994, gate 9,423, gate-mirror 9,396), '
