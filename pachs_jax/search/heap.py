@@ -105,14 +105,16 @@ def _segment_slots(segments: jax.Array, segment_size: int) -> jax.Array:
   return slots.reshape(segments.shape[0], -1)
 
 
-def _candidates(heap: Heap, k: int) -> Tuple[jax.Array, jax.Array, jax.Array]:
-  """(keys [I, k], buffer indices [I, k], segments [I, s]) of the k best entries in (key,
-  insertion) order, +inf padded; segments are the ones searched."""
+def _candidates(heap: Heap, k: int):
+  """(keys [I, k], buffer indices [I, k], segments [I, s], the segments' keys [I, s * b], the
+  k best entries' positions among them [I, k]) of the k best entries in (key, insertion)
+  order, +inf padded; segments are the ones searched."""
   _, segments = _smallest(heap.segment_min, min(k, heap.segment_min.shape[1]))
   segments = jnp.sort(segments, axis=1)  # buffer order, so ties keep insertion order
   slots = _segment_slots(segments, heap.segment_size)
-  keys, j = _smallest(jnp.take_along_axis(heap.keys, slots, axis=1), k)
-  return keys, jnp.take_along_axis(slots, j, axis=1), segments
+  segment_keys = jnp.take_along_axis(heap.keys, slots, axis=1)
+  keys, j = _smallest(segment_keys, k)
+  return keys, jnp.take_along_axis(slots, j, axis=1), segments, segment_keys, j
 
 
 def pop(heap: Heap, k: int, active: Optional[jax.Array] = None,
@@ -129,13 +131,15 @@ def pop(heap: Heap, k: int, active: Optional[jax.Array] = None,
   if active is None:
     active = jnp.ones((num_instances,), bool)
   rows = jnp.arange(num_instances)[:, None]
-  keys, idx, segments = _candidates(heap, k)
+  keys, idx, segments, segment_keys, j = _candidates(heap, k)
   mask = (keys < INF) & active[:, None]
   if limit is not None:
     mask = mask & (keys <= limit[:, None])
   values = jnp.where(mask, jnp.take_along_axis(heap.values, idx, axis=1), 0)
   new_keys = heap.keys.at[rows, jnp.where(mask, idx, heap.keys.shape[1])].set(INF, mode='drop')
-  left = jnp.take_along_axis(new_keys, _segment_slots(segments, heap.segment_size), axis=1)
+  # the searched segments' keys after the pop, from their copy read above (not read back from
+  # the buffer just written, which would make XLA copy the buffer)
+  left = segment_keys.at[rows, jnp.where(mask, j, segment_keys.shape[1])].set(INF, mode='drop')
   segment_min = heap.segment_min.at[rows, segments].set(
       jnp.min(left.reshape(num_instances, -1, heap.segment_size), axis=2))
   heap = heap.replace(keys=new_keys, segment_min=segment_min,
