@@ -105,7 +105,7 @@ def _segment_slots(segments: jax.Array, segment_size: int) -> jax.Array:
   return slots.reshape(segments.shape[0], -1)
 
 
-def _candidates(heap: Heap, k: int):
+def _candidates(heap: Heap, k: int) -> Tuple[jax.Array, ...]:
   """(keys [I, k], buffer indices [I, k], segments [I, s], the segments' keys [I, s * b], the
   k best entries' positions among them [I, k]) of the k best entries in (key, insertion)
   order, +inf padded; segments are the ones searched."""
