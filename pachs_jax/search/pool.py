@@ -24,7 +24,7 @@ class NodePool:
   g: [I, P] float32 cost of the best known path from the start (cost units).
   parent: [I, P] int32 parent node index (NO_PARENT for the start).
   action: [I, P, A] float32 the action from the parent that reached the node.
-  depth: [I, P] int32 edges from the start.
+  depth: [I, P] int32 transitions from the start (an edge of H transitions adds H).
   closed: [I, P] bool, the node was expanded.
   is_goal: [I, P] bool, the node satisfies the goal rule.
   open_key: [I, P] float32 priority of the node's latest dummy edge (a popped dummy edge with
