@@ -57,8 +57,8 @@ def build_parser() -> argtypes.OneLineParser:
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=argtypes.positive_int, default=256,
                       help='parallel-rollout copies')
-  flags.add_search_flags(parser, ['realtime_answer', 'realtime_min_depth', 'pop_size',
-                                 'chain_restart', 'improve_allowance', 'compact_fractions'],
+  flags.add_search_flags(parser, ['realtime_answer', 'pop_size', 'chain_restart',
+                                 'improve_allowance', 'compact_fractions'],
                          defaults={'compact_fractions': COMPACT_FRACTIONS})
   parser.add_argument('--candidates', default=None,
                       type=lambda text: tuple(c for c in text.split(',') if c),

@@ -909,6 +909,16 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '(`Session.keep_cells`; default physics, K 128, one H200)',
      'fewer episodes solved: gate 87% against 94% (its goals per query otherwise as the '
      'default\'s), wall 84% against 91%, detour 3% against 4%; the code left the tree', '`796d8ed`: `closed_loop_gpu/*_pachs-cells.json`'),
+    ('Closed loop: a real-time answer at least 10 actions deep where the search has such a '
+     'state (`SearchConfig.realtime_min_depth` 10, the actions executed per query), so that no '
+     'executed action is a policy fill outside the search; default physics, one H200',
+     'fewer Ts tipped (episodes failed on policy steps 0-3 against 0-28, policy fill steps '
+     '203-242 against 13-1,650 a run) but not more episodes solved: gate-mirror 82% against '
+     '76% and two-gaps 51% against 46% (the screen), then gate 93% against 94%, wall 85% '
+     'against 91% (8.9 queries an episode against 5.9; the later wall runs of the ledger also '
+     'took 8.7), slot 61% against 65%, wall-right 78% against 82%, and at 1 s per query wall '
+     '67% against 73%, gate-mirror 27% against 29%: the episodes it kept from tipping ran out '
+     'of queries; the code left the tree', '`4662f89`: `closed_loop_gpu/*_pachs*-depth10.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',

@@ -55,10 +55,6 @@ SEARCH_FLAGS: Dict[str, tuple] = {
         "(the best OPEN entry's; the original algorithm's and a user's task's default), min_h "
         "(least estimated cost-to-go) or min_cost (least cost per transition of the edge into "
         "the state; PushT's default)")),
-    'realtime_min_depth': (('--realtime-min-depth',), dict(
-        type=argtypes.integer(0),
-        help="min_h and min_cost answer with a state at least this many actions from the "
-        "start where the search has one (default: the task's; 0: any)")),
 }
 
 

@@ -448,25 +448,6 @@ def test_min_cost_realtime_answer(problem, config):
                 / (pool.depth[i, 1:size] - pool.depth[i, parent]))
     ties = np.flatnonzero(per_step == per_step.min()) + 1
     _assert_path_ends_at(problem, res, pool, i, int(ties[np.argmin(pool.g[i, ties])]))
-  # at least 2 transitions deep: the same search, the least among the deep nodes (all nodes
-  # where an instance has no deep one)
-  deep, pool, running = _stopped_early(
-      problem, dataclasses.replace(config, realtime_answer='min_cost', realtime_min_depth=2),
-      'min_cost')
-  np.testing.assert_array_equal(deep.evaluated, res.evaluated)
-  moved = 0
-  for i in np.flatnonzero(running):
-    size = pool.size[i]
-    parent = pool.parent[i, 1:size]
-    per_step = ((pool.g[i, 1:size] - pool.g[i, parent])
-                / (pool.depth[i, 1:size] - pool.depth[i, parent]))
-    has_deep = (pool.depth[i, 1:size] >= 2).any()
-    per_step = np.where((pool.depth[i, 1:size] >= 2) | ~has_deep, per_step, np.inf)
-    ties = np.flatnonzero(per_step == per_step.min()) + 1
-    _assert_path_ends_at(problem, deep, pool, i, int(ties[np.argmin(pool.g[i, ties])]))
-    assert deep.path_length[i] >= 2 or not has_deep
-    moved += bool(has_deep and res.path_length[i] < 2)
-  assert moved  # some shallow answer became a deep one
 
 
 def test_min_cost_answer_takes_the_cheapest_edge_per_transition():
@@ -487,30 +468,6 @@ def test_min_cost_answer_takes_the_cheapest_edge_per_transition():
   # only the start: no answer
   _, has = path_lib.min_cost_answer(pool.replace(size=jnp.array([1], jnp.int32)), slots=3)
   assert not bool(has[0])
-  # at least 20 transitions deep: node 4 (24) is the only one, although node 5 costs less
-  value, has = path_lib.min_cost_answer(pool, slots=3, min_depth=20)
-  assert bool(has[0]) and int(value[0]) == 4 * 3
-  # at least 10: nodes 2, 4 and 5 (node 5 again, the least cost per transition among them)
-  value, _ = path_lib.min_cost_answer(pool, slots=3, min_depth=10)
-  assert int(value[0]) == 5 * 3
-  # deeper than every node: the depth is waived (node 5), as in min_h (node 3: g 0.5 of h 0)
-  value, has = path_lib.min_cost_answer(pool, slots=3, min_depth=100)
-  assert bool(has[0]) and int(value[0]) == 5 * 3
-  pool = pool.replace(open_key=pool.g + jnp.array([[0.0, 4.0, 3.0, 0.0, 1.0, 2.0, 0.0, 0.0]]))
-  assert int(path_lib.min_h_answer(pool, slots=3)[0][0]) == 3 * 3
-  assert int(path_lib.min_h_answer(pool, slots=3, min_depth=9)[0][0]) == 4 * 3
-  assert int(path_lib.min_h_answer(pool, slots=3, min_depth=100)[0][0]) == 3 * 3
-
-
-@pytest.mark.parametrize('fields, message', [
-    (dict(realtime_min_depth=-1), 'realtime_min_depth'),
-    (dict(realtime_min_depth=2.0), 'realtime_min_depth'),
-    (dict(realtime_min_depth=True), 'realtime_min_depth'),
-    (dict(realtime_min_depth=10, realtime_answer='best_f'), 'best_f'),
-])
-def test_realtime_min_depth_is_checked(fields, message):
-  with pytest.raises(ValueError, match=message):
-    SearchConfig(**fields)
 
 
 def test_plans_of_one_bucket_share_compiled_programs(problem):

@@ -121,9 +121,6 @@ class SearchConfig(EdgeSearchConfig):
     best OPEN entry, the original's), 'min_h' (to the generated state, the start excluded,
     of least estimated cost-to-go; needs w > 0) or 'min_cost' (to the generated state whose
     incoming edge has the least cost per transition, `path.min_cost_answer`).
-  realtime_min_depth: min_h and min_cost answer with a state at least this many transitions
-    from the start where the search generated one (0: any state): a closed loop's actions
-    executed per query, so that none of them is left to a fill outside the search.
   compact_fractions: smaller physics batches as fractions in (0, 1) of the I * K lanes
     (`compact.evaluate_live`); () always simulates all lanes.
   edge_steps: H, the transitions of one edge: its sampled action, then H - 1 actions that the
@@ -151,7 +148,6 @@ class SearchConfig(EdgeSearchConfig):
 
   num_actions: int = 16
   realtime_answer: str = 'best_f'
-  realtime_min_depth: int = 0
   compact_fractions: Tuple[float, ...] = ()
   edge_steps: int = 1
   rollout_share: float = 0.0
@@ -200,12 +196,6 @@ class SearchConfig(EdgeSearchConfig):
       raise ValueError('SearchConfig.compact_fractions must be fractions in (0, 1), got '
                        f'{self.compact_fractions!r}')
     object.__setattr__(self, 'compact_fractions', tuple(float(f) for f in fractions))
-    depth = self.realtime_min_depth
-    if isinstance(depth, bool) or not isinstance(depth, int) or depth < 0:
-      raise ValueError(f'SearchConfig.realtime_min_depth must be an int >= 0, got {depth!r}')
-    if depth and self.realtime_answer == 'best_f':
-      raise ValueError('SearchConfig.realtime_min_depth applies to the min_h and min_cost '
-                       "answers, not to 'best_f' (the best OPEN entry's state)")
     if self.realtime_answer == 'min_h' and not self.weight > 0:
       raise ValueError("SearchConfig.realtime_answer='min_h' reads h from the dummy-edge keys "
                        f'and needs weight > 0, got {self.weight!r}')

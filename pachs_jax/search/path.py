@@ -70,37 +70,32 @@ def extract(pool: pool_lib.NodePool, final: jax.Array, max_len: int) -> Path:
   return Path(actions=actions, nodes=nodes, length=length, truncated=length > max_len)
 
 
-def _least_node(pool: pool_lib.NodePool, score: jax.Array, slots: int, min_depth: int = 0
+def _least_node(pool: pool_lib.NodePool, score: jax.Array, slots: int
                 ) -> Tuple[jax.Array, jax.Array]:
   """(value [I], has [I]): the generated node, the start excluded, of least score [I, P] (ties
-  go to the smaller g), as an entry value node * slots, among the nodes at least min_depth
-  transitions deep where an instance has one; has is False while the start is the only node."""
+  go to the smaller g), as an entry value node * slots; has is False while the start is the
+  only node."""
   index = jnp.arange(pool.capacity)[None, :]
   usable = (index < pool.size[:, None]) & (index != pool_lib.ROOT_INDEX)
-  deep = usable & (pool.depth >= min_depth)
-  usable = jnp.where(jnp.any(deep, axis=1, keepdims=True), deep, usable)
   score = jnp.where(usable, score, jnp.inf)
   best = usable & (score == jnp.min(score, axis=1, keepdims=True))
   node = jnp.argmin(jnp.where(best, pool.g, jnp.inf), axis=1).astype(jnp.int32)
   return node * slots, jnp.any(usable, axis=1)
 
 
-def min_h_answer(pool: pool_lib.NodePool, slots: int, min_depth: int = 0
-                 ) -> Tuple[jax.Array, jax.Array]:
+def min_h_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax.Array]:
   """`_least_node` of the estimated cost-to-go (key of the node's latest dummy edge - g =
   w * h; ties, e.g. h clipped at 0, go to the smaller g)."""
-  return _least_node(pool, pool.open_key - pool.g, slots, min_depth)
+  return _least_node(pool, pool.open_key - pool.g, slots)
 
 
-def min_cost_answer(pool: pool_lib.NodePool, slots: int, min_depth: int = 0
-                    ) -> Tuple[jax.Array, jax.Array]:
+def min_cost_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax.Array]:
   """`_least_node` of the incoming edge's cost per transition ((g - parent's g) / transitions,
   the env's cost units). With one-step edges this is the cost of the last transition, the
   parallel rollout's rule (`ParallelRolloutConfig.fallback='last_cost'`)."""
   parent = jnp.maximum(pool.parent, 0)
   steps = jnp.maximum(pool.depth - pool_lib.gather(pool.depth, parent), 1)
-  return _least_node(pool, (pool.g - pool_lib.gather(pool.g, parent)) / steps, slots,
-                     min_depth)
+  return _least_node(pool, (pool.g - pool_lib.gather(pool.g, parent)) / steps, slots)
 
 
 def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,

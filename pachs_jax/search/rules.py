@@ -4,7 +4,6 @@ answers with and what a search does after its first goal (docs/search_loop.md)."
 
 from __future__ import annotations
 
-import functools
 from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
@@ -91,13 +90,13 @@ def restart_novel(coarsening: int = 4) -> Restart:
   return Restart(visits, record, choose)
 
 
-def best_f_answer(pool, slots: int, min_depth: int = 0):  # pylint: disable=unused-argument
+def best_f_answer(pool, slots: int):
   """The best OPEN entry's state (the original's): no other choice, ([I] int32, [I] False)."""
   num_instances = pool.size.shape[0]
   return (jnp.zeros((num_instances,), jnp.int32), jnp.zeros((num_instances,), bool))
 
 
-# answer(pool, slots, min_depth) -> (heap value of the chosen state [I] int32, chosen [I] bool)
+# answer(pool, slots) -> (heap value of the chosen state [I] int32, chosen [I] bool)
 ANSWERS = {'best_f': best_f_answer, 'min_h': path_lib.min_h_answer,
            'min_cost': path_lib.min_cost_answer}
 
@@ -121,6 +120,4 @@ def from_config(env, actor_critic, config: SearchConfig) -> Rules:
              else restart_at_start())
   after_goal = (improve.improve_after_goal() if config.after_goal == 'improve'
                 else improve.stop_at_goal())
-  answer = functools.partial(ANSWERS[config.realtime_answer],
-                             min_depth=config.realtime_min_depth)
-  return Rules(edges, restart, answer, after_goal)
+  return Rules(edges, restart, ANSWERS[config.realtime_answer], after_goal)

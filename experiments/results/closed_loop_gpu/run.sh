@@ -10,8 +10,7 @@
 # not followed by policy actions: the next query comes sooner), soft (the soft-blocks physics
 # preset, planners and worlds: the screens in ../closed_loop_soft_gpu/), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
-# closed_loop.py --check-copies 8), depth<N> (a real-time answer at least N actions deep where the
-# search has one: --realtime-min-depth N).
+# closed_loop.py --check-copies 8).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -53,7 +52,6 @@ run() {  # the command line of one run
       nofill) flags+=(--fill-with-policy 0) ;;
       soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
-      depth[0-9]*) flags+=(--realtime-min-depth "${opt#depth}") ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
