@@ -105,7 +105,7 @@ def test_prefetch_loads_what_the_command_line_used_last_time(tmp_path, monkeypat
     jax.config.update('jax_compilation_cache_dir', previous)
 
 
-def test_the_loop_writes_the_lattice_table_and_the_heaps_in_place(grid):
+def test_the_loop_writes_the_lattice_table_the_heaps_and_the_pools_costs_in_place(grid):
   # XLA copies a loop-carried buffer that an iteration reads after (or unordered with) its
   # in-place write: at a large budget that copy, not the search, was most of an iteration
   env, ac, nodes = grid
@@ -120,7 +120,8 @@ def test_the_loop_writes_the_lattice_table_and_the_heaps_in_place(grid):
     elif computation != 'ENTRY' and ' copy(' in line:
       in_loop.append(line)
   shapes = {'lattice table keys': state.table.keys.shape, 'edge heap keys':
-            state.edge_heap.keys.shape, 'dummy heap keys': state.dummy_heap.keys.shape}
+            state.edge_heap.keys.shape, 'dummy heap keys': state.dummy_heap.keys.shape,
+            "pool's costs": state.pool.g.shape}
   for name, shape in shapes.items():
     dims = '[' + ','.join(map(str, shape)) + ']'
     copied = [line.strip() for line in in_loop if dims in line]

@@ -45,19 +45,22 @@ def init(num_instances: int, budget: int) -> Incumbent:
                    first_cost=inf, evaluation_limit=jnp.full((num_instances,), budget, jnp.int32))
 
 
-def offer(incumbent: Incumbent, pool: pool_lib.NodePool, found: jax.Array,
-          goal: jax.Array) -> Incumbent:
-  """incumbent with the goal nodes goal [I] (where found [I]) that cost less than it."""
-  cost = pool_lib.gather(pool.g, goal[:, None].astype(jnp.int32))[:, 0]
+def offer(incumbent: Incumbent, found: jax.Array, goal: jax.Array,
+          cost: jax.Array) -> Incumbent:
+  """incumbent with the goal nodes goal [I] of g cost [I] (where found [I]) that cost less
+  than it."""
   better = found & (cost < incumbent.cost)
   return incumbent.replace(node=jnp.where(better, goal, incumbent.node).astype(jnp.int32),
                            cost=jnp.where(better, cost, incumbent.cost))
 
 
 def cheapest(pool: pool_lib.NodePool, node: jax.Array, at_goal: jax.Array):
-  """(found [I], goal [I]): the cheapest of the goal nodes node [I, K] where at_goal [I, K]."""
-  best = jnp.argmin(jnp.where(at_goal, pool_lib.gather(pool.g, node), jnp.inf), axis=1)
-  return jnp.any(at_goal, axis=1), jnp.take_along_axis(node, best[:, None], axis=1)[:, 0]
+  """(found [I], goal [I], cost [I]): the cheapest of the goal nodes node [I, K] where at_goal
+  [I, K], and its g."""
+  cost = jnp.where(at_goal, pool_lib.gather(pool.g, node), jnp.inf)
+  best = jnp.argmin(cost, axis=1)[:, None]
+  return (jnp.any(at_goal, axis=1), jnp.take_along_axis(node, best, axis=1)[:, 0],
+          jnp.take_along_axis(cost, best, axis=1)[:, 0])
 
 
 def settle(incumbent: Incumbent, evaluated: jax.Array, iterations: jax.Array,

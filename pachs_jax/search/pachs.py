@@ -208,7 +208,11 @@ def expand(parts: Parts, state: SearchState) -> Expansion:
   limit = heap_lib.kth_key(state.edge_heap, k - r)
   dummy_heap, popped = phases.pop(state.dummy_heap, k, parts.slots, state.active, limit)
   fresh, found, goal = phases.goal_check(state.pool, popped, n)
-  incumbent = improve.offer(state.incumbent, state.pool, found, goal)
+  # the popped nodes' g, read once: the goal's cost and the edges' f (a read of g that the
+  # insert's in-place write of g does not depend on would make XLA copy g every iteration)
+  popped_g = pool_lib.gather(state.pool.g, popped.node)
+  goal_g = jnp.max(jnp.where(popped.node == goal[:, None], popped_g, -jnp.inf), axis=1)
+  incumbent = improve.offer(state.incumbent, found, goal, goal_g)
   working = after_goal.working(state.active, found)
   expanding = fresh & working[:, None]
   num_instances = expanding.shape[0]
@@ -221,7 +225,7 @@ def expand(parts: Parts, state: SearchState) -> Expansion:
                                              phases.flat(actions, num_instances * k)))
   q = q.reshape(num_instances, k, n)
   pool = pool_lib.close(state.pool, popped.node, expanding, actions, q)
-  f = pool_lib.gather(state.pool.g, popped.node)[:, :, None] + phases.weighted(q, config.weight)
+  f = popped_g[:, :, None] + phases.weighted(q, config.weight)
   values = popped.node[:, :, None] * parts.slots + jnp.arange(n)
   edge_heap = heap_lib.push(state.edge_heap, f.reshape(num_instances, -1),
                             values.reshape(num_instances, -1), jnp.repeat(expanding, n, axis=1))
@@ -307,7 +311,7 @@ def insert(parts: Parts, state: SearchState, expansion: Expansion,
   if r and parts.sizes.replay:  # the replay goes on while its chain goes on from its successor
     taken = outcome.length[:, k - r] if steps > 1 else jnp.ones_like(replay.done)
     replay = replay_lib.advance(replay, taken, write[:, k - r] & (chain[:, 0] == node[:, k - r]))
-  incumbent = improve.offer(incumbent, pool, *improve.cheapest(
+  incumbent = improve.offer(incumbent, *improve.cheapest(
       pool, node, write & outcome.is_goal & rules.after_goal.goal_lanes(chain_lane)))
   dummy_heap = heap_lib.push(expansion.dummy_heap, dummy_key,
                              node * parts.slots + config.num_actions, write)
