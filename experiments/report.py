@@ -531,6 +531,34 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
   return rows, drops, first, missing
 
 
+def query_split(src: Sources, folder: str) -> str:
+  """Where the default PACHS's closed-loop queries went, per query time: the search's seconds
+  against the whole query's (means over each run's queries, the range over the layouts), the
+  follow's milliseconds, and the longest query of PACHS and of the rollout."""
+  parts = []
+  for clock, label in (('', '3 s'), ('-q1', '1 s')):
+    runs = {planner: [summary_of(src.load(name), planner) for layout in
+                      LAYOUTS + ('gate-mirror', 'wall-right')
+                      for name in [f'{folder}/{layout}_{planner}{clock}.json'] if src.exists(name)]
+            for planner in ('pachs', 'parallel')}
+    if not runs['pachs']:
+      continue
+    low_high = lambda values, digits=2: (f'{min(values):.{digits}f}-{max(values):.{digits}f}'
+                                         if len(values) > 1 else f'{values[0]:.{digits}f}')
+    pachs = runs['pachs']
+    text = (f'at {label} the search took {low_high([a["search_s_mean"] for a in pachs])} s of '
+            f'{low_high([a["query_time_s_mean"] for a in pachs])} s a query, following the '
+            f'(empty) candidates {low_high([1e3 * a["follow_s_mean"] for a in pachs], 1)} ms; '
+            f'the longest query {max(a["query_time_s_max"] for a in pachs):.2f} s')
+    if runs['parallel']:
+      text += (f' (the rollout\'s {max(a["query_time_s_max"] for a in runs["parallel"]):.2f} s, '
+               f'{low_high([a["query_time_s_mean"] for a in runs["parallel"]])} s a query)')
+    parts.append(text)
+  return ('Where a PACHS query went: ' + '; '.join(parts) + '. The rest of a query is the '
+          'search\'s setup (the model check on the new states, its arrays) and the choice.'
+          ) if parts else ''
+
+
 CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episode',
                        '/ rollout\'s (per second of query)', 'iterations per query',
                        'ms per iteration',
@@ -569,7 +597,8 @@ def closed_loop_sessions(src: Sources) -> str:
       'An episode whose T tipped over has failed: no edge leaves that state (`env.is_failure`; '
       '"on policy steps": failed while playing an empty answer\'s policy action or the '
       'policy\'s fill of a short answer).'
-      + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else ''),
+      + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else '')
+      + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops),
