@@ -931,7 +931,7 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '(XLA then copied the pool\'s costs, f32 [I, P], twice at every iteration; the same CPU '
      'benchmark)', 'the same search in 9.6 and 10.4 s against 7.7 and 8.5 s with g read once '
      '(two runs each, alternating, one machine); 8.9 s at the time of its run',
-     '`fdcd701`: `bench_search_reacher_cpu.json`'),
+     '`413791f`: `bench_search_reacher_cpu.json`'),
     ('Closed loop: each query searches to its clock\'s end, improving a goal it found '
      '(`--improve-allowance inf` instead of 3; default physics, K 128, one H200)',
      'edges per query 0.92-1.15x the rollout\'s (wall 9,994, gate 9,423, gate-mirror 9,396), '
