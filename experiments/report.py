@@ -23,6 +23,8 @@ README = 'README.md'
 RESULTS_MD = 'docs/results.md'
 BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
 LAYOUTS = ('gate', 'slot', 'wall', 'detour', 'two-gaps')
+# the closed loop's layouts: the suite's and the held-out ones
+CLOSED_LOOP_LAYOUTS = LAYOUTS + ('gate-mirror', 'wall-right')
 PLACEHOLDER_NOTE = 'not measured yet; the maintainer runs `{command}`'
 
 
@@ -495,7 +497,7 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
   """The closed-loop table's rows of one folder's runs, the rows of the planners' drop from
   their own physics to MuJoCo C, the first run read, and the layouts without a PACHS run."""
   rows, drops, missing, first = [], [], [], None
-  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
+  for layout in CLOSED_LOOP_LAYOUTS:
     if not src.exists(f'{folder}/{layout}_pachs.json'):
       missing.append(layout)
     for variant, label in variants:
@@ -535,24 +537,22 @@ def query_split(src: Sources, folder: str) -> str:
   """Where the default PACHS's closed-loop queries went, per query time: the search's seconds
   against the whole query's (means over each run's queries, the range over the layouts), the
   follow's milliseconds, and the longest query of PACHS and of the rollout."""
+  def summaries(planner: str, clock: str) -> List[Dict]:
+    names = [f'{folder}/{layout}_{planner}{clock}.json' for layout in CLOSED_LOOP_LAYOUTS]
+    return [summary_of(src.load(name), planner) for name in names if src.exists(name)]
+
   parts = []
   for clock, label in (('', '3 s'), ('-q1', '1 s')):
-    runs = {planner: [summary_of(src.load(name), planner) for layout in
-                      LAYOUTS + ('gate-mirror', 'wall-right')
-                      for name in [f'{folder}/{layout}_{planner}{clock}.json'] if src.exists(name)]
-            for planner in ('pachs', 'parallel')}
-    if not runs['pachs']:
+    pachs, rollout = summaries('pachs', clock), summaries('parallel', clock)
+    if not pachs:
       continue
-    low_high = lambda values, digits=2: (f'{min(values):.{digits}f}-{max(values):.{digits}f}'
-                                         if len(values) > 1 else f'{values[0]:.{digits}f}')
-    pachs = runs['pachs']
-    text = (f'at {label} the search took {low_high([a["search_s_mean"] for a in pachs])} s of '
-            f'{low_high([a["query_time_s_mean"] for a in pachs])} s a query, following the '
-            f'(empty) candidates {low_high([1e3 * a["follow_s_mean"] for a in pachs], 1)} ms; '
+    text = (f'at {label} the search took {span([a["search_s_mean"] for a in pachs], 2)} of '
+            f'{span([a["query_time_s_mean"] for a in pachs], 2)} a query, following the '
+            f'(empty) candidates {span([1e3 * a["follow_s_mean"] for a in pachs], 1, "ms")}; '
             f'the longest query {max(a["query_time_s_max"] for a in pachs):.2f} s')
-    if runs['parallel']:
-      text += (f' (the rollout\'s {max(a["query_time_s_max"] for a in runs["parallel"]):.2f} s, '
-               f'{low_high([a["query_time_s_mean"] for a in runs["parallel"]])} s a query)')
+    if rollout:
+      text += (f' (the rollout\'s {max(a["query_time_s_max"] for a in rollout):.2f} s, '
+               f'{span([a["query_time_s_mean"] for a in rollout], 2)} a query)')
     parts.append(text)
   return ('Where a PACHS query went: ' + '; '.join(parts) + '. The rest of a query is the '
           'search\'s setup (the model check on the new states, its arrays) and the choice.'
@@ -622,12 +622,12 @@ def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], st
   return cold, warm, next((c['summary'] for c in rows if c['run'] == 'warm'), '')
 
 
-def span(values: Sequence[float]) -> str:
-  """'a-b s' of the values (or 'a s' for one)."""
+def span(values: Sequence[float], digits: int = 1, unit: str = 's') -> str:
+  """'a-b s' of the values with `digits` decimals (or 'a s' where they round alike)."""
   if not values:
     return '-'
-  low, high = min(values), max(values)
-  return f'{low:.1f} s' if f'{low:.1f}' == f'{high:.1f}' else f'{low:.1f}-{high:.1f} s'
+  low, high = f'{min(values):.{digits}f}', f'{max(values):.{digits}f}'
+  return f'{low} {unit}' if low == high else f'{low}-{high} {unit}'
 
 
 def placeholder(p: Dict) -> Optional[str]:
@@ -1361,7 +1361,7 @@ def closed_loop_headline(src: Sources) -> str:
   """The README's closed-loop sentence: PACHS (today's default) against the rollout on each
   layout run."""
   folder, pairs, devices = 'closed_loop_gpu', [], set()
-  for layout in LAYOUTS + ('gate-mirror', 'wall-right'):
+  for layout in CLOSED_LOOP_LAYOUTS:
     names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs', 'parallel')]
     if all(src.exists(n) for n in names):
       devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
