@@ -472,6 +472,9 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
+# closed_loop_gpu/repeat/: runs of the table made again at a later revision (same file names),
+# shown below their first runs and pooled with them in the README's sentence
+CLOSED_LOOP_REPEATS = 'repeat'
 # the screens on blocks without a margin (closed_loop_soft_gpu/, the soft-blocks preset)
 SOFT_CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the search's path, the last answer's remainder replayed in the search, "
@@ -493,44 +496,57 @@ def failures(summary: Dict) -> str:
   return str(summary['failures']) + ('' if on_policy is None else f' ({on_policy} on policy steps)')
 
 
-def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, str]]):
-  """The closed-loop table's rows of one folder's runs, the rows of the planners' drop from
-  their own physics to MuJoCo C, the first run read, and the layouts without a PACHS run."""
-  rows, drops, missing, first = [], [], [], None
+def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, str]],
+                     repeats: Optional[str] = None):
+  """The closed-loop table's rows of one folder's runs (and of the same runs made again, in its
+  subfolder `repeats`, each below its first run), the rows of the planners' drop from their own
+  physics to MuJoCo C, the pooled drops of the layouts run more than once, the first run read,
+  and the layouts without a PACHS run."""
+  rows, drops, missing, first, pairs = [], [], [], None, {}
+  places = ((folder, ''),) + (((f'{folder}/{repeats}', ', run again'),) if repeats else ())
   for layout in CLOSED_LOOP_LAYOUTS:
     if not src.exists(f'{folder}/{layout}_pachs.json'):
       missing.append(layout)
     for variant, label in variants:
-      name = f'{folder}/{layout}_{variant}.json'
-      if not src.exists(name):
-        continue
-      p = src.load(name)
-      first = first or p
-      planner = variant.split('-')[0]
-      clock = ''.join(f'-{o}' for o in variant.split('-')[1:] if re.fullmatch(r'q[\d.]+', o))
-      same = f'{folder}/{layout}_parallel{clock}.json'  # the rollout's run at the same clock
-      rollout = summary_of(src.load(same), 'parallel') if src.exists(same) else None
-      a = summary_of(p, planner)
-      edges = a['evaluations_per_query_mean']
-      is_pachs = planner == 'pachs'
-      ratio = '-'
-      if rollout and is_pachs:  # per query, and per second of query (a search may stop early)
-        theirs = rollout['evaluations_per_query_mean']
-        per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
-        ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
-      rows.append([layout, label, f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                   num(edges), ratio, num(a['iterations_per_query_mean'], 1),
-                   num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
-                   str(a['empty_answers']),
-                   failures(a),
-                   answer_counts(a) if is_pachs else '-'])
-      own = f'{folder}/{layout}_{variant}-planner-world.json'
-      if src.exists(own):
-        b = summary_of(src.load(own), planner)
-        drops.append([layout, label, f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}',
-                      f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                      f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
-  return rows, drops, first, missing
+      for where, again in places:
+        name = f'{where}/{layout}_{variant}.json'
+        if not src.exists(name):
+          continue
+        p = src.load(name)
+        first = first or p
+        planner = variant.split('-')[0]
+        clock = ''.join(f'-{o}' for o in variant.split('-')[1:] if re.fullmatch(r'q[\d.]+', o))
+        # the rollout's run at the same clock, of the same place where it has one
+        same = next((n for n in (f'{w}/{layout}_parallel{clock}.json' for w in (where, folder))
+                     if src.exists(n)), None)
+        rollout = summary_of(src.load(same), 'parallel') if same else None
+        a = summary_of(p, planner)
+        edges = a['evaluations_per_query_mean']
+        is_pachs = planner == 'pachs'
+        ratio = '-'
+        if rollout and is_pachs:  # per query, and per second of query (a search may stop early)
+          theirs = rollout['evaluations_per_query_mean']
+          per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
+          ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
+        solved = f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
+        rows.append([layout, label + again, solved, num(edges), ratio,
+                     num(a['iterations_per_query_mean'], 1),
+                     num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
+                     str(a['empty_answers']), failures(a),
+                     answer_counts(a) if is_pachs else '-'])
+        own = f'{where}/{layout}_{variant}-planner-world.json'
+        if src.exists(own):
+          b = summary_of(src.load(own), planner)
+          drops.append([layout, label + again,
+                        f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}', solved,
+                        f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
+          pairs.setdefault((layout, planner), []).append((b['success_rate'], a['success_rate']))
+  pooled = [f'{layout}, {"PACHS" if planner == "pachs" else "the rollout"} '
+            f'{pct(sum(o for o, _ in runs) / len(runs))} in its own physics and '
+            f'{pct(sum(c for _, c in runs) / len(runs))} in MuJoCo C, a drop of '
+            f'{100 * sum(o - c for o, c in runs) / len(runs):.0f} points ({len(runs)} runs)'
+            for (layout, planner), runs in pairs.items() if len(runs) > 1]
+  return rows, drops, first, missing, pooled
 
 
 def query_split(src: Sources, folder: str) -> str:
@@ -570,8 +586,9 @@ def closed_loop_sessions(src: Sources) -> str:
   against the parallel rollout; and the screens on blocks without a margin, with each
   planner's drop from its own physics to MuJoCo C."""
   folder, soft = 'closed_loop_gpu', 'closed_loop_soft_gpu'
-  rows, default_drops, first, missing = closed_loop_rows(src, folder, CLOSED_LOOP_VARIANTS)
-  soft_rows, drops, soft_first, _ = closed_loop_rows(src, soft, SOFT_CLOSED_LOOP_VARIANTS)
+  rows, default_drops, first, missing, pooled = closed_loop_rows(
+      src, folder, CLOSED_LOOP_VARIANTS, CLOSED_LOOP_REPEATS)
+  soft_rows, drops, soft_first, _, _ = closed_loop_rows(src, soft, SOFT_CLOSED_LOOP_VARIANTS)
   s, prov = first['settings'], first['provenance']
   steps = summary_of(first, 'pachs')['config']['edge_steps']
   return '\n\n'.join([
@@ -586,7 +603,8 @@ def closed_loop_sessions(src: Sources) -> str:
       'file is named by what ran in today\'s terms (`run.sh` runs it by that name); a renamed '
       'run\'s command names the file it was written as: the rollout\'s runs some naming the '
       'physics `--physics hard-blocks` (the default\'s settings), the default\'s runs on '
-      'wall, two-gaps and gate-mirror with `-K 128`.',
+      'wall, two-gaps and gate-mirror with `-K 128`. ", run again": the same run made again '
+      f'at a later revision (`{folder}/{CLOSED_LOOP_REPEATS}/`).',
       table(CLOSED_LOOP_COLUMNS, rows),
       '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
       'second of query (a PACHS query ends before its time once every episode\'s search has '
@@ -601,7 +619,8 @@ def closed_loop_sessions(src: Sources) -> str:
       + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops),
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops)
+      + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       'The screens on blocks without a margin (the T sinks up to 3 mm into a block, the stick '
       f'4.5 mm: the preset `soft-blocks`; `{soft}/`, {soft_first["provenance"]["device"]}, the '
       'same protocol; "-" in T tipped: a run from before the count):',
@@ -1351,24 +1370,31 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
 
 def closed_loop_headline(src: Sources) -> str:
   """The README's closed-loop sentence: PACHS (today's default) against the rollout on each
-  layout run."""
-  folder, pairs, devices = 'closed_loop_gpu', [], set()
+  layout run, each planner's episodes pooled over its runs (first runs and repeats)."""
+  folder, pairs, devices, repeated = 'closed_loop_gpu', [], set(), []
   for layout in CLOSED_LOOP_LAYOUTS:
     names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs', 'parallel')]
     if all(src.exists(n) for n in names):
-      devices |= {src.load(n)['provenance']['device'].split(': ')[-1].replace(' x1', '')
-                  for n in names}
+      rates = []
+      for n, planner in zip(names, ('pachs', 'parallel')):
+        again = n.replace(f'{folder}/', f'{folder}/{CLOSED_LOOP_REPEATS}/')
+        runs = [src.load(x) for x in (n, again) if src.exists(x)]
+        devices |= {r['provenance']['device'].split(': ')[-1].replace(' x1', '') for r in runs}
+        summaries = [summary_of(r, planner) for r in runs]
+        rates.append(sum(a['successes'] for a in summaries)
+                     / sum(a['episodes'] for a in summaries))
+        if len(runs) > 1:
+          repeated.append(f'{layout}\'s {"PACHS" if planner == "pachs" else "rollout"}')
       settings = src.load(names[0])['settings']
-      pachs, rollout = (summary_of(src.load(n), planner)
-                        for n, planner in zip(names, ('pachs', 'parallel')))
-      pairs.append(f'{layout} {pct(pachs["success_rate"])} / {pct(rollout["success_rate"])}')
+      pairs.append(f'{layout} {pct(rates[0])} / {pct(rates[1])}')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
-          'episodes per layout, each planner alone on '
+          'episodes per layout and run, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' (gate-mirror and wall-right held out; '
-          '[results](docs/results.md#closed-loop-on-the-faithful-physics)).')
+          + ', '.join(pairs) + ' (gate-mirror and wall-right held out'
+          + (f'; {", ".join(repeated)} over two runs' if repeated else '')
+          + '; [results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
 def readme_with_table(readme: str, block: str) -> str:
