@@ -954,24 +954,32 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
     ('Closed loop: each query searches to its clock\'s end, improving a goal it found '
      '(`--improve-allowance inf` instead of 3; default physics, K 128, one H200)',
      'edges per query 0.92-1.15x the rollout\'s (wall 9,994, gate 9,423, gate-mirror 9,396), '
-     'but no more episodes solved: wall 89% against 91%, gate 93% against 94%, gate-mirror 75% '
-     'against 76%, and wall took 8.7 queries an episode against 5.9: the default\'s queries '
-     'still end once every search has improved its goal', '`796d8ed`: `closed_loop_gpu/*_pachs-full.json`'),
+     'but no more episodes solved: wall 89% against 91% and 84% (the default run again, 9.0 '
+     'queries an episode; its first run 5.9, this 8.7), gate 93% against 94%, gate-mirror 75% '
+     'against 76% and 75%: the default\'s queries still end once every search has improved its '
+     'goal', '`796d8ed`: `closed_loop_gpu/*_pachs-full.json`'),
     ('Closed loop: each search starts from the episode\'s last search\'s nodes per coarse '
      'cell, so that its chains restart away from where the earlier searches went '
      '(`Session.keep_cells`; default physics, K 128, one H200)',
      'fewer episodes solved: gate 87% against 94% (its goals per query otherwise as the '
-     'default\'s), wall 84% against 91%, detour 3% against 4%; the code left the tree', '`796d8ed`: `closed_loop_gpu/*_pachs-cells.json`'),
+     'default\'s), wall 84% against 91% and 84% (the default run again), detour 3% against 4%; '
+     'the code left the tree', '`796d8ed`: `closed_loop_gpu/*_pachs-cells.json`'),
     ('Closed loop: a real-time answer at least 10 actions deep where the search has such a '
      'state (`SearchConfig.realtime_min_depth` 10, the actions executed per query), so that no '
      'executed action is a policy fill outside the search; default physics, one H200',
      'fewer Ts tipped (episodes failed on policy steps 0-3 against 0-28, policy fill steps '
      '203-242 against 13-1,650 a run) but not more episodes solved: gate-mirror 82% against '
      '76% and two-gaps 51% against 46% (the screen), then gate 93% against 94%, wall 85% '
-     'against 91% (8.9 queries an episode against 5.9; the later wall runs of the ledger also '
-     'took 8.7), slot 61% against 65%, wall-right 78% against 82%, and at 1 s per query wall '
+     'against 91% and 84% (the default run again), slot 61% against 65%, wall-right 78% against 82%, and at 1 s per query wall '
      '67% against 73%, gate-mirror 27% against 29%: the episodes it kept from tipping ran out '
      'of queries; the code left the tree', '`4662f89`: `closed_loop_gpu/*_pachs*-depth10.json`'),
+    ('Closed loop at 1 s per query with K 96 (toward the rollout\'s edges per query there; '
+     'default physics, one H200)',
+     'edges per query 1.01x the rollout\'s on wall (2,681 against 2,646) and gate-mirror '
+     '(2,452 against 2,419), against K 64\'s 0.84x and 0.80x, but fewer episodes solved where '
+     'depth counts: gate-mirror 18% [7, 31] against 29% (3.7 iterations a query against 4.1, '
+     '38 episodes failed on policy steps against 28), wall 74% against 73%: K stays 64 at 1 s',
+     '`bb4f809`: `closed_loop_gpu/*_pachs-q1-k96.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
