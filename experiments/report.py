@@ -973,6 +973,16 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'against 91% and 84% (the default run again), slot 61% against 65%, wall-right 78% against 82%, and at 1 s per query wall '
      '67% against 73%, gate-mirror 27% against 29%: the episodes it kept from tipping ran out '
      'of queries; the code left the tree', '`4662f89`: `closed_loop_gpu/*_pachs*-depth10.json`'),
+    ('Detour, the search\'s settings and budget in open loop (PushT-Obs, the PushT-Fixed model, '
+     'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 100,000 evaluations): rollout share '
+     '0.5 (more best-first lanes), w 1, uniform share 0.5; and the default at 500,000 (5 '
+     'instances)',
+     'none beyond noise: the default 0 of 10, rollout share 0.5 0, w 1 0, uniform share 0.5 1; '
+     'at 500,000 evaluations 1 of 5, its first goal after 347,648: the T must first be pushed '
+     'away from the goal, against the critic, and a closed-loop query gives the search about '
+     '10,000 evaluations an episode, so no setting of the search reaches detour in closed loop '
+     'with this model (the GPU suite: 6 of 150 at 100,000)',
+     '`d314823`: `detour_cpu/`'),
     ('Closed loop at 1 s per query with K 96 (toward the rollout\'s edges per query there; '
      'default physics, one H200)',
      'edges per query 1.01x the rollout\'s on wall (2,681 against 2,646) and gate-mirror '
