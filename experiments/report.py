@@ -973,6 +973,13 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'against 91% and 84% (the default run again), slot 61% against 65%, wall-right 78% against 82%, and at 1 s per query wall '
      '67% against 73%, gate-mirror 27% against 29%: the episodes it kept from tipping ran out '
      'of queries; the code left the tree', '`4662f89`: `closed_loop_gpu/*_pachs*-depth10.json`'),
+    ('Edges of 5 and 10 transitions on PushT-Obs (divisors of the 10 actions a closed-loop '
+     'query executes, so that the executed answer ends on a node of the last search), open loop, '
+     'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 20,000 evaluations',
+     'gate 7 and 8 of 10 against 5 with 8 transitions, wall 9 and 8 against 9: no loss on this '
+     'small sample; the default stays 8 until a closed loop that keeps the last search\'s '
+     'subtree uses it',
+     '`97ee399`: `edge_steps_cpu/`'),
     ('Detour, the search\'s settings and budget in open loop (PushT-Obs, the PushT-Fixed model, '
      'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 100,000 evaluations): rollout share '
      '0.5 (more best-first lanes), w 1, uniform share 0.5; and the default at 500,000 (5 '
