@@ -194,6 +194,11 @@ def solved(row: Optional[Dict]) -> str:
   return f'{row["successes"]}/{row["runs"]} ({pct(row["success_rate"])})'
 
 
+def episodes_solved(row: Dict) -> str:
+  """'x% [low, high]' of a closed-loop summary row: its episodes solved, 95% interval."""
+  return f'{pct(row["success_rate"])}{ci(row["ci95_low"], row["ci95_high"])}'
+
+
 def solved_ci(row: Optional[Dict]) -> str:
   """`solved` and the 95% interval over instances of an open-loop summary row."""
   if row is None:
@@ -528,8 +533,7 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
           theirs = rollout['evaluations_per_query_mean']
           per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
           ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
-        solved = f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
-        rows.append([layout, label + again, solved, num(edges), ratio,
+        rows.append([layout, label + again, episodes_solved(a), num(edges), ratio,
                      num(a['iterations_per_query_mean'], 1),
                      num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
                      str(a['empty_answers']), failures(a),
@@ -538,7 +542,7 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
         if src.exists(own):
           b = summary_of(src.load(own), planner)
           drops.append([layout, label + again,
-                        f'{pct(b["success_rate"])}{ci(b["ci95_low"], b["ci95_high"])}', solved,
+                        episodes_solved(b), episodes_solved(a),
                         f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
           pairs.setdefault((layout, planner), []).append((b['success_rate'], a['success_rate']))
   pooled = [f'{layout}, {"PACHS" if planner == "pachs" else "the rollout"} '
@@ -1092,8 +1096,7 @@ def playground(src: Sources) -> str:
     for a in p['summary']:
       loop.append([p['task'].split(':')[-1],
                    PLAYGROUND_LOOP_PLANNERS.get(a['planner'], a['planner']),
-                   f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}',
-                   num(a['steps_to_success_mean']), num(a.get('queries_per_episode_mean')),
+                   episodes_solved(a), num(a['steps_to_success_mean']), num(a.get('queries_per_episode_mean')),
                    num(a.get('evaluations_per_query_mean')), num(a.get('query_time_s_mean'))])
   s, prov = first['settings'], first['provenance']
   return '\n\n'.join([
@@ -1216,11 +1219,10 @@ def served_closed_loop(src: Sources) -> str:
   served = summary_of(src.load('serve_gpu/wall_pachs-served.json'), 'pachs')
   own = summary_of(src.load('closed_loop_gpu/wall_pachs.json'), 'pachs')
   prov = src.load('serve_gpu/wall_pachs-served.json')['provenance']
-  solved = lambda a: f'{pct(a["success_rate"])}{ci(a["ci95_low"], a["ci95_high"])}'
   return (f'The closed loop through a server (`serve_gpu/run.sh`: `pachs serve --query-time 3`, '
           f'K {served_pop_size(src)}, and `closed_loop.py --server`, {prov["device"]}; wall, the '
           'protocol of [the closed loop](#closed-loop-on-the-faithful-physics)): PACHS solved '
-          f'{solved(served)} of its episodes, in process {solved(own)}; '
+          f'{episodes_solved(served)} of its episodes, in process {episodes_solved(own)}; '
           f'{num(served["evaluations_per_query_mean"])} edges per query and episode against '
           f'{num(own["evaluations_per_query_mean"])}.')
 
