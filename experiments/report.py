@@ -480,16 +480,6 @@ CLOSED_LOOP_VARIANTS = (
 # closed_loop_gpu/repeat/: runs of the table made again at a later revision (same file names),
 # shown below their first runs and pooled with them in the README's sentence
 CLOSED_LOOP_REPEATS = 'repeat'
-# the screens on blocks without a margin (closed_loop_soft_gpu/, the soft-blocks preset)
-SOFT_CLOSED_LOOP_VARIANTS = (
-    ('pachs', "PACHS (the search's path, the last answer's remainder replayed in the search, "
-              "K 64)"),
-    ('parallel', 'parallel rollout (256 copies)'),
-    ('pachs-q1', 'PACHS, 1 s per query'),
-    ('parallel-q1', 'parallel rollout, 1 s per query'),
-    ('pachs-k128', 'PACHS, K 128'),
-    ('pachs-k128-q1', 'PACHS, K 128, 1 s per query'),
-)
 
 
 def failures(summary: Dict) -> str:
@@ -587,12 +577,10 @@ CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episo
 
 def closed_loop_sessions(src: Sources) -> str:
   """The closed loop on the default physics, one GPU per planner, Warp planners: PACHS
-  against the parallel rollout; and the screens on blocks without a margin, with each
-  planner's drop from its own physics to MuJoCo C."""
-  folder, soft = 'closed_loop_gpu', 'closed_loop_soft_gpu'
-  rows, default_drops, first, missing, pooled = closed_loop_rows(
+  against the parallel rollout, with each planner's drop from its own physics to MuJoCo C."""
+  folder = 'closed_loop_gpu'
+  rows, drops, first, missing, pooled = closed_loop_rows(
       src, folder, CLOSED_LOOP_VARIANTS, CLOSED_LOOP_REPEATS)
-  soft_rows, drops, soft_first, _, _ = closed_loop_rows(src, soft, SOFT_CLOSED_LOOP_VARIANTS)
   s, prov = first['settings'], first['provenance']
   steps = summary_of(first, 'pachs')['config']['edge_steps']
   return '\n\n'.join([
@@ -623,17 +611,10 @@ def closed_loop_sessions(src: Sources) -> str:
       + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], default_drops)
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
-      'The screens on blocks without a margin (the T sinks up to 3 mm into a block, the stick '
-      f'4.5 mm: the preset `soft-blocks`; `{soft}/`, {soft_first["provenance"]["device"]}, the '
-      'same protocol; "-" in T tipped: a run from before the count):',
-      table(CLOSED_LOOP_COLUMNS, soft_rows),
-      'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
-      'MuJoCo C world, blocks without a margin, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops),
-      'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill): '
-      '[measured and not kept](#measured-and-not-kept).'])
+      'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill) and '
+      'the screens on blocks without a margin: [measured and not kept](#measured-and-not-kept).'])
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
@@ -924,6 +905,15 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'the 3 mm margin) on gate, slot, detour and wall-right, K 64',
      'PACHS / rollout 94% / 62%, 72% / 53%, 4% / 1%, 85% / 42%: superseded by the default\'s '
      'runs', '`a1346a3`: `closed_loop_soft_gpu/gate_*`, `slot_*`, `detour_*`, `wall-right_*`'),
+    ('Closed loop on blocks without a margin (the `soft-blocks` preset) on wall, two-gaps and '
+     'gate-mirror: K 64 against K 128, at 3 s and 1 s per query, and gate-mirror\'s plans '
+     'executed in the planners\' own physics',
+     'at 3 s PACHS K 64 / K 128 / rollout: wall 90 / 94 / 64%, two-gaps 52 / 60 / 12%, '
+     'gate-mirror 78 / 80 / 23% (K 64 0.62-0.76x the rollout\'s edges per query, K 128 '
+     '0.93-1.1x); at 1 s wall 66 / 65 / 25%, gate-mirror 27 / 13 / 1%; gate-mirror\'s drop '
+     'from the planners\' physics to MuJoCo C 8 points for PACHS (86% to 78%), 22 for the '
+     'rollout: superseded by the default physics\' runs, which keep K 128 at 3 s and K 64 at 1 s',
+     '`c32036e`: `closed_loop_soft_gpu/`'),
     ('Closed loop: a short answer not followed by policy actions (the next query comes sooner; '
      '`--fill-with-policy 0`), soft blocks, K 64',
      'at 3 s level (wall 89% against 90%, gate-mirror 77% against 78%); at 1 s wall 82% against '

@@ -8,7 +8,7 @@
 # (the session's candidates), k<N> (N edges per iteration), q<S> (S seconds per query),
 # planner-world (the plans executed in the planners' own physics), nofill (a short answer is
 # not followed by policy actions: the next query comes sooner), soft (the soft-blocks physics
-# preset, planners and worlds: the screens in ../closed_loop_soft_gpu/), check (each answer
+# preset, planners and worlds: the screens in the results' ledger), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
 # closed_loop.py --check-copies 8).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
