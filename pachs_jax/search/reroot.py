@@ -174,7 +174,11 @@ def reroot(fresh, old, root: jax.Array, slots: int, keep_visits: Callable, room:
   (keep_visits(fresh visits, old visits, source [I, P], used [I, P]) -> visits) go with it;
   the chains, replay, incumbent and counters are fresh's."""
   pool = old.pool
-  kept = within_room(subtree(pool, root), pool.depth, room)
+  # a goal below the root was reached from states simulated from the planned start, not the
+  # world's: it is not kept (nodes at a goal are leaves), so that the new search finds its
+  # goals from the world's state (the replayed remainder's among them)
+  is_root = jnp.arange(pool.capacity)[None, :] == root[:, None]
+  kept = within_room(subtree(pool, root) & (~pool.is_goal | is_root), pool.depth, room)
   has = pool_lib.gather(kept, jnp.maximum(root, 0)[:, None])[:, 0] & (root != pool_lib.NO_PARENT)
   root = jnp.where(has, root, pool_lib.NO_PARENT)
   kept = kept & has[:, None]
