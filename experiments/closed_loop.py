@@ -69,10 +69,6 @@ def build_parser() -> argtypes.OneLineParser:
                       help="1: each PACHS search's first chain lane replays the last answer's "
                       'remainder (replan.Session.replay_remainder); 0: not; default: where '
                       'the search has chain lanes')
-  parser.add_argument('--keep-search', type=int, default=0, choices=[0, 1],
-                      help="1: each PACHS search keeps the last one's subtree below its "
-                      "answer's node at the executed depth (replan.Session.keep_search; with "
-                      "edges of H transitions, --execute a multiple of H)")
   parser.add_argument('--chunk-iterations', type=argtypes.positive_int, default=1,
                       help='PACHS / parallel-rollout iterations between wall-clock checks')
   parser.add_argument('--check-copies', type=argtypes.integer(low=0), default=0,
@@ -194,10 +190,6 @@ def make_query(name: str, task: str, env, model, args, num: int):
     if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
       overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, env.physics)
     config = planner.default_config(task, algorithm, budget=args.budget, **overrides)
-    if args.keep_search and args.execute % config.edge_steps:
-      raise ValueError(f'--keep-search keeps the subtree of a node at the executed depth: '
-                       f'--execute {args.execute} must be a multiple of the edges\' '
-                       f'{config.edge_steps} transitions (-H)')
     check = None
     if args.check_copies:
       check = replan.AnswerCheck(functools.partial(
@@ -206,8 +198,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     session = replan.Session(env, model, config, candidates=args.candidates,
                              replay_remainder=(None if args.replay_remainder is None
                                                else bool(args.replay_remainder)),
-                             chunk_iterations=args.chunk_iterations, check=check,
-                             keep_search=bool(args.keep_search))
+                             chunk_iterations=args.chunk_iterations, check=check)
 
     def query(nodes, keys, executed, running):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,

@@ -971,9 +971,26 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'query executes, so that the executed answer ends on a node of the last search), open loop, '
      'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 20,000 evaluations',
      'gate 7 and 8 of 10 against 5 with 8 transitions, wall 9 and 8 against 9: no loss on this '
-     'small sample; the default stays 8 until a closed loop that keeps the last search\'s '
-     'subtree uses it',
+     'small sample; in the closed loop 10 transitions lost (the next row)',
      '`97ee399`: `edge_steps_cpu/`'),
+    ('Closed loop with edges of 10 transitions (the 10 actions a query executes end on a node '
+     'of its search; default physics, one H200)',
+     'detour 2% against 4%, wall 85% against 91% and 84%, gate-mirror 69% against 76% and 75%: '
+     'edges stay 8 transitions',
+     '`1486d8a`: `closed_loop_gpu/*_pachs-h10.json`'),
+    ('Closed loop keeping the last search\'s subtree, edges of 10 transitions: each query\'s '
+     'search started from the last one\'s answer node at the executed depth, the world\'s state '
+     'as its state, with its descendants (g and depth less the root\'s), their OPEN entries, '
+     'lattice cells and visit counts, at most half the budget\'s nodes (default physics, one '
+     'H200)',
+     'against edges of 10 alone: detour 2% against 2%, wall 86% against 85%, gate-mirror 62% '
+     'against 69%, with 14.7 queries an episode against 11.7 and 361 policy fill steps against '
+     '33: goals below the new root, reached from states simulated from the planned start, '
+     'ended answers short of the world\'s goal; with those goals dropped, gate-mirror 65% and '
+     'wall 77% (10.6 queries an episode against 7.8): the kept states are the planned ones, and '
+     'paths through them do not hold from the world\'s state; detour gained nothing, as the '
+     'subtree below the executed answer is not where its way round lies; the code left the '
+     'tree', '`1486d8a`: `closed_loop_gpu/*_pachs-h10-keep*.json`'),
     ('Detour, the search\'s settings and budget in open loop (PushT-Obs, the PushT-Fixed model, '
      'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 100,000 evaluations): rollout share '
      '0.5 (more best-first lanes), w 1, uniform share 0.5; and the default at 500,000 (5 '

@@ -199,8 +199,7 @@ class Planner:
     self.search = programs.Programs(pachs.make_search(self.env, self.model, self.config),
                                     prefetch=prefetch)
     self._canonical = None
-    # (replayed actions, K, kept nodes) -> the sessions' search (0: no chain lanes, none kept)
-    self._replaying = {}
+    self._replaying = {}  # (replayed actions, K) -> the sessions' search (0: no chain lanes)
 
   @property
   def num_instances(self) -> int:
@@ -268,32 +267,28 @@ class Planner:
   def session(self, horizon: Optional[int] = None,
               candidates: Sequence[str] = replan.DEFAULT_CANDIDATES,
               check: Optional[replan.AnswerCheck] = None,
-              query_time_s: Optional[float] = None,
-              keep_search: bool = False) -> replan.Session:
+              query_time_s: Optional[float] = None) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
     env, model and config, keeping its last answer between queries (horizon, candidates and
     check as there). query_time_s: the seconds its queries will last, which on an accelerator
-    choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one. keep_search:
-    each query keeps the last one's subtree (`replan.Session`). Where the config has chain
-    lanes the session's search replays the last answer's remainder and is built apart from
-    `plan`'s, with room for it (once per horizon, K and kept nodes, shared by the sessions
-    that have them); otherwise it shares `plan`'s where the K is the same."""
+    choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one. Where the
+    config has chain lanes the session's search replays the last answer's remainder and is
+    built apart from `plan`'s, with room for it (once per horizon and K, shared by the
+    sessions that have them); otherwise it shares `plan`'s where the K is the same."""
     if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int)
                                 or horizon < 1):  # before a search is built for it
       raise ValueError(f'horizon must be a positive int, got {horizon!r}')
     config = self.replan_config(query_time_s)
     rows = int(self.env.episode_length) if horizon is None else horizon
     rows = rows if config.rollout_lanes else 0
-    kept = replan.kept_nodes(config) if keep_search is True else 0
     search = self.search
-    if rows or kept or config != self.config:
-      if (rows, config.pop_size, kept) not in self._replaying:
-        self._replaying[rows, config.pop_size, kept] = programs.Programs(pachs.make_search(
-            self.env, self.model, config, capacities=capacity.Capacities(replay=rows,
-                                                                         kept=kept)))
-      search = self._replaying[rows, config.pop_size, kept]
+    if rows or config != self.config:
+      if (rows, config.pop_size) not in self._replaying:
+        self._replaying[rows, config.pop_size] = programs.Programs(pachs.make_search(
+            self.env, self.model, config, capacities=capacity.Capacities(replay=rows)))
+      search = self._replaying[rows, config.pop_size]
     return replan.Session(self.env, self.model, config, search, horizon, candidates,
-                          check=check, keep_search=keep_search)
+                          check=check)
 
   def replan_config(self, query_time_s: Optional[float]) -> SearchConfig:
     """The SearchConfig of a replanning session whose queries last query_time_s seconds: this

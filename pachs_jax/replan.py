@@ -248,12 +248,6 @@ def _check_query(time_limit_s, active, num: int) -> None:
       raise ValueError(f'active must be [{num}] bools, got {active!r}')
 
 
-def kept_nodes(config) -> int:
-  """The nodes a `Session` with keep_search keeps of its last search at most: half of those
-  its budget pays for (`Capacities.kept`)."""
-  return max(1, config.budget // config.edge_steps // 2)
-
-
 CANDIDATES = ('remainder', 'policy')
 # none: on PushT's faithful physics, following them took half of a 3 s query on an H200 and they
 # won few answers; the search's path alone solved more episodes (docs/results.md, closed loop)
@@ -283,11 +277,6 @@ class Session:
     room for it); None: wherever it can (a search built here gets the room).
   check: an `AnswerCheck` of each answer's first actions (None: none; `Answer.safe_length` is
     the length).
-  keep_search: each query's search keeps the last one's subtree below the node of its answer
-    at the depth executed (`Search.reroot`; where the answer was the search's path and a node
-    lies there: with edges of H transitions, executed a multiple of H), the world's state as
-    its start; needs a search with Capacities.kept > 0 (a search built here gets half the
-    budget's nodes) and one device.
   """
 
   env: base.Env
@@ -300,7 +289,6 @@ class Session:
   mesh: Optional[object] = None
   replay_remainder: Optional[bool] = None
   check: Optional[AnswerCheck] = None
-  keep_search: bool = False
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -327,19 +315,11 @@ class Session:
       raise ValueError(f'replay_remainder must be a bool or None, got {self.replay_remainder!r}')
     if self.replay_remainder and not self.config.rollout_lanes:
       raise ValueError('replay_remainder needs chain lanes (SearchConfig.rollout_share > 0)')
-    if not isinstance(self.keep_search, bool):
-      raise ValueError(f'keep_search must be a bool, got {self.keep_search!r}')
-    if self.keep_search and self.mesh is not None:
-      raise ValueError('keep_search plans on one device (mesh must be None)')
-    if self.search is None:  # with room for the remainder's replay and the kept nodes
+    if self.search is None:  # with room for the remainder's replay
       from pachs_jax.search.pachs import make_search  # pylint: disable=import-outside-toplevel
       self.search = programs.Programs(make_search(
           self.env, self.actor_critic, self.config, capacities=capacity.Capacities(
-              replay=self.horizon if self.replay_remainder else 0,
-              kept=kept_nodes(self.config) if self.keep_search else 0)))
-    if self.keep_search and not self.search.search.sizes.kept:
-      raise ValueError('keep_search needs a search built with room for the kept nodes '
-                       '(Capacities.kept > 0)')
+              replay=self.horizon if self.replay_remainder else 0)))
     if self.replay_remainder and self.search.search.sizes.replay < self.horizon:
       raise ValueError(f'the search replays paths of at most {self.search.search.sizes.replay} '
                        f'actions, the session keeps {self.horizon} (Capacities.replay)')
@@ -356,7 +336,6 @@ class Session:
     self._sharded = (None if self.mesh is None
                      else sharding.ShardedSearch(self.search.search, self.mesh))
     self.last: Optional[Answer] = None
-    self._search_state = None  # keep_search: the last query's search (padded to its bucket)
     self.followed = {}  # the last query's candidates: 'remainder', 'policy' -> Followed [E]
 
   def _check_states(self, states) -> int:
@@ -368,9 +347,8 @@ class Session:
     return check_start_nodes(states, self.env)
 
   def reset(self) -> None:
-    """Forgets the last answer and search (new episodes)."""
+    """Forgets the last answer (new episodes)."""
     self.last = None
-    self._search_state = None
 
   def plan(self, states: base.NodeState, executed=None, key: jax.Array = None,
            time_limit_s: Optional[float] = None, active=None) -> Answer:
@@ -397,26 +375,18 @@ class Session:
       length = jnp.zeros((num,), jnp.int32)
     else:
       actions, length = self._remainder(self.last.actions, self.last.length, jnp.asarray(done))
-    root_depth = None  # keep_search: where the last search's subtree is kept (-1: not)
-    if self.keep_search and self.last is not None and done is not None:
-      kind = np.asarray(self.last.kind)
-      searched = (kind == AnswerKind.GOAL_PATH) | (kind == AnswerKind.PARTIAL_PATH)
-      root_depth = np.where(searched & (done != DIVERGED), done, -1).astype(np.int32)
-    self.last = self.answer(states, actions, length, key, time_limit_s, active=active,
-                            root_depth=root_depth)
+    self.last = self.answer(states, actions, length, key, time_limit_s, active=active)
     return self.last
 
   def answer(self, states: base.NodeState, actions: jax.Array, length: jax.Array,
              key: jax.Array = None, time_limit_s: Optional[float] = None,
-             bucket: Optional[int] = None, active=None, root_depth=None) -> Answer:
+             bucket: Optional[int] = None, active=None) -> Answer:
     """The `Answer` [E] from states [E] given each episode's remainder candidate, actions
     [E, T, A] of length [E] (length 0: none), without the session's last answer (`plan` keeps
     that; a server that keeps its clients' answers itself calls this). key, time_limit_s as in
     `plan`, active as there. The remainder is followed where 'remainder' is a candidate and replayed by the
     search where replay_remainder. bucket: a power of two >= E that the follow and the search are
-    padded to (one compiled program for every E up to it; None: E's own bucket). root_depth:
-    with keep_search, [E] int32 the depth of the last search's answer below which the search
-    keeps it (-1: not; None: nothing kept)."""
+    padded to (one compiled program for every E up to it; None: E's own bucket)."""
     num = self._check_states(states)
     key = jax.random.PRNGKey(0) if key is None else key
     _check_query(time_limit_s, active, num)
@@ -465,17 +435,9 @@ class Session:
       # are compiled for one device
       result = jax.device_put(result, jax.devices()[0])
     else:
-      previous, last_search = None, self._search_state
-      self._search_state = None  # (donated to the next search)
-      if (self.keep_search and root_depth is not None and last_search is not None
-          and last_search[1] == (num, bucket)):
-        previous = (last_search[0], root_depth)
-      result, search_state = programs.plan(
-          self.env, self.actor_critic, states, self.config, key, time_limit_s=left,
-          chunk_iterations=self.chunk_iterations, search=self.search, min_bucket=bucket,
-          replay=replay, live=active, previous=previous, keep_state=True)
-      if self.keep_search:
-        self._search_state = (search_state, (num, bucket))
+      result = programs.plan(self.env, self.actor_critic, states, self.config, key,
+                             time_limit_s=left, chunk_iterations=self.chunk_iterations,
+                             search=self.search, min_bucket=bucket, replay=replay, live=active)
     choosing = time.perf_counter()
     # the choice (and the check) in the padded batch too (its rows after num dropped)
     grow = lambda x: pad(x) if jnp.ndim(x) else x  # (a scalar: the wall time)

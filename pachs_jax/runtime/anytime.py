@@ -90,10 +90,8 @@ def timed_result(advance: Callable[..., Any], state: Any,
                  start: Optional[float] = None,
                  timing: Optional[Dict[str, float]] = None,
                  stop: Optional[Callable[[], bool]] = None, sizes: Optional[ChunkSizes] = None,
-                 on_chunk: Optional[Callable[[Any, float], None]] = None,
-                 with_state: bool = False):
-  """result(state) after `run_until` (advance, stop, sizes and on_chunk as there; with_state:
-  (result, the last state)), with
+                 on_chunk: Optional[Callable[[Any, float], None]] = None) -> SearchResult:
+  """result(state) after `run_until` (advance, stop, sizes and on_chunk as there), with
   wall_time_s (s from `start`, default this call, to the result; programs compiled beforehand),
   TIME_LIMIT for the instances still running when the clock stopped them and INTERRUPTED for
   those still running when `stop` did. The limit covers the result too: timing['result_s'], the
@@ -110,8 +108,7 @@ def timed_result(advance: Callable[..., Any], state: Any,
     reason = StopReason.INTERRUPTED if stopped else StopReason.TIME_LIMIT
     out = out.replace(stop_reason=jnp.where(out.stop_reason == StopReason.RUNNING, reason,
                                             out.stop_reason))
-  out = out.replace(wall_time_s=np.float32(now - start))
-  return (out, state) if with_state else out
+  return out.replace(wall_time_s=np.float32(now - start))
 
 
 def run_search(search: Any, start_nodes: Any, key: jax.Array, *init_args,

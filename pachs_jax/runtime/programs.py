@@ -190,10 +190,8 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
          stop: Optional[Callable[[], bool]] = None,
          progress: Optional[Callable[[Progress], None]] = None,
          started: Optional[Callable[[], object]] = None,
-         compile_first: bool = False, replay=None, live=None, previous=None,
-         keep_state: bool = False):
-  """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set (and with
-  keep_state, the search's last state, padded: (result, state)).
+         compile_first: bool = False, replay=None, live=None) -> SearchResult:
+  """Plans from start_nodes [I]; returns the SearchResult [I] with wall_time_s set.
 
   key: one PRNG key (split per instance) or per-instance keys [I, 2].
   The search runs in jitted chunks (`anytime.ChunkSizes`: about 0.3 s each; chunk_iterations:
@@ -223,10 +221,6 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     'running', no path).
   replay: paths from the starts (actions [I, T, A], length [I]) that the search's first chain
     lane replays (`search.replay`; a replanning query's last answer; None: none).
-  previous: (state, executed [I] int32): the last search of these instances (a keep_state
-    plan's, same padding; donated) and the transitions of its answer the world executed since:
-    the search keeps its subtree below the answer's node at that depth (`Search.reroot`; -1:
-    none).
   """
   if time_limit_s is not None and (isinstance(time_limit_s, bool)
                                    or not isinstance(time_limit_s, numbers.Real)
@@ -279,20 +273,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     live = jax.device_put(searched)
     init_name, init_args = (('init', (start_nodes, keys, live)) if replay is None else
                             ('init replay', (start_nodes, keys, live, replay)))
-    init_fn, donated = search.init, ()
-    if previous is not None:  # the last search re-rooted where the world now is
-      last, executed = previous
-      if jax.tree.leaves(last)[0].shape[0] != padded:
-        raise ValueError(f'previous holds a search of {jax.tree.leaves(last)[0].shape[0]} '
-                         f'padded instances, this plan pads {num_instances} to {padded}')
-      executed = np.full((padded,), -1, np.int32)
-      executed[:num_instances] = np.asarray(previous[1], np.int32).reshape(num_instances)
-      init_name, init_fn, donated = 'reroot ' + init_name, search.reroot, (0,)
-      init_args = (last, jax.device_put(executed)) + init_args
     new = init_name not in programs
     if new:
-      programs[init_name] = compiled_program(init_fn, init_args, stored(init_name),
-                                             donate_argnums=donated)
+      programs[init_name] = compiled_program(search.init, init_args, stored(init_name))
       # a budget that cannot fit is refused before the result and loops compile (traced only)
       check_memory(env, actor_critic, start_nodes, config, search, padded,
                    need=memory.tree_bytes((programs[init_name].out_shapes, jax.eval_shape(
@@ -339,10 +322,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
                         budget * num_instances, elapsed_s, int(np.max(iterations, initial=0)),
                         int(np.max(left, initial=0))))
 
-    out, state = anytime.timed_result(advance, state, programs['result'], time_limit_s,
-                                      timing=programs.setdefault('timing', {}), stop=stop,
-                                      sizes=sizes, on_chunk=progress and on_chunk,
-                                      with_state=True)
+    out = anytime.timed_result(advance, state, programs['result'], time_limit_s,
+                               timing=programs.setdefault('timing', {}), stop=stop,
+                               sizes=sizes, on_chunk=progress and on_chunk)
     out = out.replace(wall_time_s=out.wall_time_s - np.float32(waiting['s']))
     if stop is None or not stop():  # nothing left compiling once plan returns (a stopped
       for lanes in reachable:       # plan returns at once; the next call waits for them)
@@ -354,5 +336,4 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     raise
   finally:
     threads.shutdown(wait=False)
-  out = first_rows(out, num_instances)
-  return (out, state) if keep_state else out
+  return first_rows(out, num_instances)

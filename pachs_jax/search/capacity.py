@@ -22,8 +22,6 @@ class Capacities:
   max_path_length: actions kept in a returned path (longer paths keep their first ones).
   replay: the most actions of a path the first chain lane can replay (`replay.Replay`; 0:
     none).
-  kept: the most nodes a search re-rooted in the last one's subtree keeps (`reroot`; 0: none),
-    room beside the budget's in the pool, its heaps and its table (with pool None).
   """
 
   max_iterations: Optional[int] = None
@@ -32,15 +30,12 @@ class Capacities:
   table: Optional[int] = None
   max_path_length: int = 1024
   replay: int = 0
-  kept: int = 0
 
   def __post_init__(self):
     normalize_numbers(self)
     positive_int('Capacities', 'max_path_length', self.max_path_length)
-    for name in ('replay', 'kept'):
-      value = getattr(self, name)
-      if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ValueError(f'Capacities.{name} must be an int >= 0, got {value!r}')
+    if isinstance(self.replay, bool) or not isinstance(self.replay, int) or self.replay < 0:
+      raise ValueError(f'Capacities.replay must be an int >= 0, got {self.replay!r}')
     for name in ('max_iterations', 'heap', 'pool', 'table'):
       positive_int('Capacities', name, getattr(self, name), allow_none=True)
     if self.table is not None and self.table & (self.table - 1):
@@ -50,8 +45,7 @@ class Capacities:
 class Sizes(NamedTuple):
   """A search's per-instance array sizes: pool nodes, lattice-table slots, OPEN entries (heap:
   real edges, or every edge where one heap holds all; dummy_heap: PACHS's dummy edges),
-  loop iterations, the actions kept in a returned path and those of a replayed path, and the
-  nodes a re-rooted search keeps."""
+  loop iterations, the actions kept in a returned path and those of a replayed path."""
 
   pool: int
   table: int
@@ -60,7 +54,6 @@ class Sizes(NamedTuple):
   iterations: int
   path: int
   replay: int = 0
-  kept: int = 0
 
 
 def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps: int = 1,
@@ -72,8 +65,7 @@ def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps:
   capacities = Capacities() if capacities is None else capacities
   if not isinstance(capacities, Capacities):
     raise ValueError(f'capacities must be a Capacities, got {type(capacities).__name__}')
-  # the edges the budget pays for, the start's and the nodes a re-rooted search keeps
-  edges = budget // edge_steps + 1 + capacities.kept
+  edges = budget // edge_steps + 1  # the edges the budget pays for, and the start's
   pool = capacities.pool or edges
   if pool * slots >= INT32_LIMIT:
     raise ValueError(f'the pool capacity * (edges per node + 1) must stay below 2**31 (heap '
@@ -91,4 +83,4 @@ def sizes(capacities: Optional[Capacities], budget: int, slots: int, edge_steps:
   iterations = (capacities.max_iterations if capacities.max_iterations is not None
                 else min(INT32_LIMIT - 1, slots * (budget + 1) + 1))
   return Sizes(pool, table, heap, dummy_heap, iterations, capacities.max_path_length,
-               capacities.replay, min(capacities.kept, pool))
+               capacities.replay)

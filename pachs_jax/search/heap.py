@@ -63,13 +63,6 @@ def init(num_instances: int, capacity: int, pop_size: int,
               size=zeros, count=zeros, overflow=zeros, capacity=capacity, segment_size=segment)
 
 
-def empty(heap: Heap) -> Heap:
-  """heap without its entries (its capacity and segments kept)."""
-  zeros = jnp.zeros_like(heap.size)
-  return heap.replace(keys=jnp.full_like(heap.keys, INF), segment_min=jnp.full_like(
-      heap.segment_min, INF), size=zeros, count=zeros, overflow=zeros)
-
-
 def push(heap: Heap, keys: jax.Array, values: jax.Array, mask: jax.Array) -> Heap:
   """Stores the masked entries keys/values/mask [I, M] in their order along M.
 

@@ -52,18 +52,6 @@ def add(visits: Visits, node: jax.Array, new: jax.Array, cell: jax.Array) -> Vis
   return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
 
 
-def keep(fresh: Visits, old: Visits, source: jax.Array, used: jax.Array) -> Visits:
-  """fresh (a new search's, its start at node 0) with the cells of old's nodes source [I, P]
-  where used [I, P] (the start excluded), counted (a re-rooted search, `reroot`)."""
-  index = jnp.arange(source.shape[1])[None, :]
-  node_cell = jnp.where(used & (index != 0), jnp.take_along_axis(old.node_cell, source, axis=1),
-                        fresh.node_cell)
-  rows = jnp.arange(source.shape[0])[:, None]
-  nodes_per_cell = jnp.zeros_like(fresh.nodes_per_cell).at[rows, jnp.maximum(node_cell, 0)].add(
-      (node_cell != NO_CELL).astype(jnp.int32))
-  return Visits(nodes_per_cell=nodes_per_cell, node_cell=node_cell)
-
-
 def sample(visits: Visits, keys: jax.Array, eligible: jax.Array, num: int) -> jax.Array:
   """[I, num] int32 pool nodes drawn with replacement among eligible [I, P] nodes, each with
   weight n ** -1.5 for the n nodes generated in its cell, so that a cell weighs 1 / sqrt(n)

@@ -23,7 +23,6 @@ from pachs_jax.search import phases
 from pachs_jax.search import pool as pool_lib
 from pachs_jax.search import rules as rules_lib
 from pachs_jax.search import replay as replay_lib
-from pachs_jax.search import reroot as reroot_lib
 from pachs_jax.search import segment
 from pachs_jax.search.checks import (check_actor_critic, check_start_nodes, env_lattice_resolution,
                                      instance_keys)
@@ -85,10 +84,6 @@ class Search:
   run(state) -> state when every instance has stopped (one program: every layout's loop).
   result(state) -> SearchResult; an instance that has not found a goal gets the path to its
     real-time answer (config.realtime_answer).
-  reroot(state, executed [I] int32, start_nodes [I], keys, live=None, replay=None) -> the
-    `init` of a new search from start_nodes that keeps state's subtree below the node of its
-    result's path at depth executed (transitions; none where the path has no node there or
-    executed < 0), at most capacities.kept nodes (`reroot`; the input state is donated).
   capacities: the `capacity.Capacities` it was built with (sizes: what they resolve to).
   """
 
@@ -96,7 +91,6 @@ class Search:
   loop: Callable[..., SearchState]
   run: Callable[[SearchState], SearchState]
   result: Callable[[SearchState], SearchResult]
-  reroot: Callable[..., SearchState]
   config: SearchConfig
   capacities: capacity_lib.Capacities
   sizes: capacity_lib.Sizes
@@ -404,32 +398,21 @@ def make_search(env: base.Env, actor_critic: ActorCritic, config: SearchConfig,
       state = loop(state, jnp.iinfo(jnp.int32).max, lanes)
     return state
 
-  def open_answer(state: SearchState):
-    """(entry value [I], has [I]) of the real-time answer (`path.answer_node`)."""
+  def result(state: SearchState) -> SearchResult:
     # the best OPEN entry (dummy edges win ties); a real edge (s, a) names s
     key, value, in_open = heap_lib.peek(state.edge_heap)
     dummy_key, dummy_value, in_dummy = heap_lib.peek(state.dummy_heap)
     use_dummy = in_dummy & (~in_open | (dummy_key <= key))
     value, in_open = jnp.where(use_dummy, dummy_value, value), in_open | in_dummy
     chosen, has = rules.answer(state.pool, slots)  # the real-time answer, where it chooses
-    return jnp.where(has, chosen, value), has | in_open
-
-  def result(state: SearchState) -> SearchResult:
-    out = path_lib.search_result(state, *open_answer(state), slots, k * steps,
+    value, in_open = jnp.where(has, chosen, value), has | in_open
+    out = path_lib.search_result(state, value, in_open, slots, k * steps,
                                  state.edge_heap.overflow + state.dummy_heap.overflow,
                                  sizes.path, state.incumbent)
     offered = state.lanes_offered * steps
     return out.replace(lane_utilization=jnp.where(
         offered > 0, state.evaluated / jnp.maximum(offered, 1), 0.0).astype(jnp.float32))
 
-  def reroot(state: SearchState, executed: jax.Array, start_nodes: base.NodeState,
-             keys: jax.Array, live=None, replay=None) -> SearchState:
-    fresh = init(start_nodes, keys, live, replay)
-    final, _ = path_lib.answer_node(state, *open_answer(state), slots, state.incumbent)
-    root = reroot_lib.ancestor_at_depth(state.pool, final, jnp.asarray(executed, jnp.int32))
-    return reroot_lib.reroot(fresh, state, root, slots, rules.restart.keep, sizes.kept)
-
   return Search(init=jax.jit(init), loop=jax.jit(loop, static_argnames='lanes', donate_argnums=0),
-                run=jax.jit(run), result=jax.jit(result),
-                reroot=jax.jit(reroot, donate_argnums=0), config=config,
+                run=jax.jit(run), result=jax.jit(result), config=config,
                 capacities=capacities, sizes=sizes)

@@ -98,41 +98,32 @@ def min_cost_answer(pool: pool_lib.NodePool, slots: int) -> Tuple[jax.Array, jax
   return _least_node(pool, (pool.g - pool_lib.gather(pool.g, parent)) / steps, slots)
 
 
-def answer_node(state, best_value: jax.Array, in_open: jax.Array, slots: int,
-                incumbent=None) -> Tuple[jax.Array, jax.Array]:
-  """(final [I] int32, found [I] bool): the pool node where the answer's path of an edge search
-  ends (state: pool, stop_reason, goal_node [I]): the goal node when one was found, else the
-  real-time answer, the node of an entry value (best_value [I], node * slots + slot, where
-  in_open [I]), or with OPEN empty the node whose dummy edge had the smallest key. incumbent:
-  the search's `improve.Incumbent` (None: the first goal ends a search): an instance stopped by
-  another rule (a time limit) answers with its incumbent goal."""
-  pool = state.pool
-  found = state.stop_reason == StopReason.GOAL
-  goal_node = state.goal_node
-  if incumbent is not None:
-    found, goal_node = found | incumbent.found, jnp.where(found, goal_node, incumbent.node)
-  exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
-  best = jnp.where(in_open, best_value // slots,
-                   jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
-  return jnp.where(found, goal_node, best).astype(jnp.int32), found
-
-
 def search_result(state, best_value: jax.Array, in_open: jax.Array, slots: int, pop_size: int,
                   heap_overflow: jax.Array, max_len: int, incumbent=None) -> SearchResult:
   """The SearchResult [I] of an edge search whose state has pool, table, stop_reason,
   goal_node, expanded, evaluated, invalid and iterations ([I] each).
 
-  The path ends at `answer_node` (best_value, in_open, slots and incumbent as there).
-  lane_utilization counts pop_size evaluations per iteration (K edges times their
-  transitions).
+  The path ends at the goal node when one was found, else at the real-time answer: the node of
+  an entry value (best_value [I], node * slots + slot, where in_open [I]; the best OPEN entry's,
+  `min_h_answer`'s or `min_cost_answer`'s),
+  or with OPEN empty the node whose dummy edge had the smallest key. lane_utilization counts
+  pop_size evaluations per iteration (K edges times their transitions). incumbent: the
+  search's `improve.Incumbent` (None: the first goal ends a search): an instance stopped by
+  another rule (a time limit) answers with its incumbent goal.
   """
   pool = state.pool
-  final, found = answer_node(state, best_value, in_open, slots, incumbent)
+  found = state.stop_reason == StopReason.GOAL
+  goal_node = state.goal_node
   first = {}
   if incumbent is not None:
+    found, goal_node = found | incumbent.found, jnp.where(found, goal_node, incumbent.node)
     first = dict(first_goal_evaluated=incumbent.first_evaluated,
                  first_goal_iterations=incumbent.first_iterations,
                  first_goal_cost=incumbent.first_cost)
+  exists = jnp.arange(pool.capacity)[None, :] < pool.size[:, None]
+  best = jnp.where(in_open, best_value // slots,
+                   jnp.argmin(jnp.where(exists, pool.open_key, jnp.inf), axis=1))
+  final = jnp.where(found, goal_node, best).astype(jnp.int32)
   path = extract(pool, final, max_len)
   rows = jnp.arange(final.shape[0])
   lanes = pop_size * state.iterations

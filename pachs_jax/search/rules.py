@@ -53,14 +53,11 @@ class Restart(NamedTuple):
   record(visits, nodes [I, K], new [I, K], cells [I, K, L]) -> visits with the new nodes.
   choose(pool, visits, keys [I, 2], fits [I, P] bool, num) -> [I, num] restart nodes (or one
     for all).
-  keep(fresh visits, old visits, source [I, P], used [I, P]) -> a re-rooted search's visits
-    (`reroot`: the old nodes at source where used).
   """
 
   visits: Callable
   record: Callable
   choose: Callable
-  keep: Callable
 
 
 def restart_at_start() -> Restart:
@@ -68,7 +65,7 @@ def restart_at_start() -> Restart:
   one node, never read)."""
   return Restart(
       lambda cells, pool_size: novelty.init(jnp.zeros(cells.shape[:1], jnp.int32), 1, 1),
-      lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX, lambda fresh, *_: fresh)
+      lambda visits, *_: visits, lambda *_: pool_lib.ROOT_INDEX)
 
 
 def restart_novel(coarsening: int = 4) -> Restart:
@@ -90,7 +87,7 @@ def restart_novel(coarsening: int = 4) -> Restart:
     eligible = (index < pool.size[:, None]) & ~pool.is_goal & fits
     return novelty.sample(visits, keys, eligible, num)
 
-  return Restart(visits, record, choose, novelty.keep)
+  return Restart(visits, record, choose)
 
 
 def best_f_answer(pool, slots: int):

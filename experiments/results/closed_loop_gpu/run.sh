@@ -10,8 +10,7 @@
 # not followed by policy actions: the next query comes sooner), soft (the soft-blocks physics
 # preset, planners and worlds: the screens in the results' ledger), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
-# closed_loop.py --check-copies 8), h<N> (edges of N transitions), keep (each search keeps the
-# last one's subtree: closed_loop.py --keep-search 1).
+# closed_loop.py --check-copies 8), h<N> (edges of N transitions).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -54,7 +53,6 @@ run() {  # the command line of one run
       soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
       h[0-9]*) flags+=(-H "${opt#h}") ;;
-      keep) flags+=(--keep-search 1) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
