@@ -971,12 +971,12 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'query executes, so that the executed answer ends on a node of the last search), open loop, '
      'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 20,000 evaluations',
      'gate 7 and 8 of 10 against 5 with 8 transitions, wall 9 and 8 against 9: no loss on this '
-     'small sample; in the closed loop 10 transitions lost (the next row)',
+     'small sample; in the closed loop 10 transitions solved no more episodes (the next row)',
      '`97ee399`: `edge_steps_cpu/`'),
     ('Closed loop with edges of 10 transitions (the 10 actions a query executes end on a node '
      'of its search; default physics, one H200)',
      'detour 2% against 4%, wall 85% against 91% and 84%, gate-mirror 69% against 76% and 75%: '
-     'edges stay 8 transitions',
+     'no better anywhere (within the intervals); edges stay 8 transitions',
      '`1486d8a`: `closed_loop_gpu/*_pachs-h10.json`'),
     ('Closed loop keeping the last search\'s subtree, edges of 10 transitions: each query\'s '
      'search started from the last one\'s answer node at the executed depth, the world\'s state '
