@@ -987,9 +987,9 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'against 69%, with 14.7 queries an episode against 11.7 and 361 policy fill steps against '
      '33: goals below the new root, reached from states simulated from the planned start, '
      'ended answers short of the world\'s goal; with those goals dropped, gate-mirror 65% and '
-     'wall 77% (10.6 queries an episode against 7.8): the kept states are the planned ones, and '
-     'paths through them do not hold from the world\'s state; detour gained nothing; the code '
-     'left the tree', '`1486d8a`: `closed_loop_gpu/*_pachs-h10-keep*.json`'),
+     'wall 77% (10.6 queries an episode against 7.8): the kept states are the planned ones, so '
+     'paths through them need not hold from the world\'s state; detour gained nothing; the '
+     'code left the tree', '`1486d8a`: `closed_loop_gpu/*_pachs-h10-keep*.json`'),
     ('Detour, the search\'s settings and budget in open loop (PushT-Obs, the PushT-Fixed model, '
      'MuJoCo C on a 2-core CPU, 10 instances x 1 seed at 100,000 evaluations): rollout share '
      '0.5 (more best-first lanes), w 1, uniform share 0.5; and the default at 500,000 (5 '
