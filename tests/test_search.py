@@ -468,6 +468,10 @@ def test_min_cost_answer_takes_the_cheapest_edge_per_transition():
   # only the start: no answer
   _, has = path_lib.min_cost_answer(pool.replace(size=jnp.array([1], jnp.int32)), slots=3)
   assert not bool(has[0])
+  # min_h on the same pool: w * h = key - g, least (0) at node 3 among the generated nodes
+  # (the start excluded)
+  pool = pool.replace(open_key=pool.g + jnp.array([[0.0, 4.0, 3.0, 0.0, 1.0, 2.0, 0.0, 0.0]]))
+  assert int(path_lib.min_h_answer(pool, slots=3)[0][0]) == 3 * 3
 
 
 def test_plans_of_one_bucket_share_compiled_programs(problem):
