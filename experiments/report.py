@@ -491,6 +491,12 @@ def failures(summary: Dict) -> str:
   return str(summary['failures']) + ('' if on_policy is None else f' ({on_policy} on policy steps)')
 
 
+def points(value: float) -> str:
+  """'N points' of a difference in percentage points, rounded ('1 point')."""
+  rounded = f'{value:.0f}'
+  return f'{rounded} point' + ('' if rounded in ('1', '-1') else 's')
+
+
 def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, str]],
                      repeats: Optional[str] = None):
   """The closed-loop table's rows of one folder's runs (and of the same runs made again, in its
@@ -533,7 +539,8 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
           b = summary_of(src.load(own), planner)
           drops.append([layout, label + again,
                         episodes_solved(b), episodes_solved(a),
-                        f'{100 * (b["success_rate"] - a["success_rate"]):.0f} points'])
+                        points(100 * (b['success_rate'] - a['success_rate'])),
+                        f'{failures(b)} / {failures(a)}'])
           pairs.setdefault((layout, planner), []).append((b['success_rate'], a['success_rate']))
   pooled = [f'{layout}, {"PACHS" if planner == "pachs" else "the rollout"} '
             f'{pct(sum(o for o, _ in runs) / len(runs))} in its own physics and '
@@ -611,7 +618,8 @@ def closed_loop_sessions(src: Sources) -> str:
       + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop'], drops)
+      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop',
+             'T tipped (failed), own physics / MuJoCo C'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill) and '
       'the screens on blocks without a margin: [measured and not kept](#measured-and-not-kept).'])
