@@ -1015,6 +1015,13 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'depth counts: gate-mirror 18% [7, 31] against 29% (3.7 iterations a query against 4.1, '
      '38 episodes failed on policy steps against 28), wall 74% against 73%: K stays 64 at 1 s',
      '`bb4f809`: `closed_loop_gpu/*_pachs-q1-k96.json`'),
+    ('Closed loop at 1 s per query with K 80 (between K 64, the default there, and K 96; '
+     'default physics, one H200)',
+     'edges per query 0.92x the rollout\'s on wall (2,442 against 2,646) and 0.86x on '
+     'gate-mirror (2,088 against 2,419), against K 64\'s 0.84x and 0.80x, but fewer episodes '
+     'solved: wall 67% [56, 77] against 73%, gate-mirror 25% [16, 34] against 29% (3.7 '
+     'iterations a query against 4.1, 45 Ts tipped against 38): K stays 64 at 1 s',
+     '`315898a`: `closed_loop_gpu/*_pachs-q1-k80.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
