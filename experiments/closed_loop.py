@@ -84,6 +84,10 @@ def build_parser() -> argtypes.OneLineParser:
                       'budget and settings; docs/serving.md)')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
+  parser.add_argument('--trace', type=int, default=0, choices=[0, 1],
+                      help="1: also write each planner's episodes, the worlds' states, the "
+                      'actions executed and the states PACHS planned for them, as '
+                      "<out>.<planner>.trace.npz (MuJoCo C worlds; episodes.trace)")
   parser.add_argument('--world', default='mujoco-c', choices=WORLDS,
                       help="where the plans run: MuJoCo C worlds (float64), or 'planner': the "
                       "planners' own edge physics (--backend), so that plans transfer")
@@ -143,7 +147,7 @@ class PlannerWorldEpisodes(Worlds):
   def batch(self):
     return self.nodes
 
-  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
+  def execute(self, actions: np.ndarray, lengths: np.ndarray, by_policy=None) -> None:
     for j in range(actions.shape[1]):
       moving = self.active & (lengths > j)
       if not moving.any():
@@ -172,6 +176,8 @@ class Asked:
   found: np.ndarray
   info: dict
   safe_length: Optional[np.ndarray] = None
+  kind: Optional[np.ndarray] = None  # with --trace: the session's `replan.AnswerKind` [E]
+  states: Optional[object] = None  # with --trace: the answer's states NodeState [E, T + 1]
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
@@ -213,7 +219,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'remainder_followed': 'remainder' in session.candidates,
                'remainder_steps': np.asarray(session.followed['remainder'].steps),
                'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)},
-              safe_length=answer.safe_length if check is not None else None)
+              safe_length=answer.safe_length if check is not None else None,
+              **({'kind': answer.kind, 'states': answer.states} if args.trace else {}))
     return query, config
   if name == 'parallel':
     config = bl.ParallelRolloutConfig(num_copies=args.copies, budget=args.budget)
@@ -399,9 +406,10 @@ class SessionAnswers:
 
 
 def run_planner(name, task, env, model, episodes: Worlds, args, key,
-                stop=lambda: False) -> Dict:
+                stop=lambda: False, trace_path: Optional[str] = None) -> Dict:
   """Runs one planner's episodes (`pachs_jax.episodes.run`); stop() is checked before each
-  query (a signal: the episodes end where they are, and the row says 'interrupted')."""
+  query (a signal: the episodes end where they are, and the row says 'interrupted');
+  trace_path: where `episodes.trace` of its episodes goes (npz; None: nowhere)."""
   num = episodes.num
   if name == 'single':
     times = run_single(env, model, episodes, args.max_queries * args.execute)
@@ -430,6 +438,8 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
                          key=key, fill_with_policy=bool(args.fill_with_policy),
                          policy=policy_actions(env, model),
                          stop=stop, on_answer=on_answer)
+  if trace_path:
+    np.savez_compressed(trace_path, **episodes_lib.trace(episodes, log))
   return {'config': common.config_record(config),
           'interrupted_at_query': log.interrupted_at_query,
           'queries_per_episode_mean': float(np.mean(log.queries)),
@@ -449,6 +459,8 @@ def main():
   args = parser.parse_args()
   if args.candidates is None:
     args.candidates = replan.DEFAULT_CANDIDATES
+  if args.world == 'planner' and args.trace:
+    parser.error('--trace records MuJoCo C worlds (--world mujoco-c)')
   if args.world == 'planner' and args.perturb:
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   if args.check_copies and args.server:
@@ -519,7 +531,8 @@ def run_one(name, args, env, model, starts, perturbation, payload, out, stop) ->
               if args.world == 'mujoco-c' else PlannerWorldEpisodes(env, starts))
   start = time.perf_counter()
   info = run_planner(name, args.task, env, model, episodes, args,
-                     jax.random.PRNGKey(args.seed), stop)
+                     jax.random.PRNGKey(args.seed), stop,
+                     f'{os.path.splitext(out)[0]}.{name}.trace.npz' if args.trace else None)
   total = time.perf_counter() - start
   k, n = int(episodes.success.sum()), episodes.num
   low, high = stats.instance_bootstrap_interval(episodes.success, np.arange(n) % args.instances)

@@ -48,6 +48,8 @@ class Worlds:
     self.nodes = [w.reset(jax.tree.map(lambda x, i=i: np.asarray(x[i]), starts))
                   for i, w in enumerate(self.worlds)]
     self.visited: List[List[base.NodeState]] = [[node] for node in self.nodes]
+    self.actions: List[List[np.ndarray]] = [[] for _ in self.nodes]  # [A] per step taken
+    self.by_policy: List[List[bool]] = [[] for _ in self.nodes]  # the step was the policy's
     self._start_bookkeeping()
 
   def _start_bookkeeping(self) -> None:
@@ -69,9 +71,11 @@ class Worlds:
     """NodeState [E] of the worlds' current states."""
     return jax.tree.map(jnp.asarray, world_lib.stack_nodes(self.nodes))
 
-  def execute(self, actions: np.ndarray, lengths: np.ndarray) -> None:
+  def execute(self, actions: np.ndarray, lengths: np.ndarray,
+              by_policy: Optional[np.ndarray] = None) -> None:
     """Runs actions [E, T, A], the first lengths[e] of each, in the active worlds, checking the
-    goal after every step."""
+    goal after every step; by_policy [E] bool: episode e's first action is the policy's (the
+    record of `trace`; None: none is)."""
     for j in range(actions.shape[1]):
       moving = self.active & (lengths > j)
       if not moving.any():
@@ -79,6 +83,8 @@ class Worlds:
       for e in np.flatnonzero(moving):
         self.nodes[e] = self.worlds[e].execute(actions[e, j:j + 1])[-1]
         self.visited[e].append(self.nodes[e])
+        self.actions[e].append(np.asarray(actions[e, j]))
+        self.by_policy[e].append(bool(by_policy is not None and by_policy[e] and j == 0))
         self.steps[e] += 1
       self._judge(moving)
 
@@ -133,6 +139,53 @@ class Log:
         current = asked.pop(0)[1]
       out.append(current)
     return out
+
+
+def trace(worlds: Worlds, log: Log) -> dict:
+  """What E episodes' worlds did and what their plans said there, numpy arrays padded past each
+  episode's S_e steps (S the longest; NaN, False or -1):
+  world_<field> [E, S + 1, ...]: the worlds' states (NodeState fields: qpos, qvel, ctrl,
+    qacc_warmstart), the start first; goal [E, ...];
+  actions [E, S, A]: the actions executed; by_policy [E, S]: the step was the policy's (an
+    empty answer's action or the fill after a short answer);
+  planned_qpos [E, S + 1, nq]: the qpos that the answer being executed planned for the world's
+    state s, in the planner's physics (NaN where it planned none: before its first query, past
+    its length, or a planner whose answers carry no states);
+  asked_at [Q, E]: the world state at which each query asked for episode e (-1: it had
+    ended; queries whose answers carry no states are left out);
+  steps [E]: S_e; success, failed [E]."""
+  num, longest = worlds.num, int(worlds.steps.max(initial=0))
+  out = {}
+  for name in ('qpos', 'qvel', 'ctrl', 'qacc_warmstart'):
+    width = np.asarray(getattr(worlds.visited[0][0], name)).shape
+    field = np.full((num, longest + 1) + width, np.nan)
+    for e in range(num):
+      values = np.stack([np.asarray(getattr(n, name)) for n in worlds.visited[e]])
+      field[e, :len(values)] = values
+    out['world_' + name] = field
+  out['goal'] = np.stack([np.asarray(n[0].goal) for n in worlds.visited])
+  size = np.asarray(worlds.visited[0][0].qpos).shape[-1]
+  actions = np.full((num, longest, max((len(a[0]) for a in worlds.actions if a), default=0)),
+                    np.nan)
+  by_policy = np.zeros((num, longest), bool)
+  planned = np.full((num, longest + 1, size), np.nan)
+  for e in range(num):
+    taken = len(worlds.actions[e])
+    if taken:
+      actions[e, :taken] = np.stack(worlds.actions[e])
+      by_policy[e, :taken] = worlds.by_policy[e]
+    for at, states, length in log.plans:
+      a, n = int(at[e]), int(length[e])
+      if a < 0:
+        continue
+      span = min(n + 1, longest + 1 - a)
+      planned[e, a:] = np.nan  # a later query's answer replaces the one before
+      planned[e, a:a + span] = np.asarray(states.qpos)[e, :span]
+  asked_at = np.array([at for at, _, _ in log.plans], np.int64).reshape(-1, num)
+  out.update(actions=actions, by_policy=by_policy, planned_qpos=planned, asked_at=asked_at,
+             steps=worlds.steps.copy(), success=worlds.success.copy(),
+             failed=worlds.failed.copy())
+  return out
 
 
 def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarray:
@@ -227,7 +280,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
       lengths = np.where(empty, 1, lengths)
       log.policy_steps += empty
     failed = worlds.failed.copy()
-    worlds.execute(actions, lengths)
+    worlds.execute(actions, lengths, by_policy=empty)
     log.failed_on_policy |= empty & worlds.failed & ~failed
     # the answer's actions executed; an episode the policy moves next diverges from it
     short = (lengths < execute) & ~cut
@@ -239,6 +292,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
           continue
         log.policy_steps += need
         failed = worlds.failed.copy()
-        worlds.execute(np.asarray(policy(worlds.batch()))[:, None], need.astype(np.int64))
+        worlds.execute(np.asarray(policy(worlds.batch()))[:, None], need.astype(np.int64),
+                       by_policy=need)
         log.failed_on_policy |= worlds.failed & ~failed
   return log

@@ -2,6 +2,7 @@
 drives them, and what the command writes."""
 
 import json
+import types
 
 import jax
 import numpy as np
@@ -54,7 +55,7 @@ class _FailOnOne:
   def batch(self):
     return self.steps.astype(np.float32)
 
-  def execute(self, actions, lengths):
+  def execute(self, actions, lengths, by_policy=None):
     for j in range(actions.shape[1]):
       moving = self.active & (lengths > j)
       self.steps += moving
@@ -92,6 +93,41 @@ def test_an_answer_cut_by_its_check_runs_to_its_safe_length_then_replans_unfille
   assert worlds.steps.tolist() == [2, 6]
   assert told == [[0, 0], [1, 3]]
   assert log.policy_steps.tolist() == [0, 0] and log.cut_answers.tolist() == [2, 0]
+
+
+def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_state():
+  """Episode 0 executes 3 planned actions per query; episode 1's answers hold 1, the policy
+  fills 2. The trace's planned qpos at world state s is the state the answer being executed
+  planned there (the second query's from state 3 on), NaN where the policy filled."""
+  env = envs.make('pusht-fixed')
+  away = env.node_from_pose(np.array([0.1, 0.1, 0.0]), np.asarray(pusht.FIXED_GOAL))
+  starts = jax.tree.map(lambda a: np.stack([np.asarray(a)] * 2), away)
+  worlds = episodes.Worlds(env, starts, None)
+  size = np.asarray(away.qpos).shape[-1]
+  asked = []
+
+  def query(nodes, keys, executed, running):
+    number = len(asked)
+    asked.append(number)
+    planned = number + 0.1 * np.arange(4)[None, :, None] + np.zeros((2, 4, size))
+    actions = np.full((2, 3, env.action_size), 0.01 * (number + 1), np.float32)
+    return types.SimpleNamespace(actions=actions, length=np.array([3, 1]),
+                                 kind=np.zeros(2, np.int64),
+                                 states=types.SimpleNamespace(qpos=planned))
+  policy = lambda nodes: np.full((2, env.action_size), -0.02, np.float32)
+  log = episodes.run(query, worlds, execute=3, max_queries=2, policy=policy)
+  out = episodes.trace(worlds, log)
+  assert out['steps'].tolist() == [6, 6] and out['asked_at'].tolist() == [[0, 0], [3, 3]]
+  assert out['by_policy'].tolist() == [[False] * 6, [False, True, True] * 2]
+  np.testing.assert_allclose(out['actions'][0, :, 0], [0.01] * 3 + [0.02] * 3)
+  np.testing.assert_allclose(out['actions'][1, :, 0], [0.01, -0.02, -0.02, 0.02, -0.02, -0.02])
+  np.testing.assert_allclose(out['planned_qpos'][0, :, 0], [0, 0.1, 0.2, 1, 1.1, 1.2, 1.3])
+  np.testing.assert_allclose(out['planned_qpos'][1, :, 0],
+                             [0, 0.1, np.nan, 1, 1.1, np.nan, np.nan])
+  # the worlds' states: the start, then one per action executed
+  np.testing.assert_array_equal(out['world_qpos'][:, 0], starts.qpos)
+  np.testing.assert_array_equal(out['world_qpos'][0, 6], worlds.nodes[0].qpos)
+  assert not np.isnan(out['world_qvel']).any()
 
 
 def test_executed_plans_follow_the_queries_of_an_episode():

@@ -225,6 +225,7 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--server', 'ws://x', '--physics', 'planar'], '--physics with --server'),
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (closed_loop, ['--check-copies', '-1'], 'argument --check-copies: must be >= 0, got -1'),
+    (closed_loop, ['--world', 'planner', '--trace', '1'], '--trace records MuJoCo C worlds'),
     (closed_loop, ['--server', 'ws://x', '--check-copies', '2'],
      '--check-copies checks the answers of an in-process PACHS, not --server'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
@@ -247,9 +248,34 @@ def test_a_stop_request_ends_a_planners_episodes_before_the_next_query():
   args = closed_loop.argparse.Namespace(
       budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
       candidates=(), replay_remainder=0, chunk_iterations=1, max_queries=30, execute=10,
-      query_time=1.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0)
+      query_time=1.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0,
+      trace=0)
   worlds = closed_loop.Worlds(env, starts)
   info = closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
                                  jax.random.PRNGKey(0), stop=lambda: True)
   assert info['interrupted_at_query'] == 0 and info['queries_per_episode_mean'] == 0.0
   assert worlds.steps.tolist() == [0, 0]  # nothing ran in the worlds
+
+
+def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_them(tmp_path):
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
+  env, model = planner.load_model('pusht-fixed')
+  starts = env.canonical_instances(2)
+  args = closed_loop.argparse.Namespace(
+      budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
+      candidates=(), replay_remainder=0, chunk_iterations=1, max_queries=1, execute=3,
+      query_time=30.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0,
+      trace=1)
+  worlds = closed_loop.Worlds(env, starts)
+  path = tmp_path / 'run.pachs.trace.npz'
+  closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
+                          jax.random.PRNGKey(0), trace_path=str(path))
+  trace = np.load(path)
+  assert trace['asked_at'].tolist() == [[0, 0]] and trace['steps'].tolist() == [3, 3]
+  # the plan starts at the world's state, and the world executed the plan's actions
+  np.testing.assert_allclose(trace['planned_qpos'][:, 0], starts.qpos, atol=1e-6)
+  np.testing.assert_array_equal(trace['world_qpos'][:, 0], starts.qpos)
+  assert not trace['by_policy'].any()
+  # MuJoCo C planners: the world's states are the planned ones, up to float32
+  np.testing.assert_allclose(trace['world_qpos'][:, 1:, 7:9], trace['planned_qpos'][:, 1:, 7:9],
+                             atol=1e-4)

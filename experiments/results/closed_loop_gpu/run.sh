@@ -10,7 +10,8 @@
 # not followed by policy actions: the next query comes sooner), soft (the soft-blocks physics
 # preset, planners and worlds: the screens in the results' ledger), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
-# closed_loop.py --check-copies 8), h<N> (edges of N transitions).
+# closed_loop.py --check-copies 8), h<N> (edges of N transitions), trace (also each planner's
+# episodes, world states, actions and PACHS's planned states: <run>.<planner>.trace.npz).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -53,6 +54,7 @@ run() {  # the command line of one run
       soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
       h[0-9]*) flags+=(-H "${opt#h}") ;;
+      trace) flags+=(--trace 1) ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
