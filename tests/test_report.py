@@ -112,9 +112,11 @@ def test_measured_cpu_timings_replace_the_placeholders(copy_root):
 
 def test_every_result_file_is_read_by_the_report_or_beside_one():
   """Result files no section reads leave the tree (git keeps them; the ledger names the commit):
-  what stays is a cited JSON, the .md beside it, a figure the README shows or a job script."""
+  what stays is a cited JSON, the .md and trace beside it, a figure the README shows or a job
+  script."""
   cited = set(report.cited_files())
-  kept = {p[:-len('.json')] + '.md' for p in cited} | cited
+  kept = ({p[:-len('.json')] + '.md' for p in cited}
+          | {p[:-len('.json')] + '.pachs.trace.npz' for p in cited} | cited)
   readme = read('README.md')
   stray = []
   for folder, _, names in os.walk(os.path.join(ROOT, 'experiments', 'results')):
