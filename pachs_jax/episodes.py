@@ -144,8 +144,8 @@ class Log:
 def trace(worlds: Worlds, log: Log) -> dict:
   """What E episodes' worlds did and what their plans said there, numpy arrays padded past each
   episode's S_e steps (S the longest; NaN, False or -1):
-  world_<field> [E, S + 1, ...]: the worlds' states (NodeState fields: qpos, qvel, ctrl,
-    qacc_warmstart), the start first; goal [E, ...];
+  world_<field> [E, S + 1, ...]: the worlds' states as observed (NodeState fields: qpos, qvel,
+    ctrl, qacc_warmstart), the start first; goal [E, ...];
   actions [E, S, A]: the actions executed; by_policy [E, S]: the step was the policy's (an
     empty answer's action or the fill after a short answer);
   planned_qpos [E, S + 1, nq]: the qpos that the answer being executed planned for the world's

@@ -107,7 +107,8 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout', 'physics', 'tilt_limit'), replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
+             options=('layout', 'physics', 'tilt_limit'),
+             replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}
