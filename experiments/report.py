@@ -621,37 +621,57 @@ def closed_loop_sessions(src: Sources) -> str:
       table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop',
              'T tipped (failed), own physics / MuJoCo C'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
-      trace_tilts(src, 'closed_loop_trace_cpu/two-gaps_pachs.json'),
+      traced_tilts(src),
       'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill) and '
       'the screens on blocks without a margin: [measured and not kept](#measured-and-not-kept).'])
 
 
-def trace_tilts(src: Sources, name: str, margin_deg: float = 20.0) -> str:
-  """A sentence on a traced closed loop (`closed_loop.py --trace 1`): how far PACHS's plans
-  tilted the T, and whether a failed episode's plan had tilted it past margin_deg before its T
-  crossed `pusht.MAX_T_TILT` in MuJoCo C."""
+# traced closed loops on a CPU (closed_loop_trace_cpu/): file suffix -> what ran
+TRACED_VARIANTS = (('pachs', 'PACHS'),
+                   ('pachs-tilt20', 'PACHS, edges tilting the T at most 20 degrees'))
+
+
+def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
+                 margin_deg: float = 20.0) -> str:
+  """The traced closed loops (`closed_loop.py --trace 1`) of a folder: per run, the episodes
+  solved and failed, how far PACHS's plans tilted the T, and the failed episodes whose plan
+  had tilted it past margin_deg in the 10 world steps before the world's T crossed
+  `pusht.MAX_T_TILT`."""
   import numpy as np  # pylint: disable=import-outside-toplevel
   from pachs_jax.envs import pusht  # pylint: disable=import-outside-toplevel
-  p = src.load(name)
-  trace = np.load(os.path.join(src.root, RESULTS, name[:-len('.json')] + '.pachs.trace.npz'))
-  a, s = summary_of(p, 'pachs'), p['settings']
   tilt = lambda q: np.degrees(np.asarray(pusht.t_tilt(np.nan_to_num(q).astype(np.float32))))
-  planned = np.where(np.isnan(trace['planned_qpos'][..., 0]), 0.0, tilt(trace['planned_qpos']))
-  steps = trace['steps']
-  # the planned tilt of each world state an episode went through
-  planned = [planned[e, :steps[e] + 1] for e in range(len(steps))]
-  past = [bool(np.any(t > margin_deg)) for t in planned]
-  failed = np.flatnonzero(trace['failed'])
-  before = [bool(np.any(planned[e][-11:] > margin_deg)) for e in failed]
-  return (f'A traced closed loop on {p["env"].split(":")[-1]} ({p["provenance"]["device"]}: '
-          f'Warp planners on the CPU, {a["episodes"]} episodes at {s["budget"]:,} evaluations '
-          f'an episode and query, K {a["config"]["pop_size"]}; `{name}`): PACHS solved '
-          f'{a["successes"]}, {a["failures"]} Ts tipped in MuJoCo C. Its plans tilted the T '
-          f'past {margin_deg:g} degrees in {sum(past)} of {len(past)} episodes (at most '
-          f'{max(t.max() for t in planned):.1f}), solved ones too; in {sum(before)} of the '
-          f'{len(failed)} failed ones the plan being executed had tilted it past '
-          f'{margin_deg:g} degrees in the 10 world steps before the world\'s T crossed '
-          f'{np.degrees(pusht.MAX_T_TILT):g} degrees; in the others it had kept the T flatter.')
+  rows, first = [], None
+  for layout in CLOSED_LOOP_LAYOUTS:
+    for variant, label in TRACED_VARIANTS:
+      name = f'{folder}/{layout}_{variant}.json'
+      if not src.exists(name):
+        continue
+      p = first = src.load(name)
+      trace = np.load(os.path.join(src.root, RESULTS, name[:-len('.json')] + '.pachs.trace.npz'))
+      a, steps = summary_of(p, 'pachs'), trace['steps']
+      planned = np.where(np.isnan(trace['planned_qpos'][..., 0]), 0.0,
+                         tilt(trace['planned_qpos']))
+      planned = [planned[e, :steps[e] + 1] for e in range(len(steps))]  # per world state
+      failed = np.flatnonzero(trace['failed'])
+      rows.append([layout, label, f'{a["successes"]}/{a["episodes"]}', str(a['failures']),
+                   f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
+                   f'{max(t.max() for t in planned):.1f}',
+                   f'{sum(bool(np.any(planned[e][-11:] > margin_deg)) for e in failed)}'
+                   f'/{len(failed)}'])
+  if not rows:
+    return ''
+  s = first['settings']
+  return '\n\n'.join([
+      f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, Warp '
+      f'planners on the CPU, MuJoCo C worlds, {s["instances"]} instances, '
+      f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock): how far '
+      'the plans tilt the T (the world\'s T tips over at '
+      f'{np.degrees(pusht.MAX_T_TILT):g} degrees, where the episode fails).',
+      table(['layout', 'planner', 'solved', 'T tipped (failed)',
+             f'episodes whose plans tilted the T past {margin_deg:g} degrees',
+             'largest planned tilt (degrees)',
+             f'failed episodes whose plan tilted the T past {margin_deg:g} degrees in the 10 '
+             'steps before it tipped'], rows)])
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
