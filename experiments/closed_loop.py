@@ -84,10 +84,6 @@ def build_parser() -> argtypes.OneLineParser:
                       'budget and settings; docs/serving.md)')
   parser.add_argument('--perturb', default='', help="world parameter scales, e.g. "
                       "'friction=1.2,t_mass=0.8'")
-  parser.add_argument('--tilt-limit', type=argtypes.number(1, 30), default=None,
-                      help="degrees: the planners' edges may not tilt the T further, unless "
-                      'no further than it was (PushTConfig.tilt_limit; default: 30, where an '
-                      'episode fails)')
   parser.add_argument('--trace', type=int, default=0, choices=[0, 1],
                       help="1: also write each planner's episodes, the worlds' states, the "
                       'actions executed and the states PACHS planned for them, as '
@@ -505,10 +501,8 @@ def main():
   label = common.task_label(args.task, args.layout, args.physics)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
-  options = {} if args.tilt_limit is None else {'tilt_limit': np.radians(args.tilt_limit)}
-  env, model = common.checked(parser, lambda: planner.load_model(
-      args.task, backend=args.backend, layout=args.layout, physics=args.physics,
-      options=options))
+  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
+                                  physics=args.physics)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)

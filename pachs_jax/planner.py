@@ -88,21 +88,19 @@ def _check_backend(task, backend: str) -> None:
 
 
 def _make_env(task, backend: str, nthread: Optional[int], layout: Optional[str],
-              physics: Optional[str] = None, options: Optional[dict] = None):
-  """The env of a task name with the chosen physics backend (and PushT physics preset and
-  more of `envs.make`'s options), or a user's Env (checked with `envs.check_task`; MJX physics
-  only)."""
+              physics: Optional[str] = None):
+  """The env of a task name with the chosen physics backend (and PushT physics preset), or a
+  user's Env (checked with `envs.check_task`; MJX physics only)."""
   _check_backend(task, backend)
   if isinstance(task, envs.Env):
     envs.check_task(task)
     return task
-  return backends.make_backend(envs.make(task, layout=layout, physics=physics,
-                                         **(options or {})), backend, nthread)
+  return backends.make_backend(envs.make(task, layout=layout, physics=physics), backend, nthread)
 
 
 def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
                nthread: Optional[int] = None, layout: Optional[str] = None,
-               physics: Optional[str] = None, options: Optional[dict] = None):
+               physics: Optional[str] = None):
   """(env, SacActorCritic) of a task: the shipped model unless `path`, checked against the env.
 
   task: a task name (`envs.TASKS`, or 'playground:NAME'), or a user's `envs.Env` (checked
@@ -112,7 +110,6 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   layout: pusht-obs's obstacle layout (`envs.layouts.LAYOUTS`; None: the default).
   physics: a PushT task's physics preset (`envs.physics_presets.PHYSICS_PRESETS`; None: the
     default).
-  options: more of the task's `envs.make` options, e.g. {'tilt_limit': 0.35} for PushT.
   Raises FileNotFoundError for a missing checkpoint, ValueError for one of another task or size.
   """
   if path is not None and not (isinstance(path, (str, os.PathLike)) and os.fspath(path)):
@@ -141,7 +138,7 @@ def load_model(task, path: Optional[str] = None, backend: str = 'mjx',
   if model.config.task not in allowed:
     raise ValueError(f'{path!r} holds a model of task {model.config.task!r}; task {name!r} '
                      f'plans with a model of {" or ".join(sorted(allowed))}')
-  env = _make_env(task, backend, nthread, layout, physics, options)
+  env = _make_env(task, backend, nthread, layout, physics)
   task = name
   if (model.config.observation_size, model.config.action_size) != (env.observation_size,
                                                                     env.action_size):

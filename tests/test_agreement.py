@@ -176,31 +176,3 @@ def test_agreement_command_exit_status(capsys):
     agreement.main(['--variant', 'fixed', '--physics-dt', '-1'])
   assert 'physics_dt' in capsys.readouterr().err
 
-
-
-@pytest.mark.parametrize('physics', ['mjx', 'mujoco-c'])
-def test_an_edge_tilting_the_t_past_the_tilt_limit_is_invalid_unless_it_was_tilted_more(physics):
-  from pachs_jax.envs import mujoco_c
-  outcomes = {}
-  for limit in (15, 30):
-    env = pusht.PushTEnv(pusht.PushTConfig(**FREE, tilt_limit=np.radians(limit)))
-    edges = env if physics == 'mjx' else mujoco_c.MujocoCEnv(env, nthread=1)
-    node = env.node_from_pose(np.array([-0.1, 0.05, 0.0]), np.asarray(pusht.FIXED_GOAL))
-    for start, spin in ((20, 0.0), (12, 3.0)):  # degrees about x; rad/s about x (tilting on)
-      half = np.radians(start) / 2
-      t_qpos = np.array([-0.1, 0.05, 0.06, np.cos(half), np.sin(half), 0.0, 0.0])
-      tilted = node.replace(qpos=node.qpos.at[7:].set(t_qpos), qvel=node.qvel.at[10].set(spin))
-      out = edges.evaluate(jax.tree.map(lambda x: x[None], tilted), np.zeros((1, 7), np.float32))
-      outcomes[limit, start] = (np.degrees(float(pusht.t_tilt(out.next_node.qpos[0]))),
-                                bool(out.is_valid[0]))
-  # held at 20 degrees: no further than it was, valid under either limit
-  assert outcomes[15, 20][0] == pytest.approx(20, abs=0.5) and outcomes[15, 20][1]
-  assert outcomes[30, 20][1]
-  # tipping on from 12 to about 20 degrees: beyond 15, short of the 30 where the episode fails
-  assert 15 < outcomes[15, 12][0] < 30 and not outcomes[15, 12][1]
-  assert outcomes[30, 12][1]
-
-
-def test_a_tilt_limit_beyond_the_failure_tilt_is_refused():
-  with pytest.raises(ValueError, match='tilt_limit'):
-    pusht.PushTEnv(pusht.PushTConfig(tilt_limit=1.0))

@@ -226,7 +226,6 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (closed_loop, ['--check-copies', '-1'], 'argument --check-copies: must be >= 0, got -1'),
     (closed_loop, ['--world', 'planner', '--trace', '1'], '--trace records MuJoCo C worlds'),
-    (closed_loop, ['--tilt-limit', '45'], "--tilt-limit: must be a number in [1, 30], got '45'"),
     (closed_loop, ['--server', 'ws://x', '--check-copies', '2'],
      '--check-copies checks the answers of an in-process PACHS, not --server'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),

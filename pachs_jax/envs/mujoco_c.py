@@ -347,7 +347,7 @@ class MujocoCEnv(base.Env):
     env = self.env
     finite = ok & base.finite_node(next_node)
     on_table = pusht.stays_on_table(node.qpos, next_node.qpos)
-    upright = pusht.stays_upright(node.qpos, next_node.qpos, env.config.tilt_limit)
+    upright = pusht.t_tilt(next_node.qpos) < pusht.MAX_T_TILT
     is_valid = finite & action_ok & on_table & upright
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),
                              next_node, node)

@@ -34,7 +34,6 @@ TIP_START_XY = (-0.40, -0.32)  # m: the stick tip at HOME_QPOS
 START_TABLE_MARGIN = 0.05
 START_REACH = (0.3, 0.7)
 MIN_CLEAR_FRACTION = 0.25  # of poses drawn in a start region that must be valid starts
-MAX_T_TILT = np.pi / 6  # rad: a free T tilted further has tipped over (the episode fails)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,9 +58,6 @@ class PushTConfig:
   w_angle, w_position, w_reach: cost weights of the three dense terms.
   w_height: free T only: cost weight (per m) of the stick tip's height off the T's half height,
     where a push slides the T; above the T's top it rides over the T and tips it.
-  tilt_limit: free T only: rad, an edge that leaves the T tilted beyond this, and further than
-    it was, is invalid: plans keep a margin from tipping over (`MAX_T_TILT`, where an episode
-    fails), which another engine's physics may cross.
   """
 
   variant: str = 'fixed'
@@ -85,7 +81,6 @@ class PushTConfig:
   w_position: float = 3.0
   w_reach: float = 0.5
   w_height: float = 4.0
-  tilt_limit: float = MAX_T_TILT
   success_coverage: float = coverage.SUCCESS_THRESHOLD
 
 
@@ -146,11 +141,6 @@ def check_physics(config: PushTConfig) -> None:
     if (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
         or not np.isfinite(v) or v < 0):
       raise ValueError(f'PushTConfig.{name} must be a finite number >= 0, got {v!r}')
-  if (isinstance(c.tilt_limit, bool) or not isinstance(c.tilt_limit, (int, float, np.integer,
-                                                                     np.floating))
-      or not 0 < c.tilt_limit <= MAX_T_TILT):
-    raise ValueError(f'PushTConfig.tilt_limit must be in (0, MAX_T_TILT = {MAX_T_TILT:.4f}] '
-                     f'(rad), got {c.tilt_limit!r}')
   if not 0 < c.success_coverage <= 1:
     raise ValueError(f'PushTConfig.success_coverage must be in (0, 1], got '
                      f'{c.success_coverage!r}')
@@ -209,6 +199,9 @@ def planar_t_state(qpos, qvel):
           np.concatenate([qvel[..., :7], t_qvel], -1))
 
 
+MAX_T_TILT = np.pi / 6  # rad: a free T tilted further has tipped over (its edge is invalid)
+
+
 def t_pose(qpos: jax.Array) -> jax.Array:
   """[..., 3] the T's planar pose (x, y (m), yaw (rad) about the world z axis) of node qpos
   [..., 10] (planar T) or [..., 14] (free T: yaw of its quaternion)."""
@@ -253,13 +246,6 @@ def t_tilt(qpos: jax.Array) -> jax.Array:
     return jnp.zeros(qpos.shape[:-1], qpos.dtype)
   s = jnp.sqrt(jnp.clip(qpos[..., 11] ** 2 + qpos[..., 12] ** 2, 0.0, 1.0))
   return 2 * jnp.arcsin(s)
-
-
-def stays_upright(qpos: jax.Array, next_qpos: jax.Array, limit: float) -> jax.Array:
-  """[...] bool an edge from qpos to next_qpos [..., nq] leaves the T short of tipping: tilted
-  less than `MAX_T_TILT`, and less than limit (rad) unless no further than at qpos."""
-  tilt = t_tilt(next_qpos)
-  return (tilt < MAX_T_TILT) & ((tilt < limit) | (tilt <= t_tilt(qpos)))
 
 
 def box_excess(qpos: jax.Array) -> jax.Array:
@@ -664,7 +650,7 @@ class PushTEnv(base.Env):
                                t=node.t + 1)
     finite = base.finite_node(next_node)
     on_table = stays_on_table(node.qpos, next_node.qpos)
-    upright = stays_upright(node.qpos, next_node.qpos, self.config.tilt_limit)
+    upright = t_tilt(next_node.qpos) < MAX_T_TILT
     is_valid = finite & action_ok & on_table & upright
     # Keep invalid successors finite: they are dropped by the search and end an episode.
     next_node = jax.tree.map(lambda new, old: jnp.where(finite, new, jnp.nan_to_num(old)),

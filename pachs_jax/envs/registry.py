@@ -25,7 +25,7 @@ class TaskSpec:
     edges, as published; None: search_defaults with edge_steps 1).
   cpu_overrides: SearchConfig field values that replace either at the CPU budget of `pachs plan`.
   options: the keyword options `make` takes (pusht-obs: 'layout', `layouts.LAYOUTS`; PushT:
-    'physics', a name of `pusht.PHYSICS_PRESETS`; 'tilt_limit', `pusht.PushTConfig`'s).
+    'physics', a name of `pusht.PHYSICS_PRESETS`).
   replan_pop_sizes: (seconds, K) pairs, longest first: on an accelerator, a replanning session
     whose queries last at least that many seconds pops K edges per iteration (`replan_pop_size`;
     none: search_defaults' K at every query time).
@@ -100,15 +100,14 @@ _PUSHT_OBS_REPLAN_POP_SIZES = ((2.0, 128),)
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,
-             options=('physics', 'tilt_limit')),
+             options=('physics',)),
     TaskSpec('pusht-rand', _pusht('rand'), 'pusht-rand', 30, _PUSHT, _SEARCH,
-             options=('physics', 'tilt_limit')),
+             options=('physics',)),
     TaskSpec('pusht-obs', _pusht('obs'), 'pusht-fixed', 30, _PUSHT_OBS,
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout', 'physics', 'tilt_limit'),
-             replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
+             options=('layout', 'physics'), replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}

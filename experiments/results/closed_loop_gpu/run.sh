@@ -11,8 +11,7 @@
 # preset, planners and worlds: the screens in the results' ledger), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
 # closed_loop.py --check-copies 8), h<N> (edges of N transitions), trace (also each planner's
-# episodes, world states, actions and PACHS's planned states: <run>.<planner>.trace.npz),
-# tilt<D> (the planners' edges may tilt the T at most D degrees: closed_loop.py --tilt-limit).
+# episodes, world states, actions and PACHS's planned states: <run>.<planner>.trace.npz).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -56,7 +55,6 @@ run() {  # the command line of one run
       check) flags+=(--check-copies 8) ;;
       h[0-9]*) flags+=(-H "${opt#h}") ;;
       trace) flags+=(--trace 1) ;;
-      tilt[0-9]*) flags+=(--tilt-limit "${opt#tilt}") ;;
       *) echo "echo unknown option $opt"; return ;;
     esac
   done
