@@ -639,7 +639,7 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   import numpy as np  # pylint: disable=import-outside-toplevel
   from pachs_jax.envs import pusht  # pylint: disable=import-outside-toplevel
   tilt = lambda q: np.degrees(np.asarray(pusht.t_tilt(np.nan_to_num(q).astype(np.float32))))
-  rows, first = [], None
+  rows, replays, first = [], [], None
   for layout in CLOSED_LOOP_LAYOUTS:
     for variant, label in TRACED_VARIANTS:
       name = f'{folder}/{layout}_{variant}.json'
@@ -652,6 +652,28 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
                          tilt(trace['planned_qpos']))
       planned = [planned[e, :steps[e] + 1] for e in range(len(steps))]  # per world state
       failed = np.flatnonzero(trace['failed'])
+      again = f'{name[:-len(".json")]}.replay.json'
+      if src.exists(again):  # `trace_replay.py`: the failed episodes' last queries replayed
+        r = src.load(again)
+        flat = [ep for ep in r['episodes'] if (ep['plan_max_tilt'] or 0.0) < margin_deg]
+        rows_of = [row for ep in r['episodes'] for row in ep['rows']]
+        apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows_of
+                                  if row[b] is not None), default=0.0)
+        replays.append(
+            f'{layout}\'s {len(r["episodes"])} failed episodes, each last query\'s actions '
+            f'replayed from the world\'s state (`trace_replay.py`, {r["planner_physics"]}; '
+            f'`{again}`): the MuJoCo C replay\'s tilt at most '
+            f'{apart("tilt_c_replay", "tilt_world"):.2f} degrees from the world\'s, the '
+            f'planner\'s at most {apart("tilt_planner_replay", "tilt_plan"):.2f} from the '
+            f'plan\'s. In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
+            'planner\'s physics did too, where MuJoCo C tipped it, an engine difference ('
+            + ('; '.join(f'episode {ep["episode"]}: '
+                         f'{ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
+                         f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in '
+                         f'MuJoCo C, the T touching '
+                         f'{", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
+                         for ep in flat) or 'none')
+            + f'); in the others the plan had tilted the T past {margin_deg:g} degrees itself.')
       rows.append([layout, label, f'{a["successes"]}/{a["episodes"]}', str(a['failures']),
                    f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
                    f'{max(t.max() for t in planned):.1f}',
@@ -670,7 +692,7 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
              f'episodes whose plans tilted the T past {margin_deg:g} degrees',
              'largest planned tilt (degrees)',
              f'failed episodes whose plan tilted the T past {margin_deg:g} degrees in the 10 '
-             'steps before it tipped'], rows)])
+             'steps before it tipped'], rows)] + replays)
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:

@@ -14,6 +14,7 @@ import closed_loop  # noqa: E402  pylint: disable=wrong-import-position
 import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
 import stats  # noqa: E402  pylint: disable=wrong-import-position
+import trace_replay  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import point_mass, pusht  # noqa: E402  pylint: disable=wrong-import-position
 
@@ -226,6 +227,7 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (closed_loop, ['--check-copies', '-1'], 'argument --check-copies: must be >= 0, got -1'),
     (closed_loop, ['--world', 'planner', '--trace', '1'], '--trace records MuJoCo C worlds'),
+    (trace_replay, ['/nonexistent/run.json'], '/nonexistent/run.json: no trace beside it'),
     (closed_loop, ['--server', 'ws://x', '--check-copies', '2'],
      '--check-copies checks the answers of an in-process PACHS, not --server'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
@@ -279,3 +281,15 @@ def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_the
   # MuJoCo C planners: the world's states are the planned ones, up to float32
   np.testing.assert_allclose(trace['world_qpos'][:, 1:, 7:9], trace['planned_qpos'][:, 1:, 7:9],
                              atol=1e-4)
+
+
+def test_the_replay_starts_at_the_last_query_of_the_episode():
+  """From `asked_at` where the trace has it, else the last state whose plan starts at the
+  world's state (a query's first planned state is the world's)."""
+  world = np.arange(8, dtype=float)[None, :, None] * np.ones((1, 8, 3))
+  planned = world + 0.5  # mid-plan: the plan and the world apart
+  planned[0, [0, 3, 5]] = world[0, [0, 3, 5]]  # queries asked at 0, 3 and 5
+  trace = {'steps': np.array([7]), 'world_qpos': world, 'planned_qpos': planned}
+  assert trace_replay.last_query(trace, 0) == 5
+  trace['asked_at'] = np.array([[0], [3], [6], [-1]])
+  assert trace_replay.last_query(trace, 0) == 6
