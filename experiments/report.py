@@ -660,20 +660,22 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
         apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows_of
                                   if row[b] is not None), default=0.0)
         replays.append(
-            f'{layout}\'s {len(r["episodes"])} failed episodes, each last query\'s actions '
+            f'{layout}\'s {len(r["episodes"])} failed episode'
+            f'{"" if len(r["episodes"]) == 1 else "s"}, each last query\'s actions '
             f'replayed from the world\'s state (`trace_replay.py`, {r["planner_physics"]}; '
             f'`{again}`): the MuJoCo C replay\'s tilt at most '
             f'{apart("tilt_c_replay", "tilt_world"):.2f} degrees from the world\'s, the '
             f'planner\'s at most {apart("tilt_planner_replay", "tilt_plan"):.2f} from the '
-            f'plan\'s. In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
-            'planner\'s physics did too, where MuJoCo C tipped it, an engine difference ('
-            + ('; '.join(f'episode {ep["episode"]}: '
-                         f'{ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
-                         f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in '
-                         f'MuJoCo C, the T touching '
-                         f'{", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
-                         for ep in flat) or 'none')
-            + f'); in the others the plan had tilted the T past {margin_deg:g} degrees itself.')
+            f'plan\'s. '
+            + (f'In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
+               'planner\'s physics did too, where MuJoCo C tipped it, an engine difference ('
+               + '; '.join(f'episode {ep["episode"]}: '
+                           f'{ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
+                           f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in '
+                           f'MuJoCo C, the T touching '
+                           f'{", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
+                           for ep in flat) + '); in the others' if flat else 'In each')
+            + f' the plan had tilted the T past {margin_deg:g} degrees itself.')
       rows.append([layout, label, f'{a["successes"]}/{a["episodes"]}', str(a['failures']),
                    f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
                    f'{max(t.max() for t in planned):.1f}',
