@@ -654,28 +654,7 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
       failed = np.flatnonzero(trace['failed'])
       again = f'{name[:-len(".json")]}.replay.json'
       if src.exists(again):  # `trace_replay.py`: the failed episodes' last queries replayed
-        r = src.load(again)
-        flat = [ep for ep in r['episodes'] if (ep['plan_max_tilt'] or 0.0) < margin_deg]
-        rows_of = [row for ep in r['episodes'] for row in ep['rows']]
-        apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows_of
-                                  if row[b] is not None), default=0.0)
-        replays.append(
-            f'{layout}\'s {len(r["episodes"])} failed episode'
-            f'{"" if len(r["episodes"]) == 1 else "s"}, each last query\'s actions '
-            f'replayed from the world\'s state (`trace_replay.py`, {r["planner_physics"]}; '
-            f'`{again}`): the MuJoCo C replay\'s tilt at most '
-            f'{apart("tilt_c_replay", "tilt_world"):.2f} degrees from the world\'s, the '
-            f'planner\'s at most {apart("tilt_planner_replay", "tilt_plan"):.2f} from the '
-            f'plan\'s. '
-            + (f'In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
-               'planner\'s physics did too, where MuJoCo C tipped it, an engine difference ('
-               + '; '.join(f'episode {ep["episode"]}: '
-                           f'{ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
-                           f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in '
-                           f'MuJoCo C, the T touching '
-                           f'{", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
-                           for ep in flat) + '); in the others' if flat else 'In each')
-            + f' the plan had tilted the T past {margin_deg:g} degrees itself.')
+        replays.append(replay_sentence(layout, again, src.load(again), margin_deg))
       rows.append([layout, label, f'{a["successes"]}/{a["episodes"]}', str(a['failures']),
                    f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
                    f'{max(t.max() for t in planned):.1f}',
@@ -695,6 +674,31 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
              'largest planned tilt (degrees)',
              f'failed episodes whose plan tilted the T past {margin_deg:g} degrees in the 10 '
              'steps before it tipped'], rows)] + replays)
+
+
+def replay_sentence(layout: str, name: str, r: Dict, margin_deg: float) -> str:
+  """A sentence on `trace_replay.py`'s result r (file name): how closely its replays reproduced
+  the world and the plan, and which failed episodes the plan kept within margin_deg (an
+  engine difference) rather than tilting the T past it itself."""
+  flat = [ep for ep in r['episodes'] if (ep['plan_max_tilt'] or 0.0) < margin_deg]
+  rows = [row for ep in r['episodes'] for row in ep['rows']]
+  apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows if row[b] is not None),
+                           default=0.0)
+  count = len(r['episodes'])
+  engine = '; '.join(
+      f'episode {ep["episode"]}: {ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
+      f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in MuJoCo C, the T '
+      f'touching {", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
+      for ep in flat)
+  return (f'{layout}\'s {count} failed episode{"" if count == 1 else "s"}, each last query\'s '
+          f'actions replayed from the world\'s state (`trace_replay.py`, '
+          f'{r["planner_physics"]}; `{name}`): the MuJoCo C replay\'s tilt at most '
+          f'{apart("tilt_c_replay", "tilt_world"):.2f} degrees from the world\'s, the '
+          f'planner\'s at most {apart("tilt_planner_replay", "tilt_plan"):.2f} from the plan\'s. '
+          + (f'In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
+             f'planner\'s physics did too, where MuJoCo C tipped it, an engine difference '
+             f'({engine}); in the others' if flat else 'In each')
+          + f' the plan had tilted the T past {margin_deg:g} degrees itself.')
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:

@@ -155,20 +155,17 @@ def trace(worlds: Worlds, log: Log) -> dict:
     ended; queries whose answers carry no states are left out);
   steps [E]: S_e; success, failed [E]."""
   num, longest = worlds.num, int(worlds.steps.max(initial=0))
+  paths = [worlds.trajectory(e) for e in range(num)]
   out = {}
   for name in ('qpos', 'qvel', 'ctrl', 'qacc_warmstart'):
-    width = np.asarray(getattr(worlds.visited[0][0], name)).shape
-    field = np.full((num, longest + 1) + width, np.nan)
-    for e in range(num):
-      values = np.stack([np.asarray(getattr(n, name)) for n in worlds.visited[e]])
-      field[e, :len(values)] = values
+    field = np.full((num, longest + 1) + getattr(paths[0], name).shape[1:], np.nan)
+    for e, path in enumerate(paths):
+      field[e, :len(path.t)] = getattr(path, name)
     out['world_' + name] = field
-  out['goal'] = np.stack([np.asarray(n[0].goal) for n in worlds.visited])
-  size = np.asarray(worlds.visited[0][0].qpos).shape[-1]
-  actions = np.full((num, longest, max((len(a[0]) for a in worlds.actions if a), default=0)),
-                    np.nan)
+  out['goal'] = np.stack([path.goal[0] for path in paths])
+  actions = np.full((num, longest, worlds.env.action_size), np.nan)
   by_policy = np.zeros((num, longest), bool)
-  planned = np.full((num, longest + 1, size), np.nan)
+  planned = np.full((num, longest + 1, paths[0].qpos.shape[-1]), np.nan)
   for e in range(num):
     taken = len(worlds.actions[e])
     if taken:

@@ -243,15 +243,20 @@ def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message
   assert message in err and err.count('\n') == 1, err
 
 
+def _closed_loop_args(**changes):
+  """closed_loop.py's flags for run_planner: PACHS on a tiny budget, K 4, changes applied."""
+  flags = dict(budget=64, realtime_answer=None, pop_size=4, chain_restart=None,
+               compact_fractions=(), candidates=(), replay_remainder=0, chunk_iterations=1,
+               max_queries=30, execute=10, query_time=1.0, fill_with_policy=1, server=None,
+               check_copies=0, check_scale=1.0, trace=0)
+  return closed_loop.argparse.Namespace(**{**flags, **changes})
+
+
 def test_a_stop_request_ends_a_planners_episodes_before_the_next_query():
   from pachs_jax import planner  # pylint: disable=import-outside-toplevel
   env, model = planner.load_model('pusht-fixed')
   starts = env.canonical_instances(2)
-  args = closed_loop.argparse.Namespace(
-      budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
-      candidates=(), replay_remainder=0, chunk_iterations=1, max_queries=30, execute=10,
-      query_time=1.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0,
-      trace=0)
+  args = _closed_loop_args()
   worlds = closed_loop.Worlds(env, starts)
   info = closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
                                  jax.random.PRNGKey(0), stop=lambda: True)
@@ -263,11 +268,7 @@ def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_the
   from pachs_jax import planner  # pylint: disable=import-outside-toplevel
   env, model = planner.load_model('pusht-fixed')
   starts = env.canonical_instances(2)
-  args = closed_loop.argparse.Namespace(
-      budget=64, realtime_answer=None, pop_size=4, chain_restart=None, compact_fractions=(),
-      candidates=(), replay_remainder=0, chunk_iterations=1, max_queries=1, execute=3,
-      query_time=30.0, fill_with_policy=1, server=None, check_copies=0, check_scale=1.0,
-      trace=1)
+  args = _closed_loop_args(max_queries=1, execute=3, query_time=30.0, trace=1)
   worlds = closed_loop.Worlds(env, starts)
   path = tmp_path / 'run.pachs.trace.npz'
   closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
