@@ -3,12 +3,15 @@
   python experiments/physics_agreement.py reference    # planar T against the free T
   python experiments/physics_agreement.py penetration  # T-block and stick-block depth
   python experiments/physics_agreement.py agreement    # planners (MJX, ...) against the world
+  python experiments/physics_agreement.py contacts     # Warp's T-block contacts against C's
 
 The stochastic pusht-fixed policy runs in a MuJoCo C float64 world of the reference physics
 from the layouts' canonical starts; the candidates replay its actions from the world's states
 every 10 steps; reported: the T's position (mm) and angle (deg) error percentiles after 1, 10
 and 30 control steps, the deepest block penetrations, and each candidate's step cost on this
-machine's CPU (MuJoCo C one thread; MJX a vmapped batch)."""
+machine's CPU (MuJoCo C one thread; MJX a vmapped batch). `contacts` draws the T tilted near
+a block instead and compares the T-block contacts of MuJoCo C with MuJoCo Warp's (CPU kernels),
+colliding box pairs by its general convex collider and by the box-box routine (the model's)."""
 
 from __future__ import annotations
 
@@ -24,7 +27,8 @@ import common
 def build_parser() -> argparse.ArgumentParser:
   """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap'])
+  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap',
+                                           'contacts'])
   parser.add_argument('--layouts', default='gate,wall')
   parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
   parser.add_argument('--horizons', default='1,10,30')
@@ -32,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
   parser.add_argument('--candidates', default=None, help='agreement: names, comma separated')
   parser.add_argument('--bare-models', action='store_true',
                       help="agreement: replay on the config's bare models, not the envs")
+  parser.add_argument('--samples', type=int, default=100,
+                      help='contacts: T poses touching a block per layout and tilt range')
   parser.add_argument('--mjx-cost', action='store_true', help='also time MJX steps (slow)')
   parser.add_argument('--mjx-worlds', default='16', help='batch sizes of the MJX timing')
   common.add_common_args(parser, out=None, instances=8, seed=True)
@@ -331,6 +337,88 @@ def run_agreement(args, layouts, policies, starts_of):
         print(costs[-1], flush=True)
   return rows, costs
 
+TILT_BINS_DEG = (0, 1, 3, 6, 12, 20, 30)  # contacts: the T's tilt ranges (degrees)
+
+
+def _contact_set(pos, dist, geoms, pairs) -> list:
+  """[(x, y, z, dist)] sorted: the contacts (positions [n, 3] m, distances [n], geom pairs
+  [n, 2]) between the geom pairs in `pairs` (a set of frozensets)."""
+  return sorted(tuple(float(v) for v in p) + (float(d),)
+                for p, d, g in zip(pos, dist, geoms) if frozenset(int(x) for x in g) in pairs)
+
+
+def _same_contacts(a: list, b: list, tol_m: float = 5e-4) -> bool:
+  return len(a) == len(b) and all(np.allclose(x, y, atol=tol_m) for x, y in zip(a, b))
+
+
+def run_contacts(args, layouts, policies, starts_of):
+  """The T's contacts with the blocks in MuJoCo C against MuJoCo Warp's (CPU kernels), the T
+  drawn near a block (origin within 0.12 m of its side, lifted 0 to 2 cm, any yaw) tilted
+  within each of TILT_BINS_DEG; kept where either engine finds a T-block contact and MuJoCo C's
+  are at most 5 mm deep. Contacts agree where their number matches and each lies within 0.5 mm
+  (position and distance) of the other engine's."""
+  del policies, starts_of
+  from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=g-import-not-at-top
+  import warp as wp  # pylint: disable=g-import-not-at-top
+  wp.config.quiet = True
+  rng = np.random.default_rng(args.seed)
+  rows = []
+  for layout in layouts:
+    cfg = pusht.PushTConfig(variant='obs', layout=layout)
+    m = mujoco.MjModel.from_xml_string(pusht.model_xml(cfg))
+    convex = mujoco.MjModel.from_xml_string(pusht.model_xml(cfg))
+    convex.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+    t_geoms = [m.geom(n).id for n in ('t_bar', 't_stem')]
+    blocks = [i for i in range(m.ngeom) if m.geom(i).name.startswith('obstacle')]
+    pairs = {frozenset((t, b)) for t in t_geoms for b in blocks}
+    with wp.ScopedDevice('cpu'):
+      warp_models = {'box-box': mjw.put_model(m), 'convex': mjw.put_model(convex)}
+      for lo, hi in zip(TILT_BINS_DEG[:-1], TILT_BINS_DEG[1:]):
+        kept, differ, counts = 0, {k: 0 for k in warp_models}, {'mujoco_c': 0}
+        counts.update({k: 0 for k in warp_models})
+        for _ in range(50 * args.samples):
+          if kept == args.samples:
+            break
+          d = mujoco.MjData(m)
+          d.qpos[:7] = pusht.HOME_QPOS
+          b = rng.choice(blocks)
+          reach = max(m.geom_size[b][:2]) + 0.12  # m: the block's half side and the T's
+          d.qpos[7:9] = m.geom_pos[b][:2] + rng.uniform(-reach, reach, 2)
+          d.qpos[9] = pusht.T_HALF_HEIGHT + rng.uniform(0.0, 0.02)
+          tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
+                                rng.uniform(0, 2 * np.pi))
+          q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
+                             np.sin(tilt / 2) * np.sin(azimuth), 0.0])
+          q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+          mujoco.mju_mulQuat(d.qpos[10:14], q_tilt, q_yaw)
+          mujoco.mj_forward(m, d)
+          c = _contact_set(d.contact.pos[:d.ncon], d.contact.dist[:d.ncon],
+                           d.contact.geom[:d.ncon], pairs)
+          found = {}
+          for name, mw in warp_models.items():
+            dw = mjw.put_data(m, d, nconmax=64, njmax=320)
+            mjw.kinematics(mw, dw)
+            mjw.collision(mw, dw)
+            n = int(dw.nacon.numpy()[0])
+            found[name] = _contact_set(dw.contact.pos.numpy()[:n], dw.contact.dist.numpy()[:n],
+                                       dw.contact.geom.numpy()[:n], pairs)
+          if (not c and not any(found.values())) or min(
+              [x[3] for x in c] or [0.0]) < -0.005:  # none, or deeper than the blocks let
+            continue
+          kept += 1
+          counts['mujoco_c'] += len(c)
+          for name, w in found.items():
+            counts[name] += len(w)
+            differ[name] += not _same_contacts(c, w)
+        row = {'layout': layout, 'tilt_deg': f'{lo}-{hi}', 'samples': kept,
+               'mean_contacts_mujoco_c': round(counts['mujoco_c'] / max(kept, 1), 2)}
+        for name in warp_models:
+          row[f'differ_{name}'] = differ[name]
+          row[f'mean_contacts_{name}'] = round(counts[name] / max(kept, 1), 2)
+        print(row, flush=True)
+        rows.append(row)
+  return rows, []
+
 
 def main():
   args = build_parser().parse_args()
@@ -339,16 +427,16 @@ def main():
   layouts = args.layouts.split(',')
   out = args.out or f'experiments/results/physics/{args.part}.json'
   policies, starts_of = {}, {}
-  for layout in (layouts if args.part != 'gap' else []):
+  for layout in (layouts if args.part not in ('gap', 'contacts') else []):
     env, model = planner.load_model('pusht-obs', backend='mjx', layout=layout)
     policies[layout] = policy_of(model, env, args.seed)
     starts_of[layout] = jax.device_get(env.canonical_instances(args.instances))
   part = {'reference': run_reference, 'penetration': run_penetration,
-          'agreement': run_agreement, 'gap': run_gap}[args.part]
+          'agreement': run_agreement, 'gap': run_gap, 'contacts': run_contacts}[args.part]
   rows, costs = part(args, layouts, policies, starts_of)
   settings = {k: v for k, v in vars(args).items()}
   tables = {'reference': REFERENCE | PLANAR_FITS, 'penetration': PENETRATION,
-            'agreement': AGREEMENT, 'gap': PENETRATION}[args.part]
+            'agreement': AGREEMENT, 'gap': PENETRATION, 'contacts': {}}[args.part]
   payload = {'provenance': common.provenance(), 'settings': settings,
              'physics': {k: {f: list(v) if isinstance(v, tuple) else v for f, v in d.items()}
                          for k, d in tables.items()},

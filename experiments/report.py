@@ -477,6 +477,18 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
+# the revisions of closed-loop runs whose Warp planners collided the T with the blocks by Warp's
+# general convex collider, before they used MuJoCo C's box-box routine (`fa9f384`)
+CONVEX_BOX_REVISIONS = frozenset({'b5c3c48', 'cdaabdc', '0b31967', '65008e1', '2954da4',
+                                  'b687e0b'})
+
+
+def box_contacts(payload: Dict) -> str:
+  """How a run's Warp planners collided the T with the blocks: 'convex' or 'box-box'."""
+  revision = payload['provenance']['git_revision'].split('+')[0]
+  return 'convex' if revision in CONVEX_BOX_REVISIONS else 'box-box'
+
+
 # closed_loop_gpu/repeat/: runs of the table made again at a later revision (same file names),
 # shown below their first runs and pooled with them in the README's sentence
 CLOSED_LOOP_REPEATS = 'repeat'
@@ -529,15 +541,18 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
           theirs = rollout['evaluations_per_query_mean']
           per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
           ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
-        rows.append([layout, label + again, episodes_solved(a), num(edges), ratio,
+        rows.append([layout, label + again, box_contacts(p), episodes_solved(a), num(edges),
+                     ratio,
                      num(a['iterations_per_query_mean'], 1),
                      num(1000 * a['query_time_s_mean'] / a['iterations_per_query_mean']),
                      str(a['empty_answers']), failures(a),
                      answer_counts(a) if is_pachs else '-'])
         own = f'{where}/{layout}_{variant}-planner-world.json'
         if src.exists(own):
-          b = summary_of(src.load(own), planner)
+          own_run = src.load(own)
+          b = summary_of(own_run, planner)
           drops.append([layout, label + again,
+                        ' / '.join(dict.fromkeys([box_contacts(own_run), box_contacts(p)])),
                         episodes_solved(b), episodes_solved(a),
                         points(100 * (b['success_rate'] - a['success_rate'])),
                         f'{failures(b)} / {failures(a)}'])
@@ -576,7 +591,8 @@ def query_split(src: Sources, folder: str) -> str:
           ) if parts else ''
 
 
-CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'solved', 'edges per query and episode',
+CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'T-block contacts', 'solved',
+                       'edges per query and episode',
                        '/ rollout\'s (per second of query)', 'iterations per query',
                        'ms per iteration',
                        'empty answers', 'T tipped (failed)', 'PACHS answers']
@@ -603,7 +619,11 @@ def closed_loop_sessions(src: Sources) -> str:
       'run\'s command names the file it was written as: the rollout\'s runs some naming the '
       'physics `--physics hard-blocks` (the default\'s settings), the default\'s runs on '
       'wall, two-gaps and gate-mirror with `-K 128`. ", run again": the same run made again '
-      f'at a later revision (`{folder}/{CLOSED_LOOP_REPEATS}/`).',
+      f'at a later revision (`{folder}/{CLOSED_LOOP_REPEATS}/`). T-block contacts: how the '
+      'Warp planners collided the T with the blocks: "box-box" by MuJoCo C\'s box-box routine, '
+      'as the world does (the default since `fa9f384`); "convex" by Warp\'s general convex '
+      'collider, whose contacts differ from MuJoCo C\'s in about half of the T\'s block '
+      'contacts ([physics](#pusht-physics-agreement-and-penetration)): runs made before.',
       table(CLOSED_LOOP_COLUMNS, rows),
       '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
       'second of query (a PACHS query ends before its time once every episode\'s search has '
@@ -618,7 +638,7 @@ def closed_loop_sessions(src: Sources) -> str:
       + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
-      table(['layout', 'planner', 'own physics', 'MuJoCo C', 'drop',
+      table(['layout', 'planner', 'T-block contacts', 'own physics', 'MuJoCo C', 'drop',
              'T tipped (failed), own physics / MuJoCo C'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       traced_tilts(src),
@@ -1499,7 +1519,7 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
 def closed_loop_headline(src: Sources) -> str:
   """The README's closed-loop sentence: PACHS (today's default) against the rollout on each
   layout run, each planner's episodes pooled over its runs (first runs and repeats)."""
-  folder, pairs, devices, repeated = 'closed_loop_gpu', [], set(), []
+  folder, pairs, devices, repeated, convex = 'closed_loop_gpu', [], set(), [], []
   for layout in CLOSED_LOOP_LAYOUTS:
     names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs', 'parallel')]
     if all(src.exists(n) for n in names):
@@ -1513,6 +1533,8 @@ def closed_loop_headline(src: Sources) -> str:
                      / sum(a['episodes'] for a in summaries))
         if len(runs) > 1:
           repeated.append(f'{layout}\'s {"PACHS" if planner == "pachs" else "rollout"}')
+        if 'convex' in {box_contacts(r) for r in runs} and layout not in convex:
+          convex.append(layout)
       settings = src.load(names[0])['settings']
       pairs.append(f'{layout} {pct(rates[0])} / {pct(rates[1])}')
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
@@ -1522,6 +1544,8 @@ def closed_loop_headline(src: Sources) -> str:
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
           + ', '.join(pairs) + ' (gate-mirror and wall-right held out'
           + (f'; {", ".join(repeated)} over two runs' if repeated else '')
+          + (f'; {", ".join(convex)} measured while the Warp planners collided the T with the '
+             'blocks by Warp\'s convex collider, not as MuJoCo C does' if convex else '')
           + '; [results](docs/results.md#closed-loop-on-the-faithful-physics)).')
 
 
