@@ -477,15 +477,16 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
-# the revisions of closed-loop runs whose Warp planners collided the T with the blocks by Warp's
-# general convex collider, before they used MuJoCo C's box-box routine (`fa9f384`)
+# the revisions of closed-loop runs (closed_loop_gpu/, closed_loop_trace_cpu/) whose Warp
+# planners collided the T with the blocks by Warp's general convex collider, before they used
+# MuJoCo C's box-box routine (`fa9f384`)
 CONVEX_BOX_REVISIONS = frozenset({'b5c3c48', 'cdaabdc', '0b31967', '65008e1', '2954da4',
-                                  'b687e0b'})
+                                  'b687e0b', '76e2fee', '66023b3', '2f0d6f3', '98125f4'})
 
 
 def box_contacts(payload: Dict) -> str:
   """How a run's Warp planners collided the T with the blocks: 'convex' or 'box-box'."""
-  revision = payload['provenance']['git_revision'].split('+')[0]
+  revision = payload['provenance']['git_revision'].split('+')[0][:7]
   return 'convex' if revision in CONVEX_BOX_REVISIONS else 'box-box'
 
 
@@ -622,7 +623,7 @@ def closed_loop_sessions(src: Sources) -> str:
       f'at a later revision (`{folder}/{CLOSED_LOOP_REPEATS}/`). T-block contacts: how the '
       'Warp planners collided the T with the blocks: "box-box" by MuJoCo C\'s box-box routine, '
       'as the world does (the default since `fa9f384`); "convex" by Warp\'s general convex '
-      'collider, whose contacts differ from MuJoCo C\'s in about half of the T\'s block '
+      'collider, whose contacts differ from MuJoCo C\'s in about a third of the T\'s block '
       'contacts ([physics](#pusht-physics-agreement-and-penetration)): runs made before.',
       table(CLOSED_LOOP_COLUMNS, rows),
       '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
@@ -685,7 +686,8 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   s = first['settings']
   return '\n\n'.join([
       f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, Warp '
-      f'planners on the CPU, MuJoCo C worlds, {s["instances"]} instances, '
+      f'planners on the CPU with {box_contacts(first)} T-block contacts, MuJoCo C worlds, '
+      f'{s["instances"]} instances, '
       f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock): how far '
       'the plans tilt the T (the world\'s T tips over at '
       f'{np.degrees(pusht.MAX_T_TILT):g} degrees, where the episode fails).',
@@ -1122,6 +1124,20 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'solved: wall 67% [56, 77] against 73%, gate-mirror 25% [16, 34] against 29% (3.7 '
      'iterations a query against 4.1, 45 Ts tipped against 38): K stays 64 at 1 s',
      '`315898a`: `closed_loop_gpu/*_pachs-q1-k80.json`'),
+    ('Warp planners colliding the T with the blocks by Warp\'s general convex collider (MuJoCo '
+     'Warp\'s default for box pairs), not by MuJoCo C\'s box-box routine as the world does '
+     '(default physics; closed loop at 3 s on one H200, MuJoCo C worlds)',
+     'closed loop, PACHS in MuJoCo C: slot 65% against 90%, two-gaps 46% against 71%, '
+     'gate-mirror 75.5% (two runs) against 84%; its drop from its own physics 20, 34 and 17 '
+     'points against 3, 3 and 6; the rollout in MuJoCo C 37%, 0% and 22% against 52%, 20% and '
+     '42%, its drop on slot and two-gaps 9 and 19 points against 9 and -3; the policy\'s pushes '
+     'replayed in Warp (on a CPU, 16 starts a layout): the T\'s position error p90 after 10 '
+     'steps 2.9 mm on two-gaps, 3.1 on gate-mirror, 2.1 on wall-right, 1.3 on detour, against '
+     'at most 0.01 mm; T-block contacts differing from MuJoCo C\'s in 29-43% of drawn poses '
+     'against under 1%',
+     '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
+     '`closed_loop_gpu/repeat/gate-mirror_*.json`; in this tree: '
+     '`physics/agreement_warp_convexbox_cpu.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
@@ -1189,7 +1205,55 @@ def physics(src: Sources) -> str:
       'physics is "free mu3 2.5ms x20 stiff" at friction 1.65):',
       table(['physics'] + list(LAYOUTS), agree_rows),
       'The deepest T-block / stick-block penetration (mm) over policy rollouts in MuJoCo C:',
-      table(['physics'] + list(LAYOUTS), deep_rows)])
+      table(['physics'] + list(LAYOUTS), deep_rows),
+      warp_box_contacts(src)])
+
+
+def warp_box_contacts(src: Sources) -> str:
+  """The T's block contacts in MuJoCo Warp against MuJoCo C, by Warp's convex collider and by
+  the box-box routine (physics/contacts_warp_cpu.json), and the Warp planners' agreement with
+  the MuJoCo C world on the default physics (physics/agreement_warp_boxbox_cpu.json)."""
+  contacts = src.load('physics/contacts_warp_cpu.json')
+  bins = {}
+  for r in contacts['rows']:
+    cell = bins.setdefault(r['tilt_deg'], [0, 0, 0, 0.0, 0.0, 0.0])
+    n = r['samples']
+    cell[0] += n
+    cell[1] += r['differ_convex']
+    cell[2] += r['differ_box-box']
+    cell[3] += n * r['mean_contacts_mujoco_c']
+    cell[4] += n * r['mean_contacts_convex']
+    cell[5] += n * r['mean_contacts_box-box']
+  contact_rows = [[tilt, f'{n:,}', f'{c:,} ({pct(c / n)})', f'{b:,} ({pct(b / n)})',
+                   ' / '.join(num(x / n, 2) for x in (mc, mx, mb))]
+                  for tilt, (n, c, b, mc, mx, mb) in bins.items()]
+  agreement = src.load('physics/agreement_warp_boxbox_cpu.json')
+  cells = {}
+  for r in agreement['rows']:
+    cells.setdefault(r['layout'], {})[r['horizon']] = (
+        f'{num(r["position_mm_p90"], 2)} / {num(r["angle_deg_p90"], 2)}')
+  horizons = sorted({h for c in cells.values() for h in c})
+  agree_rows = [[layout] + [c.get(h, '-') for h in horizons] for layout, c in cells.items()]
+  s = contacts['settings']
+  return '\n\n'.join([
+      'The T\'s contacts with the blocks, MuJoCo Warp (its CPU kernels) against MuJoCo C '
+      f'(`physics_agreement.py contacts`, {contacts["provenance"]["device"]}): the T drawn '
+      'near a block of each layout, lifted up to 2 cm, any yaw, tilted within the range; '
+      f'{s["samples"]} poses per layout and range where either engine finds a T-block contact '
+      '(MuJoCo C\'s at most 5 mm deep). Contacts differ where their number differs or one lies '
+      'more than 0.5 mm from the other engine\'s. Warp collides box pairs by its general convex '
+      'collider unless the model disables it (`nativeccd`); PushT\'s model does, so that Warp '
+      'uses MuJoCo C\'s box-box routine:',
+      table(['tilt (degrees)', 'poses', 'differ: convex collider', 'differ: box-box',
+             'contacts per pose: MuJoCo C / convex / box-box'], contact_rows),
+      'The Warp planners (box-box) against the MuJoCo C world on the default physics, the '
+      'shipped policy\'s pushes as above (`physics_agreement.py agreement`, '
+      f'{agreement["provenance"]["device"]}, {agreement["settings"]["instances"]} starts a '
+      'layout): the T\'s position (mm) / angle (degrees) error at the 90th percentile after '
+      'the control steps; with Warp\'s convex box contacts: '
+      '[measured and not kept](#measured-and-not-kept):',
+      table(['layout'] + [f'after {h} step{"s" if h != 1 else ""}' for h in horizons],
+            agree_rows)])
 
 
 PLAYGROUND_LOOP_PLANNERS = {'single': 'the policy alone', 'parallel': 'parallel rollout (256 copies)',

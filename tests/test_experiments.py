@@ -268,7 +268,7 @@ def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_the
   from pachs_jax import planner  # pylint: disable=import-outside-toplevel
   env, model = planner.load_model('pusht-fixed')
   starts = env.canonical_instances(2)
-  args = _closed_loop_args(max_queries=1, execute=3, query_time=30.0, trace=1)
+  args = _closed_loop_args(max_queries=1, execute=3, query_time=300.0, trace=1)  # budget binds
   worlds = closed_loop.Worlds(env, starts)
   path = tmp_path / 'run.pachs.trace.npz'
   closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
