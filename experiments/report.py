@@ -1136,7 +1136,7 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'at most 0.01 mm; T-block contacts differing from MuJoCo C\'s in 29-43% of drawn poses '
      'against under 1%',
      '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
-     '`closed_loop_gpu/repeat/gate-mirror_*.json`; in this tree: '
+     '`closed_loop_gpu/repeat/gate-mirror_*.json`; `b236397`: '
      '`physics/agreement_warp_convexbox_cpu.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
