@@ -270,9 +270,10 @@ def faithful(src: Sources) -> str:
       rows.append(planner_row(task, row) + [num(row['batch_wall_s'])])
   cpu_rand = summary_of(src.load('faithful_cpu/pusht-rand.json'), 'pachs')
   settings = src.load('faithful_gpu/gate.json')['settings']
-  obs = []
+  obs, colliders = [], set()
   for layout in FAITHFUL_LAYOUTS:
     p = src.load(f'faithful_gpu/{layout}.json')
+    colliders.add(box_contacts(p))
     pachs, parallel = summary_of(p, 'pachs-improve'), summary_of(p, 'parallel')
     obs.append([layout, solved_ci(pachs), solved_ci(parallel),
                 num(pachs['evaluated_mean']), num(pachs['batch_wall_s']),
@@ -327,7 +328,10 @@ def faithful(src: Sources) -> str:
       f'PushT-Obs, the PushT-Fixed model (trained without obstacles) on {len(obs)} layouts: '
       'PACHS (its default: the first goal\'s path improved, a quarter of its actions drawn '
       'uniformly from the action box, `uniform_share` 0.25) and the parallel rollout of 256 '
-      'copies. Cost: mean per-run ratio over the runs both solved:',
+      'copies. Cost: mean per-run ratio over the runs both solved'
+      + ('; the Warp planners\' T-block contacts by Warp\'s convex collider, before they used '
+         'MuJoCo C\'s box-box routine ([closed loop](#closed-loop-on-the-faithful-physics))'
+         if colliders == {'convex'} else '') + ':',
       table(['layout', 'PACHS', 'parallel rollout', 'PACHS evaluations', 'PACHS wall (s)',
              'parallel wall (s)', 'cost / parallel'], obs),
       'The actor, trained without obstacles, drives the stick against the hard blocks, '
@@ -1565,7 +1569,10 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
       f'{" (shelf: ".join(f"{b:,}" for b in budgets)}) edge evaluations per run, on one '
       f'{" or one ".join(devices)}, each task\'s default, PushT on its default (faithful) '
       f'physics with MuJoCo Warp planners (PushT-Obs: the first goal\'s path improved, a '
-      f'quarter of the actions drawn uniformly, '
+      f'quarter of the actions drawn uniformly'
+      + (', the T-block contacts by Warp\'s convex collider, not yet as MuJoCo C does'
+         if {box_contacts(r[1]) for r in rows if r[0].startswith('PushT-Obs')} == {'convex'}
+         else '') + ', '
       f'[results](docs/results.md#pusht-on-the-faithful-physics-the-default)). Path '
       f'cost: mean ratio over the runs both solved. Start-up of `pachs plan --task pusht-obs` '
       f'(30 instances, one GPU, Warp, the planar physics; three machines, H200 and H100): '
