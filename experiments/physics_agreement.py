@@ -27,8 +27,8 @@ import common
 def build_parser() -> argparse.ArgumentParser:
   """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('part', choices=['reference', 'penetration', 'agreement', 'gap',
-                                           'contacts'])
+  parser.add_argument('part',
+                      choices=['reference', 'penetration', 'agreement', 'gap', 'contacts'])
   parser.add_argument('--layouts', default='gate,wall')
   parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
   parser.add_argument('--horizons', default='1,10,30')
@@ -336,6 +336,7 @@ def run_agreement(args, layouts, policies, starts_of):
             costs[-1][f'mjx_ms_per_control_step_{w}_worlds'] = mjx_step_ms(cfg, roll, w)
         print(costs[-1], flush=True)
   return rows, costs
+
 
 TILT_BINS_DEG = (0, 1, 3, 6, 12, 20, 30)  # contacts: the T's tilt ranges (degrees)
 

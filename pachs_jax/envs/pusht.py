@@ -311,7 +311,8 @@ def model_xml(config: PushTConfig) -> str:
   gx, gy, gyaw = FIXED_GOAL
   # nativeccd="disable": MuJoCo Warp then collides box pairs (the T and the blocks) with the
   # box-box routine of MuJoCo C, not with its general convex one, whose contacts differ from
-  # MuJoCo C's in about half of the T's block contacts; MuJoCo C is unchanged (no convex pairs)
+  # MuJoCo C's in about a third of the T's block contacts; MuJoCo C and MJX-JAX collide as before
+  # (docs/tasks.md)
   return f"""
 <mujoco model="pusht-{config.variant}{'-' + layout.name if layout else ''}">
   <compiler angle="radian" autolimits="true"/>
