@@ -680,7 +680,8 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
       again = f'{name[:-len(".json")]}.replay.json'
       if src.exists(again):  # `trace_replay.py`: the failed episodes' last queries replayed
         replays.append(replay_sentence(layout, again, src.load(again), margin_deg))
-      rows.append([layout, label, f'{a["successes"]}/{a["episodes"]}', str(a['failures']),
+      rows.append([layout, label, box_contacts(p), f'{a["successes"]}/{a["episodes"]}',
+                   failures(a),
                    f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
                    f'{max(t.max() for t in planned):.1f}',
                    f'{sum(bool(np.any(planned[e][-11:] > margin_deg)) for e in failed)}'
@@ -690,12 +691,12 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   s = first['settings']
   return '\n\n'.join([
       f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, Warp '
-      f'planners on the CPU with {box_contacts(first)} T-block contacts, MuJoCo C worlds, '
+      f'planners on the CPU, MuJoCo C worlds, '
       f'{s["instances"]} instances, '
       f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock): how far '
       'the plans tilt the T (the world\'s T tips over at '
       f'{np.degrees(pusht.MAX_T_TILT):g} degrees, where the episode fails).',
-      table(['layout', 'planner', 'solved', 'T tipped (failed)',
+      table(['layout', 'planner', 'T-block contacts', 'solved', 'T tipped (failed)',
              f'episodes whose plans tilted the T past {margin_deg:g} degrees',
              'largest planned tilt (degrees)',
              f'failed episodes whose plan tilted the T past {margin_deg:g} degrees in the 10 '
@@ -704,27 +705,47 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
 
 def replay_sentence(layout: str, name: str, r: Dict, margin_deg: float) -> str:
   """A sentence on `trace_replay.py`'s result r (file name): how closely its replays reproduced
-  the world and the plan, and which failed episodes the plan kept within margin_deg (an
-  engine difference) rather than tilting the T past it itself."""
-  flat = [ep for ep in r['episodes'] if (ep['plan_max_tilt'] or 0.0) < margin_deg]
+  the world and the plan, and how each failed episode's T tipped: in both engines alike (the
+  executed actions, the plan's or the policy's, tip it), in MuJoCo C only where the plan kept
+  it within margin_deg (an engine difference), or after a plan that tilted it past that."""
+  from pachs_jax.envs import pusht  # pylint: disable=import-outside-toplevel
+  limit = math.degrees(pusht.MAX_T_TILT)
+  both = [ep for ep in r['episodes'] if ep['planner_replay_tilt_at_failure'] >= limit]
+  flat = [ep for ep in r['episodes'] if ep not in both
+          and (ep['plan_max_tilt'] or 0.0) < margin_deg]
   rows = [row for ep in r['episodes'] for row in ep['rows']]
   apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows if row[b] is not None),
                            default=0.0)
   count = len(r['episodes'])
+  touching = lambda ep: ', '.join(sorted({c for row in ep['rows'] for c in row['t_contacts']}))
   engine = '; '.join(
       f'episode {ep["episode"]}: {ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
       f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in MuJoCo C, the T '
-      f'touching {", ".join(sorted({c for row in ep["rows"] for c in row["t_contacts"]}))}'
-      for ep in flat)
+      f'touching {touching(ep)}' for ep in flat)
+  alike = '; '.join(
+      f'episode {ep["episode"]}: {ep["rows"][-1]["tilt_c_replay"]:.1f} degrees in MuJoCo C, '
+      f'{ep["planner_replay_tilt_at_failure"]:.1f} in {r["planner_physics"]}, '
+      + ('on a policy step' if ep.get('on_policy_step') else 'on a step of the plan')
+      + f' after a plan of at most {ep["plan_max_tilt"] or 0.0:.1f} degrees, the T touching '
+      f'{touching(ep)}' for ep in both)
+  parts = []
+  if both:
+    parts.append(f'in {len(both)} both engines tipped the T alike ({alike})')
+  if flat:
+    parts.append(f'in {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
+                 f'planner\'s physics did too, where MuJoCo C tipped it, an engine difference '
+                 f'({engine})')
+  rest = count - len(both) - len(flat)
+  if rest:
+    parts.append(f'in {"the others" if parts else "each"} the plan had tilted the T past '
+                 f'{margin_deg:g} degrees itself')
+  text = '; '.join(parts)
   return (f'{layout}\'s {count} failed episode{"" if count == 1 else "s"}, each last query\'s '
           f'actions replayed from the world\'s state (`trace_replay.py`, '
           f'{r["planner_physics"]}; `{name}`): the MuJoCo C replay\'s tilt at most '
           f'{apart("tilt_c_replay", "tilt_world"):.2f} degrees from the world\'s, the '
           f'planner\'s at most {apart("tilt_planner_replay", "tilt_plan"):.2f} from the plan\'s. '
-          + (f'In {len(flat)} the plan kept the T within {margin_deg:g} degrees and the '
-             f'planner\'s physics did too, where MuJoCo C tipped it, an engine difference '
-             f'({engine}); in the others' if flat else 'In each')
-          + f' the plan had tilted the T past {margin_deg:g} degrees itself.')
+          + text[0].upper() + text[1:] + '.')
 
 
 def command_walls(p: Dict, count: int) -> Tuple[Optional[float], List[float], str]:
@@ -1138,9 +1159,10 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'replayed in Warp (on a CPU, 16 starts a layout): the T\'s position error p90 after 10 '
      'steps 2.9 mm on two-gaps, 3.1 on gate-mirror, 2.1 on wall-right, 1.3 on detour, against '
      'at most 0.01 mm; T-block contacts differing from MuJoCo C\'s in 29-43% of drawn poses '
-     'against under 1%',
+     'against under 1%; traced on a CPU (8 episodes, 8,000 evaluations a query), two-gaps 2 '
+     'solved against 6',
      '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
-     '`closed_loop_gpu/repeat/gate-mirror_*.json`; `b236397`: '
+     '`closed_loop_gpu/repeat/gate-mirror_*.json`, `closed_loop_trace_cpu/two-gaps_pachs*`; `b236397`: '
      '`physics/agreement_warp_convexbox_cpu.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '

@@ -253,3 +253,29 @@ def test_report_check_exits_with_one_line_on_a_damaged_file(monkeypatch, capsys)
   assert report.main(['--check']) == 2
   err = capsys.readouterr().err
   assert err == 'report.py: error: experiments/results/x.json: missing (the report reads it)\n'
+
+
+def _replayed(episode, plan_max, planner_at_failure, c_at_failure, on_policy=True):
+  """A `trace_replay.py` episode whose last row is the failure."""
+  return {'episode': episode, 'on_policy_step': on_policy, 'plan_max_tilt': plan_max,
+          'planner_replay_tilt_at_failure': planner_at_failure,
+          'rows': [{'tilt_world': c_at_failure, 'tilt_c_replay': c_at_failure,
+                    'tilt_planner_replay': planner_at_failure, 'tilt_plan': None,
+                    't_contacts': ['stick / t_bar']}]}
+
+
+def test_the_replay_sentence_tells_how_each_failed_episode_tipped():
+  r = {'planner_physics': 'warp', 'episodes': [
+      _replayed(0, 8.0, 31.0, 31.0),  # both engines tipped it, on a policy step
+      _replayed(1, 10.0, 12.0, 35.0, on_policy=False),  # MuJoCo C only: an engine difference
+      _replayed(2, 28.0, 25.0, 33.0, on_policy=False)]}  # a plan near the limit
+  text = report.replay_sentence('gate', 'x.replay.json', r, 20.0)
+  assert "gate's 3 failed episodes" in text
+  assert 'In 1 both engines tipped the T alike (episode 0: 31.0 degrees in MuJoCo C, 31.0 in ' \
+         'warp, on a policy step after a plan of at most 8.0 degrees' in text
+  assert 'in 1 the plan kept the T within 20 degrees' in text and 'episode 1: 12.0' in text
+  assert text.endswith('in the others the plan had tilted the T past 20 degrees itself.')
+  one = report.replay_sentence('gate', 'x.replay.json',
+                               {'planner_physics': 'warp', 'episodes': r['episodes'][2:]}, 20.0)
+  assert "gate's 1 failed episode," in one
+  assert one.endswith('In each the plan had tilted the T past 20 degrees itself.')
