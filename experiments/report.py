@@ -691,8 +691,7 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   s = first['settings']
   return '\n\n'.join([
       f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, Warp '
-      f'planners on the CPU, MuJoCo C worlds, '
-      f'{s["instances"]} instances, '
+      f'planners on the CPU, MuJoCo C worlds, {s["instances"]} instances, '
       f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock): how far '
       'the plans tilt the T (the world\'s T tips over at '
       f'{np.degrees(pusht.MAX_T_TILT):g} degrees, where the episode fails).',
@@ -1162,8 +1161,8 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'against under 1%; traced on a CPU (8 episodes, 8,000 evaluations a query), two-gaps 2 '
      'solved against 6',
      '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
-     '`closed_loop_gpu/repeat/gate-mirror_*.json`, `closed_loop_trace_cpu/two-gaps_pachs*`; `b236397`: '
-     '`physics/agreement_warp_convexbox_cpu.json`'),
+     '`closed_loop_gpu/repeat/gate-mirror_*.json`, `closed_loop_trace_cpu/two-gaps_pachs*`; '
+     '`b236397`: `physics/agreement_warp_convexbox_cpu.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
