@@ -16,8 +16,10 @@ colliding box pairs by its general convex collider and by the box-box routine (t
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import time
+from typing import Dict, Tuple
 
 import numpy as np
 
@@ -352,6 +354,50 @@ def _same_contacts(a: list, b: list, tol_m: float = 5e-4) -> bool:
   return len(a) == len(b) and all(np.allclose(x, y, atol=tol_m) for x, y in zip(a, b))
 
 
+def convex_boxes(model: mujoco.MjModel) -> mujoco.MjModel:
+  """A copy of a PushT model whose box pairs MuJoCo Warp collides by its general convex
+  collider (`nativeccd` on, Warp's default), not by MuJoCo C's box-box routine."""
+  out = copy.copy(model)
+  out.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+  return out
+
+
+def warp_cpu_models(models: Dict[str, mujoco.MjModel]) -> Dict[str, object]:
+  """{name: MuJoCo Warp model on the CPU} of {name: MjModel}."""
+  from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=g-import-not-at-top
+  import warp as wp  # pylint: disable=g-import-not-at-top
+  wp.config.quiet = True
+  with wp.ScopedDevice('cpu'):
+    return {name: mjw.put_model(m) for name, m in models.items()}
+
+
+def t_block_contacts(model: mujoco.MjModel, warp_models: Dict[str, object],
+                     qpos: np.ndarray) -> Tuple[list, Dict[str, list]]:
+  """(MuJoCo C's, {name: each Warp model's}) contacts between the T and the blocks of a PushT
+  model at qpos [nq], as `_contact_set` lists; warp_models from `warp_cpu_models`."""
+  from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=g-import-not-at-top
+  import warp as wp  # pylint: disable=g-import-not-at-top
+  t_geoms = [model.geom(n).id for n in ('t_bar', 't_stem')]
+  pairs = {frozenset((t, b)) for t in t_geoms for b in range(model.ngeom)
+           if model.geom(b).name.startswith('obstacle')}
+  data = mujoco.MjData(model)
+  data.qpos[:] = qpos
+  mujoco.mj_forward(model, data)
+  c = _contact_set(data.contact.pos[:data.ncon], data.contact.dist[:data.ncon],
+                   data.contact.geom[:data.ncon], pairs)
+  found = {}
+  with wp.ScopedDevice('cpu'):
+    for name, warp_model in warp_models.items():
+      warp_data = mjw.put_data(model, data, nconmax=64, njmax=320)
+      mjw.kinematics(warp_model, warp_data)
+      mjw.collision(warp_model, warp_data)
+      n = int(warp_data.nacon.numpy()[0])
+      found[name] = _contact_set(warp_data.contact.pos.numpy()[:n],
+                                 warp_data.contact.dist.numpy()[:n],
+                                 warp_data.contact.geom.numpy()[:n], pairs)
+  return c, found
+
+
 def run_contacts(args, layouts, policies, starts_of):
   """The T's contacts with the blocks in MuJoCo C against MuJoCo Warp's (CPU kernels), the T
   drawn near a block (origin within 0.12 m of its side, lifted 0 to 2 cm, any yaw) tilted
@@ -359,65 +405,47 @@ def run_contacts(args, layouts, policies, starts_of):
   are at most 5 mm deep. Contacts agree where their number matches and each lies within 0.5 mm
   (position and distance) of the other engine's."""
   del policies, starts_of
-  from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=g-import-not-at-top
-  import warp as wp  # pylint: disable=g-import-not-at-top
-  wp.config.quiet = True
   rng = np.random.default_rng(args.seed)
   rows = []
   for layout in layouts:
-    cfg = pusht.PushTConfig(variant='obs', layout=layout)
-    m = mujoco.MjModel.from_xml_string(pusht.model_xml(cfg))
-    convex = mujoco.MjModel.from_xml_string(pusht.model_xml(cfg))
-    convex.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
-    t_geoms = [m.geom(n).id for n in ('t_bar', 't_stem')]
+    m = mujoco.MjModel.from_xml_string(pusht.model_xml(
+        pusht.PushTConfig(variant='obs', layout=layout)))
     blocks = [i for i in range(m.ngeom) if m.geom(i).name.startswith('obstacle')]
-    pairs = {frozenset((t, b)) for t in t_geoms for b in blocks}
-    with wp.ScopedDevice('cpu'):
-      warp_models = {'box-box': mjw.put_model(m), 'convex': mjw.put_model(convex)}
-      for lo, hi in zip(TILT_BINS_DEG[:-1], TILT_BINS_DEG[1:]):
-        kept, differ, counts = 0, {k: 0 for k in warp_models}, {'mujoco_c': 0}
-        counts.update({k: 0 for k in warp_models})
-        for _ in range(50 * args.samples):
-          if kept == args.samples:
-            break
-          d = mujoco.MjData(m)
-          d.qpos[:7] = pusht.HOME_QPOS
-          b = rng.choice(blocks)
-          reach = max(m.geom_size[b][:2]) + 0.12  # m: the block's half side and the T's
-          d.qpos[7:9] = m.geom_pos[b][:2] + rng.uniform(-reach, reach, 2)
-          d.qpos[9] = pusht.T_HALF_HEIGHT + rng.uniform(0.0, 0.02)
-          tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
-                                rng.uniform(0, 2 * np.pi))
-          q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
-                             np.sin(tilt / 2) * np.sin(azimuth), 0.0])
-          q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-          mujoco.mju_mulQuat(d.qpos[10:14], q_tilt, q_yaw)
-          mujoco.mj_forward(m, d)
-          c = _contact_set(d.contact.pos[:d.ncon], d.contact.dist[:d.ncon],
-                           d.contact.geom[:d.ncon], pairs)
-          found = {}
-          for name, mw in warp_models.items():
-            dw = mjw.put_data(m, d, nconmax=64, njmax=320)
-            mjw.kinematics(mw, dw)
-            mjw.collision(mw, dw)
-            n = int(dw.nacon.numpy()[0])
-            found[name] = _contact_set(dw.contact.pos.numpy()[:n], dw.contact.dist.numpy()[:n],
-                                       dw.contact.geom.numpy()[:n], pairs)
-          if (not c and not any(found.values())) or min(
-              [x[3] for x in c] or [0.0]) < -0.005:  # none, or deeper than the blocks let
-            continue
-          kept += 1
-          counts['mujoco_c'] += len(c)
-          for name, w in found.items():
-            counts[name] += len(w)
-            differ[name] += not _same_contacts(c, w)
-        row = {'layout': layout, 'tilt_deg': f'{lo}-{hi}', 'samples': kept,
-               'mean_contacts_mujoco_c': round(counts['mujoco_c'] / max(kept, 1), 2)}
-        for name in warp_models:
-          row[f'differ_{name}'] = differ[name]
-          row[f'mean_contacts_{name}'] = round(counts[name] / max(kept, 1), 2)
-        print(row, flush=True)
-        rows.append(row)
+    warp_models = warp_cpu_models({'box-box': m, 'convex': convex_boxes(m)})
+    for lo, hi in zip(TILT_BINS_DEG[:-1], TILT_BINS_DEG[1:]):
+      kept, differ, counts = 0, {k: 0 for k in warp_models}, {'mujoco_c': 0}
+      counts.update({k: 0 for k in warp_models})
+      for _ in range(50 * args.samples):
+        if kept == args.samples:
+          break
+        qpos = np.zeros(m.nq)
+        qpos[:7] = pusht.HOME_QPOS
+        b = rng.choice(blocks)
+        reach = max(m.geom_size[b][:2]) + 0.12  # m: the block's half side and the T's
+        qpos[7:9] = m.geom_pos[b][:2] + rng.uniform(-reach, reach, 2)
+        qpos[9] = pusht.T_HALF_HEIGHT + rng.uniform(0.0, 0.02)
+        tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
+                              rng.uniform(0, 2 * np.pi))
+        q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
+                           np.sin(tilt / 2) * np.sin(azimuth), 0.0])
+        q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        mujoco.mju_mulQuat(qpos[10:14], q_tilt, q_yaw)
+        c, found = t_block_contacts(m, warp_models, qpos)
+        if (not c and not any(found.values())) or min(
+            [x[3] for x in c] or [0.0]) < -0.005:  # none, or deeper than the blocks let
+          continue
+        kept += 1
+        counts['mujoco_c'] += len(c)
+        for name, w in found.items():
+          counts[name] += len(w)
+          differ[name] += not _same_contacts(c, w)
+      row = {'layout': layout, 'tilt_deg': f'{lo}-{hi}', 'samples': kept,
+             'mean_contacts_mujoco_c': round(counts['mujoco_c'] / max(kept, 1), 2)}
+      for name in warp_models:
+        row[f'differ_{name}'] = differ[name]
+        row[f'mean_contacts_{name}'] = round(counts[name] / max(kept, 1), 2)
+      print(row, flush=True)
+      rows.append(row)
   return rows, []
 
 

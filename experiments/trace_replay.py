@@ -4,12 +4,13 @@ state, its executed actions again in MuJoCo C and in the planner's physics.
   python experiments/trace_replay.py experiments/results/closed_loop_trace_cpu/two-gaps_pachs.json
 
 Reads `<run>.pachs.trace.npz` beside a `closed_loop.py --trace 1` result. Per failed episode
-(`episodes.trace`): the world state at which its last query asked (the one whose planned state
-equals the world's, for a trace without `asked_at`); from there, step by step, the T's tilt in
-the world, in a MuJoCo C replay, in a replay in the planner's physics (`--planner`) and in the
-plan; the T's height, the stick tip's and the T's contacts in MuJoCo C. An episode whose Warp
-replay keeps the T flat where MuJoCo C tips it failed on the engines' difference; one whose
-plan itself tilted the T near 30 degrees, on a plan at the limit."""
+(`episodes.trace`): the world state at which its last query asked; from there, step by step,
+the T's tilt in the world, in a MuJoCo C replay, in a replay in the planner's physics
+(`--planner`) and in the plan; the T's height, the stick tip's and the T's contacts in MuJoCo
+C. An episode whose planner replay tips the T too failed on the executed actions (the plan's
+or the policy's); one whose planner replay keeps the T flat where MuJoCo C tips it, on the
+engines' difference; one whose plan itself tilted the T near 30 degrees, on a plan at the
+limit (`report.replay_sentence`)."""
 
 from __future__ import annotations
 
@@ -48,13 +49,8 @@ from pachs_jax.envs import backends, base, pusht, world as world_lib  # noqa: E4
 
 
 def last_query(trace: dict, e: int) -> int:
-  """The world state at which episode e's last query asked."""
-  steps = int(trace['steps'][e])
-  if 'asked_at' in trace:
-    return int(max(a for a in trace['asked_at'][:, e] if 0 <= a < steps))
-  world, plan = trace['world_qpos'][e], trace['planned_qpos'][e]
-  return max(s for s in range(steps) if not np.isnan(plan[s, 0])
-             and np.abs(plan[s] - world[s]).max() < 1e-6)
+  """The world state at which episode e's last query asked (before its last step)."""
+  return int(max(a for a in trace['asked_at'][:, e] if 0 <= a < int(trace['steps'][e])))
 
 
 def replay(env, edges, trace: dict, e: int) -> list:

@@ -171,13 +171,14 @@ def trace(worlds: Worlds, log: Log) -> dict:
     if taken:
       actions[e, :taken] = np.stack(worlds.actions[e])
       by_policy[e, :taken] = worlds.by_policy[e]
-    for at, states, length in log.plans:
-      a, n = int(at[e]), int(length[e])
-      if a < 0:
+    plans, begun = log.executed_plans(e, longest + 1), 0
+    for s, plan in enumerate(plans):
+      if plan is None:
         continue
-      span = min(n + 1, longest + 1 - a)
-      planned[e, a:] = np.nan  # a later query's answer replaces the one before
-      planned[e, a:a + span] = np.asarray(states.qpos)[e, :span]
+      if s == 0 or plan is not plans[s - 1]:
+        begun = s  # the world state its query asked at
+      if s - begun < len(plan.qpos):
+        planned[e, s] = plan.qpos[s - begun]
   asked_at = np.array([at for at, _, _ in log.plans], np.int64).reshape(-1, num)
   out.update(actions=actions, by_policy=by_policy, planned_qpos=planned, asked_at=asked_at,
              steps=worlds.steps.copy(), success=worlds.success.copy(),

@@ -111,9 +111,9 @@ def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_sta
     asked.append(number)
     planned = number + 0.1 * np.arange(4)[None, :, None] + np.zeros((2, 4, size))
     actions = np.full((2, 3, env.action_size), 0.01 * (number + 1), np.float32)
+    states = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (2, 4) + x.shape), away)
     return types.SimpleNamespace(actions=actions, length=np.array([3, 1]),
-                                 kind=np.zeros(2, np.int64),
-                                 states=types.SimpleNamespace(qpos=planned))
+                                 kind=np.zeros(2, np.int64), states=states.replace(qpos=planned))
   policy = lambda nodes: np.full((2, env.action_size), -0.02, np.float32)
   log = episodes.run(query, worlds, execute=3, max_queries=2, policy=policy)
   out = episodes.trace(worlds, log)

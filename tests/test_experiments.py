@@ -285,12 +285,6 @@ def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_the
 
 
 def test_the_replay_starts_at_the_last_query_of_the_episode():
-  """From `asked_at` where the trace has it, else the last state whose plan starts at the
-  world's state (a query's first planned state is the world's)."""
-  world = np.arange(8, dtype=float)[None, :, None] * np.ones((1, 8, 3))
-  planned = world + 0.5  # mid-plan: the plan and the world apart
-  planned[0, [0, 3, 5]] = world[0, [0, 3, 5]]  # queries asked at 0, 3 and 5
-  trace = {'steps': np.array([7]), 'world_qpos': world, 'planned_qpos': planned}
-  assert trace_replay.last_query(trace, 0) == 5
-  trace['asked_at'] = np.array([[0], [3], [6], [-1]])
+  """The last world state of `asked_at` before the episode's end (-1: a query after it)."""
+  trace = {'steps': np.array([7]), 'asked_at': np.array([[0], [3], [6], [-1]])}
   assert trace_replay.last_query(trace, 0) == 6

@@ -63,65 +63,37 @@ def test_agrees_with_mujoco_c_without_contact(warp_env):
   assert np.abs(np.asarray(got.next_node.qpos - nodes.qpos)[:, :7]).max() > 1e-3
 
 
-def _t_block_contacts_by_engine(model, poses):
-  """[(MuJoCo C's, Warp's)] T-block contact lists [(x, y, z, dist)], sorted, of the PushT model
-  with the T at each of poses [(x, y, z, quaternion)] and the arm at home."""
-  import mujoco  # pylint: disable=import-outside-toplevel
-  from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=import-outside-toplevel
-  import warp as wp  # pylint: disable=import-outside-toplevel
-  t_geoms = {model.geom(n).id for n in ('t_bar', 't_stem')}
-  blocks = {i for i in range(model.ngeom) if model.geom(i).name.startswith('obstacle')}
-
-  def kept(pos, dist, geoms):
-    return sorted(tuple(float(v) for v in p) + (float(d),) for p, d, g in zip(pos, dist, geoms)
-                  if {int(g[0]), int(g[1])} & t_geoms and {int(g[0]), int(g[1])} & blocks)
-  out = []
-  with wp.ScopedDevice('cpu'):
-    warp_model = mjw.put_model(model)
-    for pose in poses:
-      data = mujoco.MjData(model)
-      data.qpos[:7] = pusht.HOME_QPOS
-      data.qpos[7:14] = pose
-      mujoco.mj_forward(model, data)
-      warp_data = mjw.put_data(model, data, nconmax=64, njmax=320)
-      mjw.kinematics(warp_model, warp_data)
-      mjw.collision(warp_model, warp_data)
-      n = int(warp_data.nacon.numpy()[0])
-      out.append((kept(data.contact.pos[:data.ncon], data.contact.dist[:data.ncon],
-                       data.contact.geom[:data.ncon]),
-                  kept(warp_data.contact.pos.numpy()[:n], warp_data.contact.dist.numpy()[:n],
-                       warp_data.contact.geom.numpy()[:n])))
-  return out
-
-
 @needs_warp
 def test_the_t_touches_the_blocks_in_warp_as_in_mujoco_c(warp_env):
   # the T tilted 0-20 degrees against two-gaps' first block, its bar's long side to the block's
   # face: the same contacts (number, points, depths) in both engines; Warp's general convex
   # collider (its default for box pairs, which the model turns off) finds others
   import mujoco  # pylint: disable=import-outside-toplevel
+  import physics_agreement  # pylint: disable=import-outside-toplevel
   model = warp_env.mj_model
-  block = next(i for i in range(model.ngeom) if model.geom(i).name == 'obstacle0')
+  block = model.geom('obstacle0').id
   rng = np.random.default_rng(0)
   poses = []
   for tilt_deg in (0.0, 2.0, 5.0, 10.0, 15.0, 20.0):
     tilt, azimuth, yaw = np.radians(tilt_deg), rng.uniform(0, 2 * np.pi), rng.uniform(-0.3, 0.3)
-    quat = np.zeros(4)
-    mujoco.mju_mulQuat(quat, [np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
-                              np.sin(tilt / 2) * np.sin(azimuth), 0.0],
-                       [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    qpos = np.zeros(model.nq)
+    qpos[:7] = pusht.HOME_QPOS
     # the bar's far side (y = -0.0625 in the T's frame) 1 mm into the block's +y face
-    x, y = model.geom_pos[block][:2] + [0.0, model.geom_size[block][1] + 0.0625 - 0.001]
-    poses.append(np.concatenate([[x, y, pusht.T_HALF_HEIGHT + 0.005 * rng.uniform()], quat]))
-  pairs = _t_block_contacts_by_engine(model, poses)
+    qpos[7:9] = model.geom_pos[block][:2] + [0.0, model.geom_size[block][1] + 0.0625 - 0.001]
+    qpos[9] = pusht.T_HALF_HEIGHT + 0.005 * rng.uniform()
+    mujoco.mju_mulQuat(qpos[10:14], [np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
+                                     np.sin(tilt / 2) * np.sin(azimuth), 0.0],
+                       [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    poses.append(qpos)
+  warp_models = physics_agreement.warp_cpu_models(
+      {'model': model, 'convex': physics_agreement.convex_boxes(model)})
+  pairs = [physics_agreement.t_block_contacts(model, warp_models, qpos) for qpos in poses]
   assert all(c for c, _ in pairs), 'every pose touches the block in MuJoCo C'
-  for c, w in pairs:
-    assert len(c) == len(w)
-    np.testing.assert_allclose(np.asarray(w), np.asarray(c), atol=5e-4)
-  convex = mujoco.MjModel.from_xml_string(pusht.model_xml(warp_env.config))
-  convex.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
-  assert any(len(c) != len(w) or not np.allclose(c, w, atol=5e-4)
-             for c, w in _t_block_contacts_by_engine(convex, poses))
+  for c, found in pairs:
+    assert len(c) == len(found['model'])
+    np.testing.assert_allclose(np.asarray(found['model']), np.asarray(c), atol=5e-4)
+  assert any(len(c) != len(found['convex']) or not np.allclose(c, found['convex'], atol=5e-4)
+             for c, found in pairs)
 
 
 @needs_warp
