@@ -481,11 +481,11 @@ CLOSED_LOOP_VARIANTS = (
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
-# the revisions of closed-loop runs (closed_loop_gpu/, closed_loop_trace_cpu/) whose Warp
-# planners collided the T with the blocks by Warp's general convex collider, before they used
-# MuJoCo C's box-box routine (`fa9f384`)
+# the revisions of runs (closed_loop_gpu/, faithful_gpu/) whose Warp planners collided the T
+# with the blocks by Warp's general convex collider, before they used MuJoCo C's box-box
+# routine (`fa9f384`)
 CONVEX_BOX_REVISIONS = frozenset({'b5c3c48', 'cdaabdc', '0b31967', '65008e1', '2954da4',
-                                  'b687e0b', '76e2fee', '66023b3', '2f0d6f3', '98125f4'})
+                                  'b687e0b'})
 
 
 def box_contacts(payload: Dict) -> str:
@@ -1159,10 +1159,13 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'steps 2.9 mm on two-gaps, 3.1 on gate-mirror, 2.1 on wall-right, 1.3 on detour, against '
      'at most 0.01 mm; T-block contacts differing from MuJoCo C\'s in 29-43% of drawn poses '
      'against under 1%; traced on a CPU (8 episodes, 8,000 evaluations a query), two-gaps 2 '
-     'solved against 6',
+     'solved against 6; the convex era\'s traces (slot, gate-mirror, wall-right) found plans '
+     'tilting the T past 20 degrees in most episodes and one failure where Warp kept the T flat '
+     '(17.4 degrees) and MuJoCo C tipped it (36.5)',
      '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
      '`closed_loop_gpu/repeat/gate-mirror_*.json`, `closed_loop_trace_cpu/two-gaps_pachs*`; '
-     '`b236397`: `physics/agreement_warp_convexbox_cpu.json`'),
+     '`b236397`: `physics/agreement_warp_convexbox_cpu.json`; `96d1e22`: '
+     '`closed_loop_trace_cpu/{slot,gate-mirror,wall-right}_pachs*`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
