@@ -584,11 +584,12 @@ def closed_loop_sessions(src: Sources) -> str:
       f'{s["max_queries"]} queries; 95% intervals over the instances. gate-mirror and '
       'wall-right are the held-out layouts (`heldout_layouts.py`). PACHS replans through '
       '`replan.Session` (docs/closed_loop.md). An empty answer plays one policy action. Each '
-      'file is named by what ran in today\'s terms (`run.sh` runs it by that name); a renamed '
-      'run\'s command names the file it was written as: the rollout\'s runs some naming the '
-      'physics `--physics hard-blocks` (the default\'s settings), the default\'s runs on '
-      'wall, two-gaps and gate-mirror with `-K 128`. ", run again": the same run made again '
-      f'at a later revision (`{folder}/{CLOSED_LOOP_REPEATS}/`). T-block contacts: how the '
+      'file is named by what ran (`run.sh` runs it by that name). '
+      + (f'", run again": the same run made again at a later revision '
+         f'(`{folder}/{CLOSED_LOOP_REPEATS}/`). '
+         if src.exists(f'{folder}/{CLOSED_LOOP_REPEATS}')
+         else '')
+      + 'T-block contacts: how the '
       'Warp planners collided the T with the blocks: "box-box" by MuJoCo C\'s box-box routine, '
       'as the world does (the default since `fa9f384`); "convex" by Warp\'s general convex '
       'collider, whose contacts differ from MuJoCo C\'s in about a third of the T\'s block '
@@ -1124,9 +1125,13 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'Warp\'s default for box pairs), not by MuJoCo C\'s box-box routine as the world does '
      '(default physics; closed loop at 3 s on one H200, MuJoCo C worlds)',
      'closed loop, PACHS in MuJoCo C: slot 65% against 90%, two-gaps 46% against 71%, '
-     'gate-mirror 75.5% (two runs) against 84%; its drop from its own physics 20, 34 and 17 '
-     'points against 3, 3 and 6; the rollout in MuJoCo C 37%, 0% and 22% against 52%, 20% and '
-     '42%, its drop on slot and two-gaps 9 and 19 points against 9 and -3; the policy\'s pushes '
+     'gate-mirror 75.5% (two runs) against 84%, gate 94% against 99%, wall 87.5% (two runs) '
+     'against 94%, wall-right 82% against 93%, detour 4% against 5%; its drop from its own '
+     'physics 20, 34 and 17 points against 3, 3 and 6, on wall-right not measured against 2; '
+     'the rollout in MuJoCo C 37%, 0%, 22%, 57%, 52%, 41% and 2% against 52%, 20%, 42%, 73%, '
+     '62%, 59% and 2%, its drop on slot and two-gaps 9 and 19 points against 9 and -3; on gate '
+     'and wall both planners\' own-physics runs (PACHS 95% and 94%, the rollout 61% and 76%) '
+     'left with their collider; the policy\'s pushes '
      'replayed in Warp (on a CPU, 16 starts a layout): the T\'s position error p90 after 10 '
      'steps 2.9 mm on two-gaps, 3.1 on gate-mirror, 2.1 on wall-right, 1.3 on detour, against '
      'at most 0.01 mm; T-block contacts differing from MuJoCo C\'s in 29-43% of drawn poses '
@@ -1137,7 +1142,9 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`6788096`: `closed_loop_gpu/{slot,two-gaps,gate-mirror}_*.json`, '
      '`closed_loop_gpu/repeat/gate-mirror_*.json`, `closed_loop_trace_cpu/two-gaps_pachs*`; '
      '`b236397`: `physics/agreement_warp_convexbox_cpu.json`; `96d1e22`: '
-     '`closed_loop_trace_cpu/{slot,gate-mirror,wall-right}_pachs*`'),
+     '`closed_loop_trace_cpu/{slot,gate-mirror,wall-right}_pachs*`; `eeeedd4`: '
+     '`closed_loop_gpu/{gate,wall,detour,wall-right}_{pachs,parallel}.json`, '
+     '`closed_loop_gpu/{gate,wall}_*-planner-world.json`, `closed_loop_gpu/repeat/wall_pachs.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
