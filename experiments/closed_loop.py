@@ -53,6 +53,10 @@ def build_parser() -> argtypes.OneLineParser:
   parser.add_argument('--fill-with-policy', type=int, default=1, choices=[0, 1],
                       help='1: a path shorter than --execute is followed by policy actions up '
                       'to --execute world steps per query')
+  parser.add_argument('--fill-check', type=int, default=0, choices=[0, 1],
+                      help="1: PACHS's session follows each short answer's policy fill in the "
+                      "planner's physics and the fill stops before the first invalid edge there "
+                      "(a T tipped over), the next query sooner (replan.Session.fill_steps)")
   parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=argtypes.positive_int, default=256,
@@ -176,6 +180,7 @@ class Asked:
   found: np.ndarray
   info: dict
   safe_length: Optional[np.ndarray] = None
+  fill_length: Optional[np.ndarray] = None  # with --fill-check: `replan.Answer.fill_length`
   kind: Optional[np.ndarray] = None  # with --trace: the session's `replan.AnswerKind` [E]
   states: Optional[object] = None  # with --trace: the answer's states NodeState [E, T + 1]
 
@@ -204,7 +209,8 @@ def make_query(name: str, task: str, env, model, args, num: int):
     session = replan.Session(env, model, config, candidates=args.candidates,
                              replay_remainder=(None if args.replay_remainder is None
                                                else bool(args.replay_remainder)),
-                             chunk_iterations=args.chunk_iterations, check=check)
+                             chunk_iterations=args.chunk_iterations, check=check,
+                             fill_steps=args.execute if args.fill_check else 0)
 
     def query(nodes, keys, executed, running):
       answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
@@ -220,6 +226,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'remainder_steps': np.asarray(session.followed['remainder'].steps),
                'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)},
               safe_length=answer.safe_length if check is not None else None,
+              fill_length=answer.fill_length,
               **({'kind': answer.kind, 'states': answer.states} if args.trace else {}))
     return query, config
   if name == 'parallel':
@@ -450,6 +457,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'policy_fill_steps': int(log.policy_steps.sum()) - empty_answers[0],
           'failures_on_policy_steps': int(log.failed_on_policy.sum()),
           'cut_answers': int(log.cut_answers.sum()),
+          'cut_fills': int(log.cut_fills.sum()),
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}
@@ -465,6 +473,9 @@ def main():
     parser.error('--perturb applies to MuJoCo C worlds only (--world mujoco-c)')
   if args.check_copies and args.server:
     parser.error('--check-copies checks the answers of an in-process PACHS, not --server')
+  if args.fill_check and (args.server or not args.fill_with_policy):
+    parser.error('--fill-check follows the policy fill (--fill-with-policy 1) of an in-process '
+                 'PACHS, not --server')
   common.check_layout(parser, args.task, args.layout)
   if args.task.startswith('playground:') and (args.perturb or args.check_copies):
     parser.error('--perturb and --check-copies apply to the PushT tasks')

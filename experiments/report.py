@@ -441,6 +441,8 @@ def answer_counts(row: Dict) -> str:
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
               "replayed in the search, K 128)"),
+    ('pachs-guard', 'PACHS, the policy\'s fill stopped before the first edge the planner\'s '
+                    'physics finds invalid (`--fill-check 1`)'),
     ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
@@ -464,12 +466,15 @@ CLOSED_LOOP_REPEATS = 'repeat'
 
 
 def failures(summary: Dict) -> str:
-  """A closed-loop run's failed episodes, and how many failed on the policy's steps where the
-  run counted them ('-': a run from before the count)."""
+  """A closed-loop run's failed episodes, how many failed on the policy's steps where the run
+  counted them ('-': a run from before the count), and the policy fills it stopped
+  (`--fill-check 1`)."""
   if summary.get('failures') is None:
     return '-'
-  on_policy = summary.get('failures_on_policy_steps')
-  return str(summary['failures']) + ('' if on_policy is None else f' ({on_policy} on policy steps)')
+  on_policy, cut = summary.get('failures_on_policy_steps'), summary.get('cut_fills')
+  notes = ([] if on_policy is None else [f'{on_policy} on policy steps']) + (
+      [f'{cut} fills stopped'] if cut else [])
+  return str(summary['failures']) + (f' ({", ".join(notes)})' if notes else '')
 
 
 def points(value: float) -> str:
@@ -617,7 +622,8 @@ def closed_loop_sessions(src: Sources) -> str:
 
 
 # traced closed loops on a CPU (closed_loop_trace_cpu/): file suffix -> what ran
-TRACED_VARIANTS = (('pachs', 'PACHS'),)
+TRACED_VARIANTS = (('pachs', 'PACHS'),
+                   ('pachs-guard', 'PACHS, the policy\'s fill guarded (`--fill-check 1`)'))
 
 
 def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',

@@ -111,6 +111,8 @@ class Log:
     answer.
   failed_on_policy: [E] bool the episode failed (`Worlds.failed`) on a step the policy took.
   cut_answers: [E] int answers executed only up to their `safe_length` (`replan.AnswerCheck`).
+  cut_fills: [E] int short answers whose policy fill stopped at the answer's `fill_length`
+    (the planner's physics found the policy's next edge invalid there).
   plans: per query, (the world step of each episode when it was asked [E], the answer's
     states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]);
     for answers that carry their states.
@@ -122,6 +124,7 @@ class Log:
   policy_steps: np.ndarray
   failed_on_policy: np.ndarray
   cut_answers: np.ndarray = None
+  cut_fills: np.ndarray = None
   plans: list = dataclasses.field(default_factory=list)
   interrupted_at_query: Optional[int] = None
 
@@ -214,8 +217,9 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   """Runs the worlds' episodes in closed loop: a query for all episodes still running, the
   first `execute` actions of each answer in its world (an empty answer: one action of the
   policy; a shorter answer followed by the policy's actions up to `execute` when
-  fill_with_policy; an answer with a shorter `safe_length`, `replan.AnswerCheck`: that many,
-  then the next query), until every episode reached the goal or made max_queries queries.
+  fill_with_policy, at most the answer's `fill_length` where it has one; an answer with a
+  shorter `safe_length`, `replan.AnswerCheck`: that many, then the next query), until every
+  episode reached the goal or made max_queries queries.
 
   planner: a `replan.Session` (reset, then asked for `time_limit_s` s per query), or
     query(nodes [E], keys [E, 2], executed [E], running [E]) -> an answer with actions
@@ -241,7 +245,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   log = Log(queries=np.zeros(num, np.int64),
             answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
             policy_steps=np.zeros(num, np.int64), failed_on_policy=np.zeros(num, bool),
-            cut_answers=np.zeros(num, np.int64))
+            cut_answers=np.zeros(num, np.int64), cut_fills=np.zeros(num, np.int64))
   key = jax.random.PRNGKey(0) if key is None else key
   executed = np.zeros(num, np.int64)
   for number in range(max_queries):
@@ -271,6 +275,9 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     lengths = np.where(cut, safe, lengths)
     log.cut_answers += cut
     actions = answer.actions[:, :execute]
+    # the policy's steps stop at the answer's fill length (where the session followed it)
+    fill = getattr(answer, 'fill_length', None)
+    fill_ends = np.full(num, execute) if fill is None else lengths + np.asarray(fill)
     empty = running & (lengths == 0)
     if empty.any():  # one action of the policy where the answer has none
       actions = actions.copy()
@@ -280,17 +287,20 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     failed = worlds.failed.copy()
     worlds.execute(actions, lengths, by_policy=empty)
     log.failed_on_policy |= empty & worlds.failed & ~failed
-    # the answer's actions executed; an episode the policy moves next diverges from it
-    short = (lengths < execute) & ~cut
-    executed = np.where(short & fill_with_policy, replan.DIVERGED, lengths)
+    # the answer's actions executed; an episode the policy moved diverges from it
+    moved = empty.copy()
     if fill_with_policy:
       for j in range(1, execute):
         need = worlds.active & (lengths <= j) & ~cut
+        log.cut_fills += need & (j == np.maximum(fill_ends, 1))
+        need &= j < fill_ends
         if not need.any():
           continue
         log.policy_steps += need
+        moved |= need
         failed = worlds.failed.copy()
         worlds.execute(np.asarray(policy(worlds.batch()))[:, None], need.astype(np.int64),
                        by_policy=need)
         log.failed_on_policy |= worlds.failed & ~failed
+    executed = np.where(moved, replan.DIVERGED, lengths)
   return log

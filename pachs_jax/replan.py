@@ -127,6 +127,8 @@ class Answer:
   safe_length: [E] int32 the answer's first actions to execute before the next query: its
     length, or where an `AnswerCheck` found a perturbed copy of the start that could not take
     one of its first actions, the actions before it (at least 1).
+  fill_length: [E] int32 the policy's actions that may follow a short answer before the next
+    query (`fill_length`, a session with `fill_steps`); None: as many as the caller fills.
   """
 
   actions: jax.Array
@@ -137,6 +139,7 @@ class Answer:
   states: base.NodeState
   search: SearchResult
   safe_length: jax.Array = None
+  fill_length: jax.Array = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +183,19 @@ def safe_length(env: base.Env, policy: Callable[[jax.Array], jax.Array], check: 
                 jnp.zeros((num * copies,), bool))
   taken = jnp.where(took.reached_goal, repeated, took.steps).reshape(num, copies).min(axis=1)
   return jnp.where(taken < first, jnp.maximum(taken, 1), length).astype(jnp.int32)
+
+
+def fill_length(env: base.Env, policy: Callable[[jax.Array], jax.Array], end: base.NodeState,
+                length: jax.Array, steps: int) -> jax.Array:
+  """[E] int32 the policy's actions after answers of length [E] (up to `steps` actions in all)
+  that env takes from the answers' ends, end [E], before its first invalid edge (a T tipped
+  over): steps - length where the policy reaches a goal or takes them all, 0 where the answer
+  holds `steps` actions. A pure function."""
+  want = jnp.maximum(steps - length, 0).astype(jnp.int32)
+  num = length.shape[0]
+  took = follow(env, policy, end, jnp.zeros((num, steps, env.action_size), jnp.float32),
+                jnp.zeros((num,), jnp.int32), want > 0)
+  return jnp.where(took.reached_goal | (took.steps >= want), want, took.steps).astype(jnp.int32)
 
 
 def choose(search: SearchResult, last: Followed, policy: Followed, horizon: int) -> Answer:
@@ -277,6 +293,10 @@ class Session:
     room for it); None: wherever it can (a search built here gets the room).
   check: an `AnswerCheck` of each answer's first actions (None: none; `Answer.safe_length` is
     the length).
+  fill_steps: the actions a closed loop executes per query: where an answer is shorter, the
+    policy's actions up to fill_steps in all are followed from its end in the planner's physics
+    and `Answer.fill_length` says how many it took before an invalid edge (0: not followed,
+    fill_length None).
   """
 
   env: base.Env
@@ -289,6 +309,7 @@ class Session:
   mesh: Optional[object] = None
   replay_remainder: Optional[bool] = None
   check: Optional[AnswerCheck] = None
+  fill_steps: int = 0
   timing: dict = dataclasses.field(default_factory=dict)
 
   def __post_init__(self):
@@ -325,14 +346,22 @@ class Session:
                        f'actions, the session keeps {self.horizon} (Capacities.replay)')
     if self.check is not None and not isinstance(self.check, AnswerCheck):
       raise ValueError(f'check must be an AnswerCheck or None, got {self.check!r}')
+    if (isinstance(self.fill_steps, bool) or not isinstance(self.fill_steps, int)
+        or self.fill_steps < 0):
+      raise ValueError(f'fill_steps must be an int >= 0 (0: the fill not followed), got '
+                       f'{self.fill_steps!r}')
     env, policy, check = self.env, self.actor_critic.deterministic_action, self.check
+    fill_steps = self.fill_steps
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
     self._safe_length = None if check is None else jax.jit(
         lambda *args: safe_length(env, policy, check, *args))
+    self._fill_length = None if not fill_steps else jax.jit(
+        lambda end, length: fill_length(env, policy, end, length, fill_steps))
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
     self._compiled = {}  # episodes -> the compiled follow
     self._checks = {}  # episodes -> the compiled check
+    self._fills = {}  # episodes -> the compiled fill_length
     self._sharded = (None if self.mesh is None
                      else sharding.ShardedSearch(self.search.search, self.mesh))
     self.last: Optional[Answer] = None
@@ -418,6 +447,9 @@ class Session:
       if rows not in self._checks:  # (args: the remainders [2 rows], the first row an answer's)
         self._checks[rows] = self._safe_length.lower(
             check_starts, args[1][:rows], args[2][:rows], check_keys).compile()
+    if self._fill_length is not None and rows not in self._fills:  # (an answer's end states)
+      self._fills[rows] = self._fill_length.lower(
+          jax.tree.map(pad, states), jnp.zeros((rows,), jnp.int32)).compile()
     began = time.perf_counter()
     followed = jax.block_until_ready(self._compiled[rows](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
@@ -446,7 +478,10 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
+    if self._fill_length is not None:  # the policy from each answer's end (its last state row)
+      answer = answer.replace(fill_length=self._fills[rows](
+          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length))
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
     answer = jax.block_until_ready(answer)
-    self.timing['choose_s'] = time.perf_counter() - choosing  # the check's time included
+    self.timing['choose_s'] = time.perf_counter() - choosing  # the check's and fill's included
     return answer

@@ -8,7 +8,7 @@ import jax
 import numpy as np
 from PIL import Image
 
-from pachs_jax import cli, envs, episodes
+from pachs_jax import cli, envs, episodes, replan
 from pachs_jax.envs import pusht
 
 
@@ -93,6 +93,28 @@ def test_an_answer_cut_by_its_check_runs_to_its_safe_length_then_replans_unfille
   assert worlds.steps.tolist() == [2, 6]
   assert told == [[0, 0], [1, 3]]
   assert log.policy_steps.tolist() == [0, 0] and log.cut_answers.tolist() == [2, 0]
+
+
+def test_a_policy_fill_stops_at_the_answer_s_fill_length_and_the_next_query_comes_sooner():
+  """Answers of 1, 1, 0 and 3 actions of 3 per query whose policy fill the planner's physics
+  allows for 0, 2, 1 and 0 actions (`replan.Answer.fill_length`): episode 0 executes its action
+  and replans (told 1 executed: its remainder holds); 1 is filled to 3; 2's empty answer plays
+  one policy action and replans; 3 executes its 3."""
+  answer = type('Answer', (), {'actions': np.zeros((4, 3, 1), np.float32),
+                               'length': np.array([1, 1, 0, 3]),
+                               'fill_length': np.array([0, 2, 1, 0])})
+  told = []
+
+  def query(nodes, keys, executed, running):
+    told.append(np.asarray(executed).tolist())
+    return answer
+  worlds = _FailOnOne(4)
+  log = episodes.run(query, worlds, execute=3, max_queries=2,
+                     policy=lambda nodes: np.zeros((4, 1), np.float32))
+  assert worlds.steps.tolist() == [2, 6, 2, 6]
+  assert told[1] == [1, replan.DIVERGED, replan.DIVERGED, 3]
+  assert log.policy_steps.tolist() == [0, 4, 2, 0]
+  assert log.cut_fills.tolist() == [2, 0, 2, 0]
 
 
 def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_state():

@@ -229,6 +229,8 @@ def test_sessions_replay_wherever_their_search_can(env):
     ({'candidates': None}, 'candidates must be a sequence of names'),
     ({'replay_remainder': True}, 'replay_remainder needs chain lanes'),
     ({'replay_remainder': 1}, 'replay_remainder must be a bool or None'),
+    ({'fill_steps': -1}, 'fill_steps must be an int >= 0'),
+    ({'fill_steps': True}, 'fill_steps must be an int >= 0'),
 ])
 def test_bad_session_settings_are_refused(env, kwargs, message):
   with pytest.raises(ValueError, match=message):
@@ -370,6 +372,44 @@ def test_an_answer_is_safe_up_to_the_first_action_a_perturbed_copy_cannot_take()
           _nodes(env, starts, goals), jnp.asarray(actions), length, keys)
   # checked on their first 3 moves only: the cliff lies past them but for 3
   np.testing.assert_array_equal(got, [5, 5, 12, 1, 5])
+
+
+def test_the_policy_fills_an_answer_up_to_the_first_edge_the_planner_finds_invalid():
+  env = Cliff()
+  fill = jax.jit(lambda end, length: replan.fill_length(
+      env, TowardGoal(DIM).deterministic_action, end, length, 10))
+  # the policy moves 0.1 a step at its goal. 0: from 0.2 to a goal past the cliff, 3 moves
+  # (0.3-0.5) before the one off it; 1: the answer holds all 10 actions; 2: the goal at 0.4 on
+  # its 2nd move (the rest is the world's business: all 8); 3: away from the cliff, all 8;
+  # 4: an empty answer from 0.4 (one move, then the cliff)
+  ends = [[0.2, 0.0], [0.2, 0.0], [0.2, 0.0], [0.2, 0.0], [0.4, 0.0]]
+  goals = [[2.0, 0.0], [2.0, 0.0], [0.4, 0.0], [-2.0, 0.0], [2.0, 0.0]]
+  got = fill(_nodes(env, ends, goals), jnp.array([2, 10, 2, 2, 0]))
+  np.testing.assert_array_equal(got, [3, 0, 8, 8, 1])
+
+
+def test_a_session_with_fill_steps_says_how_far_the_policy_may_fill_each_answer():
+  env = Cliff()
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, fill_steps=10)
+  starts = np.array([[0.0, 0.0], [0.3, 0.0], [-0.5, 0.0]], np.float32)
+  goals = np.array([[2.0, 0.0], [2.0, 0.0], [-2.0, 0.0]], np.float32)
+  answer = jax.tree.map(np.asarray, session.plan(_nodes(env, starts, goals),
+                                                 key=jax.random.PRNGKey(0)))
+  # the policy from each answer's end (its state at its length) for the actions the answer
+  # leaves of the 10: toward the goal at 0.1 a step, stopped by the cliff past x = 0.55
+  end = answer.states.qpos[np.arange(3), answer.length]
+  assert np.all(answer.length < 10)  # a budget of 16 evaluations: short answers
+  heading = goals - end[:, :DIM]
+  heading /= np.linalg.norm(heading, axis=1, keepdims=True)
+  want = 10 - answer.length
+  moves = [next((m - 1 for m in range(1, w + 1) if e[0] + 0.1 * m * h[0] > 0.55 + 1e-5), w)
+           for e, h, w in zip(end, heading, want)]
+  np.testing.assert_array_equal(answer.fill_length, moves)
+  assert answer.fill_length[2] == want[2]  # away from the cliff the fill is whole
+  # without fill_steps no fill is followed
+  plain = replan.Session(env, TowardGoal(DIM), config, horizon=16)
+  assert plain.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0)).fill_length is None
 
 
 def test_a_session_with_a_check_answers_with_its_safe_length():
