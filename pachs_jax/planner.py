@@ -267,10 +267,10 @@ class Planner:
   def session(self, horizon: Optional[int] = None,
               candidates: Sequence[str] = replan.DEFAULT_CANDIDATES,
               check: Optional[replan.AnswerCheck] = None,
-              query_time_s: Optional[float] = None) -> replan.Session:
+              query_time_s: Optional[float] = None, fill_steps: int = 0) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
-    env, model and config, keeping its last answer between queries (horizon, candidates and
-    check as there). query_time_s: the seconds its queries will last, which on an accelerator
+    env, model and config, keeping its last answer between queries (horizon, candidates, check
+    and fill_steps as there). query_time_s: the seconds its queries will last, which on an accelerator
     choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one. Where the
     config has chain lanes the session's search replays the last answer's remainder and is
     built apart from `plan`'s, with room for it (once per horizon and K, shared by the
@@ -288,7 +288,7 @@ class Planner:
             self.env, self.model, config, capacities=capacity.Capacities(replay=rows)))
       search = self._replaying[rows, config.pop_size]
     return replan.Session(self.env, self.model, config, search, horizon, candidates,
-                          check=check)
+                          check=check, fill_steps=fill_steps)
 
   def replan_config(self, query_time_s: Optional[float]) -> SearchConfig:
     """The SearchConfig of a replanning session whose queries last query_time_s seconds: this

@@ -291,6 +291,7 @@ def test_a_planner_s_sessions_share_one_replaying_search_per_horizon(monkeypatch
   assert session.check is None
   check = replan.AnswerCheck(pusht.perturb_t, copies=2)
   assert fixed.session(check=check).check is check
+  assert session.fill_steps == 0 and fixed.session(fill_steps=10).fill_steps == 10
   # on a CPU the query time leaves K as it is; on an accelerator (the task's rule, forced here)
   # a 3 s session pops 128 in a search of its own, built once, and a 1 s one keeps 64
   if jax.default_backend() == 'cpu':
