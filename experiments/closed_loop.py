@@ -353,8 +353,10 @@ def run_single(env, model, episodes: Worlds, steps: int) -> List[float]:
 class SessionAnswers:
   """What a planner's queries answered, for its row: answers by kind (`replan.AnswerKind`);
   queries whose search returned no edge (stop reasons, evaluations, invalid edges, nodes
-  generated, the T off the table square or tipped over: why it had nothing to say); iterations,
-  search and follow seconds per query (after the first, which compiles); and, where the
+  generated, the T off the table square or tipped over: why it had nothing to say); the
+  evaluations of the searches that ran to the clock, and how many ended before it (a goal found
+  and improved); iterations, search and follow seconds per query (after the first, which
+  compiles); and, where the
   remainder is followed, after a goal answer executed as given, whether its remainder still
   reaches the goal from the world's state (how well goal paths survive the world).
   is_pusht: the T's counts apply (a PushT task)."""
@@ -366,12 +368,16 @@ class SessionAnswers:
                          'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0,
                          't_tipped': 0, 't_tipped_queries': 0}
     self.iterations, self.search_s, self.follow_s = [], [], []
+    self.clocked, self.ended_before_clock = [], 0  # evaluations [per query and episode], count
     self.previous_goal, self.survival, self.followed = None, [0, 0], False
 
   def add(self, query: int, info: Dict, nodes, running, evaluated, executed, found) -> None:
     """One query's answers [E] (info: the query's extras) for the running episodes [E]."""
     if 'kind' in info:
       self.kinds += np.bincount(info['kind'][running], minlength=len(self.kinds))
+      clocked = running & (info['stop'] == StopReason.TIME_LIMIT)
+      self.clocked.extend(evaluated[clocked].tolist())
+      self.ended_before_clock += int(np.sum(running & ~clocked))
       nothing = running & (info['search_length'] == 0)
       empty = self.empty_search
       empty['queries'] += int(nothing.sum())
@@ -406,6 +412,8 @@ class SessionAnswers:
                         if session else None),
             'empty_search': self.empty_search if session else None,
             'iterations_per_query_mean': stats.mean_or_none(self.iterations),
+            'evaluations_per_clocked_query_mean': stats.mean_or_none(self.clocked),
+            'searches_ended_before_clock': self.ended_before_clock if session else None,
             'goal_answers_followed': self.survival[0] if self.followed else None,
             'remainders_still_at_goal': self.survival[1] if self.followed else None,
             'search_s_mean': stats.mean_or_none(self.search_s),
@@ -581,7 +589,7 @@ def markdown(payload: Dict) -> List[str]:
               'planner', 'success', 'steps_to_success_mean', 'world_steps_failed_mean',
               'queries_per_episode_mean', 'empty_answers', 'goal_answers',
               'actions_per_query_mean', 'evaluations_per_query_mean',
-              'iterations_per_query_mean', 'policy_fill_steps', 'answers',
+              'iterations_per_query_mean', 'policy_fill_steps', 'cut_fills', 'answers',
               'query_time_s_mean', 'query_time_s_max', 'total_s']), '',
           'Success: 95% interval with the instances resampled (cluster bootstrap over the '
           'instances; the rounds of an instance are not independent).']

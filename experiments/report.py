@@ -514,7 +514,9 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
         if rollout and is_pachs:  # per query, and per second of query (a search may stop early)
           theirs = rollout['evaluations_per_query_mean']
           per_s = (edges / a['query_time_s_mean']) / (theirs / rollout['query_time_s_mean'])
-          ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)})'
+          clocked = a.get('evaluations_per_clocked_query_mean')
+          ratio = f'{num(edges / theirs, 2)} ({num(per_s, 2)}' + (
+              f'; {num(clocked / theirs, 2)} to the clock' if clocked else '') + ')'
         rows.append([layout, label + again, box_contacts(p), episodes_solved(a), num(edges),
                      ratio,
                      num(a['iterations_per_query_mean'], 1),
@@ -602,7 +604,10 @@ def closed_loop_sessions(src: Sources) -> str:
       table(CLOSED_LOOP_COLUMNS, rows),
       '/ rollout\'s: PACHS\'s edges over the rollout\'s at the same clock; in parentheses per '
       'second of query (a PACHS query ends before its time once every episode\'s search has '
-      'stopped, its goal found and improved). '
+      'stopped, its goal found and improved)'
+      + (', and PACHS\'s edges in the searches that ran to the clock ("to the clock": an '
+         'episode whose search stopped before it evaluated no more that query)'
+         if any('to the clock' in row[5] for row in rows) else '') + '. '
       'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
       f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
       'iteration one call of one step for every copy). '

@@ -273,8 +273,11 @@ def test_a_traced_planner_writes_its_worlds_and_the_states_pachs_planned_for_the
   args = _closed_loop_args(max_queries=1, execute=3, query_time=300.0, trace=1)  # budget binds
   worlds = closed_loop.Worlds(env, starts)
   path = tmp_path / 'run.pachs.trace.npz'
-  closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
-                          jax.random.PRNGKey(0), trace_path=str(path))
+  info = closed_loop.run_planner('pachs', 'pusht-fixed', env, model, worlds, args,
+                                 jax.random.PRNGKey(0), trace_path=str(path))
+  # the budget, not the 300 s clock, ended both searches
+  assert info['searches_ended_before_clock'] == 2
+  assert info['evaluations_per_clocked_query_mean'] is None
   trace = np.load(path)
   assert trace['asked_at'].tolist() == [[0, 0]] and trace['steps'].tolist() == [3, 3]
   # the plan starts at the world's state, and the world executed the plan's actions
