@@ -1155,7 +1155,8 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`b236397`: `physics/agreement_warp_convexbox_cpu.json`; `96d1e22`: '
      '`closed_loop_trace_cpu/{slot,gate-mirror,wall-right}_pachs*`; `eeeedd4`: '
      '`closed_loop_gpu/{gate,wall,detour,wall-right}_{pachs,parallel}.json`, '
-     '`closed_loop_gpu/{gate,wall}_*-planner-world.json`, `closed_loop_gpu/repeat/wall_pachs.json`'),
+     '`closed_loop_gpu/{gate,wall}_*-planner-world.json`, '
+     '`closed_loop_gpu/repeat/wall_pachs.json`'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',

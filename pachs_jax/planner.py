@@ -270,10 +270,10 @@ class Planner:
               query_time_s: Optional[float] = None, fill_steps: int = 0) -> replan.Session:
     """A `replan.Session` that replans many episodes from their new states with this planner's
     env, model and config, keeping its last answer between queries (horizon, candidates, check
-    and fill_steps as there). query_time_s: the seconds its queries will last, which on an accelerator
-    choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one. Where the
-    config has chain lanes the session's search replays the last answer's remainder and is
-    built apart from `plan`'s, with room for it (once per horizon and K, shared by the
+    and fill_steps as there). query_time_s: the seconds its queries will last, which on an
+    accelerator choose its K (`TaskSpec.replan_pop_size`) unless the planner was given one.
+    Where the config has chain lanes the session's search replays the last answer's remainder
+    and is built apart from `plan`'s, with room for it (once per horizon and K, shared by the
     sessions that have them); otherwise it shares `plan`'s where the K is the same."""
     if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int)
                                 or horizon < 1):  # before a search is built for it
