@@ -473,7 +473,7 @@ def failures(summary: Dict) -> str:
     return '-'
   on_policy, cut = summary.get('failures_on_policy_steps'), summary.get('cut_fills')
   notes = ([] if on_policy is None else [f'{on_policy} on policy steps']) + (
-      [f'{cut} fills stopped'] if cut else [])
+      [f'{cut} fill{"" if cut == 1 else "s"} stopped'] if cut else [])
   return str(summary['failures']) + (f' ({", ".join(notes)})' if notes else '')
 
 
