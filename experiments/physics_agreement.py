@@ -4,6 +4,7 @@
   python experiments/physics_agreement.py penetration  # T-block and stick-block depth
   python experiments/physics_agreement.py agreement    # planners (MJX, ...) against the world
   python experiments/physics_agreement.py contacts     # Warp's T-block contacts against C's
+  python experiments/physics_agreement.py stick        # Warp's stick-T contacts against C's
 
 The stochastic pusht-fixed policy runs in a MuJoCo C float64 world of the reference physics
 from the layouts' canonical starts; the candidates replay its actions from the world's states
@@ -11,7 +12,8 @@ every 10 steps; reported: the T's position (mm) and angle (deg) error percentile
 and 30 control steps, the deepest block penetrations, and each candidate's step cost on this
 machine's CPU (MuJoCo C one thread; MJX a vmapped batch). `contacts` draws the T tilted near
 a block instead and compares the T-block contacts of MuJoCo C with MuJoCo Warp's (CPU kernels),
-colliding box pairs by its general convex collider and by the box-box routine (the model's)."""
+colliding box pairs by its general convex collider and by the box-box routine (the model's).
+`stick` presses the T against the stick (a capsule) instead and compares their contacts."""
 
 from __future__ import annotations
 
@@ -30,7 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
   """The script's flags (light modules only: a bad flag is refused before JAX loads)."""
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('part',
-                      choices=['reference', 'penetration', 'agreement', 'gap', 'contacts'])
+                      choices=['reference', 'penetration', 'agreement', 'gap', 'contacts',
+                               'stick'])
   parser.add_argument('--layouts', default='gate,wall')
   parser.add_argument('--steps', type=int, default=40, help='world control steps per instance')
   parser.add_argument('--horizons', default='1,10,30')
@@ -39,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
   parser.add_argument('--bare-models', action='store_true',
                       help="agreement: replay on the config's bare models, not the envs")
   parser.add_argument('--samples', type=int, default=100,
-                      help='contacts: T poses touching a block per layout and tilt range')
+                      help='contacts: T poses touching a block per layout and tilt range; '
+                      'stick: T poses pressed against the stick per tilt range')
   parser.add_argument('--mjx-cost', action='store_true', help='also time MJX steps (slow)')
   parser.add_argument('--mjx-worlds', default='16', help='batch sizes of the MJX timing')
   common.add_common_args(parser, out=None, instances=8, seed=True)
@@ -375,11 +379,18 @@ def t_block_contacts(model: mujoco.MjModel, warp_models: Dict[str, object],
                      qpos: np.ndarray) -> Tuple[list, Dict[str, list]]:
   """(MuJoCo C's, {name: each Warp model's}) contacts between the T and the blocks of a PushT
   model at qpos [nq], as `_contact_set` lists; warp_models from `warp_cpu_models`."""
+  t_geoms = [model.geom(n).id for n in ('t_bar', 't_stem')]
+  return pair_contacts(model, warp_models, qpos,
+                       {frozenset((t, b)) for t in t_geoms for b in range(model.ngeom)
+                        if model.geom(b).name.startswith('obstacle')})
+
+
+def pair_contacts(model: mujoco.MjModel, warp_models: Dict[str, object], qpos: np.ndarray,
+                  pairs: set) -> Tuple[list, Dict[str, list]]:
+  """(MuJoCo C's, {name: each Warp model's}) contacts between the geom pairs (a set of
+  frozensets of geom ids) of a model at qpos [nq], as `_contact_set` lists."""
   from mujoco.mjx.third_party import mujoco_warp as mjw  # pylint: disable=g-import-not-at-top
   import warp as wp  # pylint: disable=g-import-not-at-top
-  t_geoms = [model.geom(n).id for n in ('t_bar', 't_stem')]
-  pairs = {frozenset((t, b)) for t in t_geoms for b in range(model.ngeom)
-           if model.geom(b).name.startswith('obstacle')}
   data = mujoco.MjData(model)
   data.qpos[:] = qpos
   mujoco.mj_forward(model, data)
@@ -449,6 +460,71 @@ def run_contacts(args, layouts, policies, starts_of):
   return rows, []
 
 
+STICK_TILT_BINS_DEG = ((0.0, 0.0), (0.0, 0.5), (0.5, 5.0))  # the T's tilt; (0, 0): flat
+STICK_DEPTH_BINS_MM = (0.0, 4.0, 7.0, 9.0, 12.0)  # the stick's radius is 8 mm
+
+
+def run_stick(args, layouts, policies, starts_of):
+  """The stick's contacts with the T in MuJoCo C against MuJoCo Warp's (CPU kernels): the arm
+  at its home pose (the stick upright), the T (any yaw, tilted within each of
+  STICK_TILT_BINS_DEG) moved from 12 cm away against the stick until a drawn bar or stem
+  presses it 0 to 12 mm deep; counted by the deepest contact in MuJoCo C
+  (STICK_DEPTH_BINS_MM), args.samples poses per tilt range. Contacts agree as in
+  `run_contacts`."""
+  del layouts, policies, starts_of
+  rng = np.random.default_rng(args.seed)
+  m = mujoco.MjModel.from_xml_string(pusht.model_xml(pusht.PushTConfig(variant='obs')))
+  warp_models = warp_cpu_models({'box-box': m})
+  stick, t_geoms = m.geom('stick').id, [m.geom(n).id for n in ('t_bar', 't_stem')]
+  pairs = {frozenset((stick, t)) for t in t_geoms}
+  data, fromto = mujoco.MjData(m), np.zeros(6)
+  rows = []
+  for lo, hi in STICK_TILT_BINS_DEG:
+    cells = {b: [0, 0, 0, 0] for b in range(len(STICK_DEPTH_BINS_MM) - 1)}
+    kept = 0
+    while kept < args.samples:
+      qpos = np.zeros(m.nq)
+      qpos[:7] = pusht.HOME_QPOS
+      data.qpos[:] = qpos
+      mujoco.mj_forward(m, data)
+      away = rng.uniform(0, 2 * np.pi)
+      qpos[7:9] = data.geom_xpos[stick][:2] + 0.12 * np.array([np.cos(away), np.sin(away)])
+      qpos[9] = pusht.T_HALF_HEIGHT
+      tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
+                            rng.uniform(0, 2 * np.pi))
+      q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
+                         np.sin(tilt / 2) * np.sin(azimuth), 0.0])
+      q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+      mujoco.mju_mulQuat(qpos[10:14], q_tilt, q_yaw)
+      data.qpos[:] = qpos
+      mujoco.mj_forward(m, data)
+      part = t_geoms[rng.integers(2)]
+      gap = mujoco.mj_geomDistance(m, data, stick, part, 1.0, fromto)
+      toward = fromto[:2] - fromto[3:5]  # from the T's nearest point to the stick's
+      qpos[7:9] += toward / max(np.linalg.norm(toward), 1e-12) * (gap + rng.uniform(0, 0.012))
+      c, found = pair_contacts(m, warp_models, qpos, pairs)
+      depth = -1000 * min([x[3] for x in c] or [np.inf])
+      b = next((i for i in cells if STICK_DEPTH_BINS_MM[i] <= depth
+                < STICK_DEPTH_BINS_MM[i + 1]), None)
+      if b is None:
+        continue
+      kept += 1
+      w = found['box-box']
+      cells[b][0] += 1
+      cells[b][1] += not _same_contacts(c, w)
+      cells[b][2] += len(c)
+      cells[b][3] += len(w)
+    for b, (n, differ, in_c, in_w) in cells.items():
+      row = {'tilt_deg': f'{lo:g}-{hi:g}',
+             'depth_mm': f'{STICK_DEPTH_BINS_MM[b]:g}-{STICK_DEPTH_BINS_MM[b + 1]:g}',
+             'samples': n, 'differ': differ,
+             'mean_contacts_mujoco_c': round(in_c / max(n, 1), 2),
+             'mean_contacts_warp': round(in_w / max(n, 1), 2)}
+      print(row, flush=True)
+      rows.append(row)
+  return rows, []
+
+
 def main():
   args = build_parser().parse_args()
   args.horizons = [int(h) for h in args.horizons.split(',')]
@@ -456,16 +532,18 @@ def main():
   layouts = args.layouts.split(',')
   out = args.out or f'experiments/results/physics/{args.part}.json'
   policies, starts_of = {}, {}
-  for layout in (layouts if args.part not in ('gap', 'contacts') else []):
+  for layout in (layouts if args.part not in ('gap', 'contacts', 'stick') else []):
     env, model = planner.load_model('pusht-obs', backend='mjx', layout=layout)
     policies[layout] = policy_of(model, env, args.seed)
     starts_of[layout] = jax.device_get(env.canonical_instances(args.instances))
   part = {'reference': run_reference, 'penetration': run_penetration,
-          'agreement': run_agreement, 'gap': run_gap, 'contacts': run_contacts}[args.part]
+          'agreement': run_agreement, 'gap': run_gap, 'contacts': run_contacts,
+          'stick': run_stick}[args.part]
   rows, costs = part(args, layouts, policies, starts_of)
   settings = {k: v for k, v in vars(args).items()}
   tables = {'reference': REFERENCE | PLANAR_FITS, 'penetration': PENETRATION,
-            'agreement': AGREEMENT, 'gap': PENETRATION, 'contacts': {}}[args.part]
+            'agreement': AGREEMENT, 'gap': PENETRATION, 'contacts': {},
+            'stick': {}}[args.part]
   payload = {'provenance': common.provenance(), 'settings': settings,
              'physics': {k: {f: list(v) if isinstance(v, tuple) else v for f, v in d.items()}
                          for k, d in tables.items()},
