@@ -515,7 +515,7 @@ def run_stick(args, layouts, policies, starts_of):
       cells[b][2] += len(c)
       cells[b][3] += len(w)
     for b, (n, differ, in_c, in_w) in cells.items():
-      row = {'tilt_deg': f'{lo:g}-{hi:g}',
+      row = {'tilt_deg': f'{lo:g}-{hi:g}' if hi > lo else f'{lo:g} (flat)',
              'depth_mm': f'{STICK_DEPTH_BINS_MM[b]:g}-{STICK_DEPTH_BINS_MM[b + 1]:g}',
              'samples': n, 'differ': differ,
              'mean_contacts_mujoco_c': round(in_c / max(n, 1), 2),

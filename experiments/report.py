@@ -1230,7 +1230,8 @@ def physics(src: Sources) -> str:
 
 def warp_box_contacts(src: Sources) -> str:
   """The T's block contacts in MuJoCo Warp against MuJoCo C, by Warp's convex collider and by
-  the box-box routine (physics/contacts_warp_cpu.json), and the Warp planners' agreement with
+  the box-box routine (physics/contacts_warp_cpu.json), the stick's contacts with the T
+  (physics/contacts_stick_warp_cpu.json), and the Warp planners' agreement with
   the MuJoCo C world on the default physics (physics/agreement_warp_boxbox_cpu.json)."""
   contacts = src.load('physics/contacts_warp_cpu.json')
   bins = {}
@@ -1246,6 +1247,11 @@ def warp_box_contacts(src: Sources) -> str:
   contact_rows = [[tilt, f'{n:,}', f'{c:,} ({pct(c / n)})', f'{b:,} ({pct(b / n)})',
                    ' / '.join(num(x / n, 2) for x in (mc, mx, mb))]
                   for tilt, (n, c, b, mc, mx, mb) in bins.items()]
+  stick = src.load('physics/contacts_stick_warp_cpu.json')
+  stick_rows = [[r['tilt_deg'], r['depth_mm'], f'{r["samples"]:,}',
+                 f'{r["differ"]:,} ({pct(r["differ"] / max(r["samples"], 1))})',
+                 f'{num(r["mean_contacts_mujoco_c"], 2)} / {num(r["mean_contacts_warp"], 2)}']
+                for r in stick['rows']]
   agreement = src.load('physics/agreement_warp_boxbox_cpu.json')
   cells = {}
   for r in agreement['rows']:
@@ -1265,6 +1271,14 @@ def warp_box_contacts(src: Sources) -> str:
       'uses MuJoCo C\'s box-box routine:',
       table(['tilt (degrees)', 'poses', 'differ: convex collider', 'differ: box-box',
              'contacts per pose: MuJoCo C / convex / box-box'], contact_rows),
+      'The stick\'s contacts with the T, the same comparison (`physics_agreement.py stick`, '
+      f'{stick["provenance"]["device"]}): the arm at its home pose, the stick upright, the T '
+      'drawn at any yaw, tilted within the range, and pressed against the stick by its bar or '
+      'stem up to 12 mm deep (the stick\'s radius is 8 mm), by the deepest contact in MuJoCo '
+      'C. Warp collides the capsule and the box by its port of MuJoCo C\'s routine; they part '
+      'where the stick lies parallel to the T\'s face, a flat T against an upright stick:',
+      table(['tilt (degrees)', 'depth (mm)', 'poses', 'differ',
+             'contacts per pose: MuJoCo C / Warp'], stick_rows),
       'The Warp planners (box-box) against the MuJoCo C world on the default physics, the '
       'shipped policy\'s pushes as above (`physics_agreement.py agreement`, '
       f'{agreement["provenance"]["device"]}, {agreement["settings"]["instances"]} starts a '
