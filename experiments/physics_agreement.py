@@ -409,6 +409,19 @@ def pair_contacts(model: mujoco.MjModel, warp_models: Dict[str, object], qpos: n
   return c, found
 
 
+def _tilted_quat(rng, lo_deg: float, hi_deg: float) -> np.ndarray:
+  """[4] a free body's orientation quaternion: any yaw, tilted lo_deg to hi_deg (drawn
+  uniformly) about a horizontal axis of any azimuth."""
+  tilt, azimuth, yaw = (np.radians(rng.uniform(lo_deg, hi_deg)), rng.uniform(0, 2 * np.pi),
+                        rng.uniform(0, 2 * np.pi))
+  q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
+                     np.sin(tilt / 2) * np.sin(azimuth), 0.0])
+  q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+  out = np.zeros(4)
+  mujoco.mju_mulQuat(out, q_tilt, q_yaw)
+  return out
+
+
 def run_contacts(args, layouts, policies, starts_of):
   """The T's contacts with the blocks in MuJoCo C against MuJoCo Warp's (CPU kernels), the T
   drawn near a block (origin within 0.12 m of its side, lifted 0 to 2 cm, any yaw) tilted
@@ -435,12 +448,7 @@ def run_contacts(args, layouts, policies, starts_of):
         reach = max(m.geom_size[b][:2]) + 0.12  # m: the block's half side and the T's
         qpos[7:9] = m.geom_pos[b][:2] + rng.uniform(-reach, reach, 2)
         qpos[9] = pusht.T_HALF_HEIGHT + rng.uniform(0.0, 0.02)
-        tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
-                              rng.uniform(0, 2 * np.pi))
-        q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
-                           np.sin(tilt / 2) * np.sin(azimuth), 0.0])
-        q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-        mujoco.mju_mulQuat(qpos[10:14], q_tilt, q_yaw)
+        qpos[10:14] = _tilted_quat(rng, lo, hi)
         c, found = t_block_contacts(m, warp_models, qpos)
         if (not c and not any(found.values())) or min(
             [x[3] for x in c] or [0.0]) < -0.005:  # none, or deeper than the blocks let
@@ -478,6 +486,9 @@ def run_stick(args, layouts, policies, starts_of):
   stick, t_geoms = m.geom('stick').id, [m.geom(n).id for n in ('t_bar', 't_stem')]
   pairs = {frozenset((stick, t)) for t in t_geoms}
   data, fromto = mujoco.MjData(m), np.zeros(6)
+  data.qpos[:7] = pusht.HOME_QPOS
+  mujoco.mj_forward(m, data)
+  stick_xy = data.geom_xpos[stick][:2].copy()  # the upright stick at the arm's home pose
   rows = []
   for lo, hi in STICK_TILT_BINS_DEG:
     cells = {b: [0, 0, 0, 0] for b in range(len(STICK_DEPTH_BINS_MM) - 1)}
@@ -485,17 +496,10 @@ def run_stick(args, layouts, policies, starts_of):
     while kept < args.samples:
       qpos = np.zeros(m.nq)
       qpos[:7] = pusht.HOME_QPOS
-      data.qpos[:] = qpos
-      mujoco.mj_forward(m, data)
       away = rng.uniform(0, 2 * np.pi)
-      qpos[7:9] = data.geom_xpos[stick][:2] + 0.12 * np.array([np.cos(away), np.sin(away)])
+      qpos[7:9] = stick_xy + 0.12 * np.array([np.cos(away), np.sin(away)])
       qpos[9] = pusht.T_HALF_HEIGHT
-      tilt, azimuth, yaw = (np.radians(rng.uniform(lo, hi)), rng.uniform(0, 2 * np.pi),
-                            rng.uniform(0, 2 * np.pi))
-      q_tilt = np.array([np.cos(tilt / 2), np.sin(tilt / 2) * np.cos(azimuth),
-                         np.sin(tilt / 2) * np.sin(azimuth), 0.0])
-      q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
-      mujoco.mju_mulQuat(qpos[10:14], q_tilt, q_yaw)
+      qpos[10:14] = _tilted_quat(rng, lo, hi)
       data.qpos[:] = qpos
       mujoco.mj_forward(m, data)
       part = t_geoms[rng.integers(2)]
