@@ -607,7 +607,7 @@ def closed_loop_sessions(src: Sources) -> str:
       'stopped, its goal found and improved)'
       + (', and PACHS\'s edges in the searches that ran to the clock ("to the clock": an '
          'episode whose search stopped before it evaluated no more that query)'
-         if any('to the clock' in row[5] for row in rows) else '') + '. '
+         if any('to the clock' in cell for row in rows for cell in row) else '') + '. '
       'ms per iteration: a query\'s time over its iterations (a PACHS iteration evaluates '
       f'edges of {steps} control steps, so {steps} physics calls one after another; a rollout '
       'iteration one call of one step for every copy). '
