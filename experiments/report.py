@@ -440,11 +440,11 @@ def answer_counts(row: Dict) -> str:
 # the closed-loop runs on the default physics (closed_loop_gpu/): file suffix -> what ran
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
-              "replayed in the search, K 128)"),
-    ('pachs-guard', 'PACHS, the policy\'s fill stopped before the first edge the planner\'s '
-                    'physics finds invalid (`--fill-check 1`)'),
+              "replayed in the search, K 128, the policy's fill checked)"),
+    ('pachs-noguard', 'PACHS, the policy\'s fill not checked (`--fill-check 0`)'),
     ('parallel', 'parallel rollout (256 copies)'),
     ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
+    ('pachs-noguard-q1', 'PACHS, 1 s per query (K 64), the policy\'s fill not checked'),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
 # the revisions of runs (closed_loop_gpu/, faithful_gpu/) whose Warp planners collided the T
@@ -545,13 +545,16 @@ def query_split(src: Sources, folder: str) -> str:
   """Where the default PACHS's closed-loop queries went, per query time: the search's seconds
   against the whole query's (means over each run's queries, the range over the layouts), the
   follow's milliseconds, and the longest query of PACHS and of the rollout."""
-  def summaries(planner: str, clock: str) -> List[Dict]:
-    names = [f'{folder}/{layout}_{planner}{clock}.json' for layout in CLOSED_LOOP_LAYOUTS]
-    return [summary_of(src.load(name), planner) for name in names if src.exists(name)]
+  def summaries(variant: str, clock: str) -> List[Dict]:
+    names = [f'{folder}/{layout}_{variant}{clock}.json' for layout in CLOSED_LOOP_LAYOUTS]
+    return [summary_of(src.load(name), variant.split('-')[0]) for name in names
+            if src.exists(name)]
 
   parts = []
   for clock, label in (('', '3 s'), ('-q1', '1 s')):
     pachs, rollout = summaries('pachs', clock), summaries('parallel', clock)
+    if not pachs:  # (the runs from before the fill check)
+      pachs, label = summaries('pachs-noguard', clock), label + ' without the fill check'
     if not pachs:
       continue
     text = (f'at {label} the search took {span([a["search_s_mean"] for a in pachs], 2)} of '
@@ -565,6 +568,32 @@ def query_split(src: Sources, folder: str) -> str:
   return ('Where a PACHS query went: ' + '; '.join(parts) + '. The rest of a query is the '
           'search\'s setup (the model check on the new states, its arrays) and the choice.'
           ) if parts else ''
+
+
+def fill_check_sentence(src: Sources, folder: str) -> str:
+  """PACHS with the policy's fill checked (the default) against the same layouts' runs
+  without the check (`*_pachs-noguard.json`): episodes solved and failed, summed over the
+  layouts run both ways, and the episodes only one of the two solved (same instances)."""
+  solved, failed, only, layouts = [0, 0], [0, 0], [0, 0], []
+  for layout in CLOSED_LOOP_LAYOUTS:
+    names = [f'{folder}/{layout}_pachs.json', f'{folder}/{layout}_pachs-noguard.json']
+    if not all(src.exists(n) for n in names):
+      continue
+    runs = [src.load(n) for n in names]
+    success = [run['episodes']['pachs']['success'] for run in runs]
+    for i, run in enumerate(runs):
+      solved[i] += sum(success[i])
+      failed[i] += summary_of(run, 'pachs')['failures']
+      only[i] += sum(a and not b for a, b in zip(success[i], success[1 - i]))
+    layouts.append(layout)
+  if not layouts:
+    return ''
+  episodes = sum(summary_of(src.load(f'{folder}/{layout}_pachs.json'), 'pachs')['episodes']
+                 for layout in layouts)
+  return (f'The policy\'s fill checked against not checked, over the {len(layouts)} layouts '
+          f'run both ways ({episodes:,} episodes each, the same instances): {solved[0]:,} '
+          f'against {solved[1]:,} solved, {failed[0]} against {failed[1]} with the T tipped '
+          f'over; {only[0]} episodes solved only with the check, {only[1]} only without.')
 
 
 CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'T-block contacts', 'solved',
@@ -615,7 +644,7 @@ def closed_loop_sessions(src: Sources) -> str:
       '"on policy steps": failed while playing an empty answer\'s policy action or the '
       'policy\'s fill of a short answer).'
       + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else '')
-      + ' ' + query_split(src, folder),
+      + ' ' + query_split(src, folder) + ' ' + fill_check_sentence(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'T-block contacts', 'own physics', 'MuJoCo C', 'drop',
@@ -628,7 +657,7 @@ def closed_loop_sessions(src: Sources) -> str:
 
 # traced closed loops on a CPU (closed_loop_trace_cpu/): file suffix -> what ran
 TRACED_VARIANTS = (('pachs', 'PACHS'),
-                   ('pachs-guard', 'PACHS, the policy\'s fill guarded (`--fill-check 1`)'))
+                   ('pachs-noguard', 'PACHS, the policy\'s fill not checked (`--fill-check 0`)'))
 
 
 def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
@@ -1435,7 +1464,8 @@ def serving_gpus(src: Sources) -> str:
 def served_closed_loop(src: Sources) -> str:
   """The closed loop's protocol through a server against the same protocol in process."""
   served = summary_of(src.load('serve_gpu/wall_pachs-served.json'), 'pachs')
-  own = summary_of(src.load('closed_loop_gpu/wall_pachs.json'), 'pachs')
+  # in process as served: the policy's fill not checked
+  own = summary_of(src.load('closed_loop_gpu/wall_pachs-noguard.json'), 'pachs')
   prov = src.load('serve_gpu/wall_pachs-served.json')['provenance']
   return (f'The closed loop through a server (`serve_gpu/run.sh`: `pachs serve --query-time 3`, '
           f'K {served_pop_size(src)}, and `closed_loop.py --server`, {prov["device"]}; wall, the '

@@ -302,7 +302,8 @@ def _loop(args: argparse.Namespace) -> int:
                                pop_size=args.pop_size)
   if planning.physics_note is not None:
     print(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
-  env, session = planning.env, planning.session(query_time_s=args.query_time)
+  env, session = planning.env, planning.session(
+      query_time_s=args.query_time, fill_steps=args.execute if args.fill_check else 0)
   config = session.config
   worlds = episodes.Worlds(env, planning.canonical(instances))
   print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '
@@ -316,7 +317,7 @@ def _loop(args: argparse.Namespace) -> int:
   rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),
                 'failed': bool(worlds.failed[e]),
                 'steps': int(worlds.steps[e]), 'queries': int(log.queries[e]),
-                'policy_steps': int(log.policy_steps[e])},
+                'policy_steps': int(log.policy_steps[e]), 'cut_fills': int(log.cut_fills[e])},
                **{name: int(log.answers[e, k]) for k, name in enumerate(names)})
           for e, inst in enumerate(instances)]
   print(planner.format_table(rows, ['instance', 'success', 'failed', 'steps', 'queries']
@@ -328,7 +329,8 @@ def _loop(args: argparse.Namespace) -> int:
                 'physics': env.physics, 'world': 'mujoco-c',
                 'config': dataclasses.asdict(config),
                 'settings': {'query_time_s': args.query_time, 'execute': args.execute,
-                             'max_queries': args.max_queries, 'seed': args.seed},
+                             'max_queries': args.max_queries, 'fill_check': args.fill_check,
+                             'seed': args.seed},
                 'rows': rows}
 
     def write_json():
@@ -585,6 +587,10 @@ def _main(words, prefetch=None, guard=None) -> int:
                     help='actions of each answer executed before the next query (default 10)')
   loop.add_argument('--max-queries', type=argtypes.positive_int, default=30,
                     help='queries per episode (default 30)')
+  loop.add_argument('--fill-check', type=int, default=1, choices=[0, 1],
+                    help="1 (default): a short answer's policy fill stops before the first edge "
+                    "the planner's physics finds invalid (a T tipped over), the next query "
+                    'sooner; 0: the policy fills up to --execute actions')
   loop.add_argument('--budget', type=argtypes.positive_int, default=None,
                     help="edge evaluations per query and episode (default: the task's)")
   loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')

@@ -67,9 +67,9 @@ class Followed:
 
 def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.NodeState,
            actions: jax.Array, length: jax.Array, use_policy: jax.Array) -> Followed:
-  """Follows paths from start [B]: actions [B, T, A] for the first length [B] edges, or where
-  use_policy [B] the policy's action at each state, policy(obs [B, O]) -> [B, A], for up to T
-  edges. A pure function (jit it); the loop ends once every lane has stopped."""
+  """Follows paths from start [B] for their first length [B] edges (at most T): actions
+  [B, T, A], or where use_policy [B] the policy's action at each state, policy(obs [B, O]) ->
+  [B, A]. A pure function (jit it); the loop ends once every lane has stopped."""
   batch, horizon = actions.shape[:2]
 
   def cond(carry):
@@ -80,7 +80,7 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
     t, node, running, taken, steps, reached, cost, states = carry
     action = jnp.where(use_policy[:, None], policy(env.observe(node)), actions[:, t])
     out = env.evaluate(node, action)
-    take = running & out.is_valid & jnp.isfinite(out.cost) & ((t < length) | use_policy)
+    take = running & out.is_valid & jnp.isfinite(out.cost) & (t < length)
     node = trees.where(take, out.next_node, node)
     taken = taken.at[:, t].set(jnp.where(take[:, None], action, 0.0))
     reached = reached | (take & out.is_goal)
@@ -91,7 +91,7 @@ def follow(env: base.Env, policy: Callable[[jax.Array], jax.Array], start: base.
 
   at_goal = env.is_goal(start)
   states = jax.tree.map(lambda x: jnp.repeat(x[:, None], horizon + 1, axis=1), start)
-  carry = (jnp.zeros((), jnp.int32), start, ~at_goal & ((length > 0) | use_policy),
+  carry = (jnp.zeros((), jnp.int32), start, ~at_goal & (length > 0),
            jnp.zeros_like(actions, jnp.float32), jnp.zeros((batch,), jnp.int32), at_goal,
            jnp.zeros((batch,), jnp.float32), states)
   t, last, _, taken, steps, reached, cost, states = jax.lax.while_loop(cond, body, carry)
@@ -193,8 +193,8 @@ def fill_length(env: base.Env, policy: Callable[[jax.Array], jax.Array], end: ba
   holds `steps` actions. A pure function."""
   want = jnp.maximum(steps - length, 0).astype(jnp.int32)
   num = length.shape[0]
-  took = follow(env, policy, end, jnp.zeros((num, steps, env.action_size), jnp.float32),
-                jnp.zeros((num,), jnp.int32), want > 0)
+  took = follow(env, policy, end, jnp.zeros((num, steps, env.action_size), jnp.float32), want,
+                want > 0)  # each lane only as far as its fill goes
   return jnp.where(took.reached_goal | (took.steps >= want), want, took.steps).astype(jnp.int32)
 
 
@@ -436,7 +436,8 @@ class Session:
     use_policy = np.repeat(np.array([False, 'policy' in self.candidates]), rows)
     both = jax.tree.map(lambda x: jnp.concatenate([pad(x), pad(x)]), states)
     args = (both, jnp.concatenate([pad(actions), pad(actions)]),
-            jnp.concatenate([pad(length), jnp.zeros((rows,), jnp.int32)]),
+            jnp.concatenate([pad(length), jnp.full((rows,), horizon if use_policy[-1] else 0,
+                                                   jnp.int32)]),
             jnp.asarray(use_policy))
     if rows not in self._compiled:  # compiled before the query's clock, as the search is
       self._compiled[rows] = self._follow.lower(*args).compile()
@@ -478,9 +479,12 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
-    if self._fill_length is not None:  # the policy from each answer's end (its last state row)
+    if self._fill_length is not None:  # the policy from each answer's end (its last state row),
+      length = answer.length  # of the active episodes only (the others: nothing to fill)
+      if active is not None:
+        length = jnp.where(pad(jnp.asarray(active)), length, self.fill_steps)
       answer = answer.replace(fill_length=self._fills[rows](
-          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length))
+          jax.tree.map(lambda x: x[:, -1], answer.states), length))
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
     answer = jax.block_until_ready(answer)
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's and fill's included

@@ -245,6 +245,14 @@ def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message
   assert message in err and err.count('\n') == 1, err
 
 
+def test_the_policy_fill_is_checked_by_default_wherever_a_session_fills():
+  parse = lambda *argv: closed_loop.fill_check(closed_loop.build_parser().parse_args(list(argv)))
+  assert parse() == 1
+  assert parse('--fill-with-policy', '0') == 0
+  assert parse('--server', 'localhost:8765') == 0
+  assert parse('--fill-check', '0') == 0
+
+
 def _closed_loop_args(**changes):
   """closed_loop.py's flags for run_planner: PACHS on a tiny budget, K 4, changes applied."""
   flags = dict(budget=64, realtime_answer=None, pop_size=4, chain_restart=None,

@@ -60,19 +60,21 @@ def test_remainder_drops_the_executed_actions():
 
 def test_follow_stops_at_the_length_the_goal_and_an_invalid_edge(env, follow):
   horizon = 12
-  starts, goals = [[0.0, 0.0]] * 4, [[0.5, 0.0]] * 4
-  actions = np.zeros((4, horizon, DIM), np.float32)
+  starts, goals = [[0.0, 0.0]] * 6, [[0.5, 0.0]] * 6
+  actions = np.zeros((6, horizon, DIM), np.float32)
   actions[:, :] = [1.0, 0.0]  # 0.1 per step: the goal after 5 steps
   actions[2, 2] = np.nan  # lane 2's third edge is invalid
   out = jax.tree.map(np.asarray, follow(
-      _nodes(env, starts, goals), jnp.asarray(actions), jnp.array([3, 9, 9, 0]),
-      jnp.array([False, False, False, True])))
-  # lane 0 stops at its length, lane 1 at the goal, lane 2 before its invalid edge; lane 3
-  # follows the policy (straight at the goal) instead of its empty path
-  np.testing.assert_array_equal(out.steps, [3, 5, 2, 5])
-  np.testing.assert_array_equal(out.reached_goal, [False, True, False, True])
+      _nodes(env, starts, goals), jnp.asarray(actions), jnp.array([3, 9, 9, 9, 2, 0]),
+      jnp.array([False, False, False, True, True, True])))
+  # lane 0 stops at its length, lane 1 at the goal, lane 2 before its invalid edge; lanes 3-5
+  # follow the policy (straight at the goal) instead of their paths, each up to its length
+  np.testing.assert_array_equal(out.steps, [3, 5, 2, 5, 2, 0])
+  np.testing.assert_array_equal(out.reached_goal, [False, True, False, True, False, False])
   np.testing.assert_array_equal(out.actions[1, 5:], 0.0)
   np.testing.assert_allclose(out.actions[3, :5], [[1.0, 0.0]] * 5, atol=1e-6)
+  np.testing.assert_array_equal(out.actions[4, 2:], 0.0)
+  np.testing.assert_allclose(out.states.qpos[4, 2:], [[0.2, 0.0]] * (horizon - 1), atol=1e-6)
   # the states along each path: lane 1 moves 0.1 a step to the goal, then stays there
   np.testing.assert_allclose(out.states.qpos[1, :, 0], [0.0, 0.1, 0.2, 0.3, 0.4]
                              + [0.5] * (horizon - 4), atol=1e-6)
@@ -408,6 +410,10 @@ def test_a_session_with_fill_steps_says_how_far_the_policy_may_fill_each_answer(
            for e, h, w in zip(end, heading, want)]
   np.testing.assert_array_equal(answer.fill_length, moves)
   assert answer.fill_length[2] == want[2]  # away from the cliff the fill is whole
+  # an episode the query does not search (its episode over) gets no fill
+  quiet = session.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0),
+                       active=np.array([True, True, False]))
+  assert int(quiet.length[2]) < 10 and int(quiet.fill_length[2]) == 0
   # without fill_steps no fill is followed
   plain = replan.Session(env, TowardGoal(DIM), config, horizon=16)
   assert plain.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0)).fill_length is None
