@@ -223,6 +223,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
                'generated': search.generated, 'invalid': search.invalid,
                'iterations': search.iterations, 'stop': search.stop_reason,
                'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s'],
+               'choose_s': session.timing['choose_s'],
                'remainder_followed': 'remainder' in session.candidates,
                'remainder_steps': np.asarray(session.followed['remainder'].steps),
                'remainder_goal': np.asarray(session.followed['remainder'].reached_goal)},
@@ -368,7 +369,7 @@ class SessionAnswers:
     self.empty_search = {'queries': 0, 'stop': {}, 'evaluated': 0, 'invalid_edges': 0,
                          'only_start_generated': 0, 't_off_table': 0, 't_off_table_queries': 0,
                          't_tipped': 0, 't_tipped_queries': 0}
-    self.iterations, self.search_s, self.follow_s = [], [], []
+    self.iterations, self.search_s, self.follow_s, self.choose_s = [], [], [], []
     self.clocked, self.ended_before_clock = [], 0  # evaluations [per query and episode], count
     self.previous_goal, self.survival, self.followed = None, [0, 0], False
 
@@ -406,6 +407,8 @@ class SessionAnswers:
       if 'search_s' in info:
         self.search_s.append(info['search_s'])
         self.follow_s.append(info['follow_s'])
+      if 'choose_s' in info:  # (in process: the choice, the check and the fill's follow)
+        self.choose_s.append(info['choose_s'])
 
   def summary(self) -> Dict:
     session = bool(self.kinds.any())
@@ -418,7 +421,8 @@ class SessionAnswers:
             'goal_answers_followed': self.survival[0] if self.followed else None,
             'remainders_still_at_goal': self.survival[1] if self.followed else None,
             'search_s_mean': stats.mean_or_none(self.search_s),
-            'follow_s_mean': stats.mean_or_none(self.follow_s)}
+            'follow_s_mean': stats.mean_or_none(self.follow_s),
+            'choose_s_mean': stats.mean_or_none(self.choose_s)}
 
 
 def run_planner(name, task, env, model, episodes: Worlds, args, key,

@@ -557,9 +557,12 @@ def query_split(src: Sources, folder: str) -> str:
       pachs, label = summaries('pachs-noguard', clock), label + ' without the fill check'
     if not pachs:
       continue
+    chosen = [a['choose_s_mean'] for a in pachs if a.get('choose_s_mean') is not None]
     text = (f'at {label} the search took {span([a["search_s_mean"] for a in pachs], 2)} of '
             f'{span([a["query_time_s_mean"] for a in pachs], 2)} a query, following the '
-            f'(empty) candidates {span([1e3 * a["follow_s_mean"] for a in pachs], 1, "ms")}; '
+            f'(empty) candidates {span([1e3 * a["follow_s_mean"] for a in pachs], 1, "ms")}'
+            + (f', the choice with the fill\'s check {span([1e3 * c for c in chosen], 0, "ms")}'
+               if chosen else '') + '; '
             f'the longest query {max(a["query_time_s_max"] for a in pachs):.2f} s')
     if rollout:
       text += (f' (the rollout\'s {max(a["query_time_s_max"] for a in rollout):.2f} s, '
