@@ -181,7 +181,8 @@ class Asked:
   found: np.ndarray
   info: dict
   safe_length: Optional[np.ndarray] = None
-  fill_length: Optional[np.ndarray] = None  # with --fill-check: `replan.Answer.fill_length`
+  fill_length: Optional[np.ndarray] = None  # `replan.Answer.fill_length` (--fill-check, or a
+                                            # server with fill steps)
   kind: Optional[np.ndarray] = None  # with --trace: the session's `replan.AnswerKind` [E]
   states: Optional[object] = None  # with --trace: the answer's states NodeState [E, T + 1]
 
@@ -306,6 +307,9 @@ def served_query(task: str, args, num: int):
   if args.pop_size is not None and served.get('pop_size') != args.pop_size:
     raise SystemExit(f'closed_loop.py: -K {args.pop_size} differs from the server\'s '
                      f'{served.get("pop_size")} for {task}')
+  if served.get('fill_steps', 0) not in (0, args.execute):
+    raise SystemExit(f'closed_loop.py: --execute {args.execute} differs from the server\'s '
+                     f'fill steps {served["fill_steps"]} for {task}')
   size = health['max_batch']
   parts = [slice(i, min(i + size, num)) for i in range(0, num, size)]
   clients = [client.Client(args.server, task) for _ in parts]
@@ -332,7 +336,9 @@ def served_query(task: str, args, num: int):
              'follow_s': max(a.follow_s for a in answers),
              'remainder_followed': bool(np.any(join(lambda a: a.remainder['steps']) > 0)),
              'remainder_steps': join(lambda a: a.remainder['steps']),
-             'remainder_goal': join(lambda a: a.remainder['reaches_goal'])})
+             'remainder_goal': join(lambda a: a.remainder['reaches_goal'])},
+                 fill_length=(None if answers[0].fill_length is None
+                              else join(lambda a: a.fill_length)))
   return query, (f'served by {args.server} ({health["backend"]}, budget {served["budget"]}, '
                  f'K {served.get("pop_size")}, '
                  f'max batch {size}, buckets {health["buckets"]})')
@@ -496,7 +502,7 @@ def main():
     parser.error('--check-copies checks the answers of an in-process PACHS, not --server')
   if args.fill_check and (args.server or not args.fill_with_policy):
     parser.error('--fill-check follows the policy fill (--fill-with-policy 1) of an in-process '
-                 'PACHS, not --server')
+                 'PACHS; a server checks it when started with pachs serve --fill-steps')
   args.fill_check = fill_check(args)
   common.check_layout(parser, args.task, args.layout)
   if args.task.startswith('playground:') and (args.perturb or args.check_copies):

@@ -383,7 +383,8 @@ def _serve(args: argparse.Namespace) -> int:
                              max_wait_s=None if args.max_wait_ms is None
                              else args.max_wait_ms / 1000,
                              max_queue=args.max_queue, max_time_limit_s=args.max_time_limit,
-                             devices=args.devices, split=args.split, buckets=buckets)
+                             devices=args.devices, split=args.split, buckets=buckets,
+                             fill_steps=args.fill_steps)
   import jax  # pylint: disable=import-outside-toplevel
   if args.devices > jax.device_count():  # before any model loads
     raise ValueError(f'--devices {args.devices}: this host has {jax.device_count()} '
@@ -641,6 +642,10 @@ def _main(words, prefetch=None, guard=None) -> int:
   served.add_argument('--query-time', type=argtypes.positive_float, default=None,
                       help="the seconds the clients' queries mostly last: on a GPU it chooses "
                       "K as `pachs loop --query-time` does (default: the task's K)")
+  served.add_argument('--fill-steps', type=argtypes.integer(0), default=0,
+                      help="the actions each client executes per query, where it fills a short "
+                      "answer with the policy's: the server follows that fill in its physics "
+                      'and answers how far it holds (fill_length; default 0: none)')
   served.add_argument('--split', choices=('mesh', 'threads'), default='mesh',
                       help='how --devices share a batch: one search sharded over them (mesh, '
                       'the default) or a part per device, each searched from its own thread')

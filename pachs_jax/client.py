@@ -37,7 +37,9 @@ class Answer:
   (requests, episodes, bucket). queued_s, search_s: the server's time before and in the search.
   search: the search's [E] path_length, found, stop_reason, expanded, generated, invalid,
   iterations. remainder: the last answer's remainder followed from the states, [E] steps and
-  reaches_goal. follow_s: the server's time following the candidates.
+  reaches_goal. follow_s: the server's time following the candidates. fill_length: [E] the
+  policy's actions that may follow a short answer before the first edge the server's physics
+  finds invalid (a server with `ServeConfig.fill_steps`; None: no fill followed).
   """
 
   actions: np.ndarray
@@ -52,6 +54,7 @@ class Answer:
   search: dict = dataclasses.field(default_factory=dict)
   remainder: dict = dataclasses.field(default_factory=dict)
   follow_s: float = 0.0
+  fill_length: Optional[np.ndarray] = None
 
   @property
   def kind_names(self):
@@ -137,7 +140,8 @@ class Client:
     return Answer(actions=r['actions'], length=r['length'], kind=r['kind'],
                   reaches_goal=r['reaches_goal'], cost=r['cost'], evaluated=r['evaluated'],
                   batch=r['batch'], queued_s=r['queued_s'], search_s=r['search_s'],
-                  search=r['search'], remainder=r['remainder'], follow_s=r['follow_s'])
+                  search=r['search'], remainder=r['remainder'], follow_s=r['follow_s'],
+                  fill_length=r.get('fill_length'))
 
   def reset(self, task: Optional[str] = None) -> bool:
     """Forgets the session's last answer on the server; whether it had one."""

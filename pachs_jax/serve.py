@@ -71,6 +71,10 @@ class ServeConfig:
     rounded up),
     each searched by its own one-device session (lane compaction) from its own host thread,
     all at once.
+  fill_steps: the actions a client executes per query: where an answer is shorter, the policy's
+    fill up to fill_steps in all is followed from its end in the planner's physics and the
+    answer says how many of its actions hold before an invalid edge (`fill_length`,
+    `replan.Session.fill_steps`); 0: no fill followed.
   """
 
   window_s: float = 0.005
@@ -84,6 +88,7 @@ class ServeConfig:
   warm_idle_s: Optional[float] = 2.0
   devices: int = 1
   split: str = 'mesh'
+  fill_steps: int = 0
 
   def __post_init__(self):
     for name in ('max_batch', 'max_queue', 'max_sessions', 'devices'):
@@ -106,6 +111,10 @@ class ServeConfig:
         or not math.isfinite(self.max_wait_s) or self.max_wait_s < self.window_s):
       raise ValueError(f'max_wait_s must be None or a finite number of seconds >= window_s '
                        f'{self.window_s}, got {self.max_wait_s!r}')
+    if (isinstance(self.fill_steps, bool) or not isinstance(self.fill_steps, int)
+        or self.fill_steps < 0):
+      raise ValueError(f'fill_steps must be an int >= 0 (0: no fill followed), got '
+                       f'{self.fill_steps!r}')
     if self.split not in SPLITS:
       raise ValueError(f'split must be one of {", ".join(SPLITS)}, got {self.split!r}')
     if self.buckets is not None:
@@ -166,7 +175,7 @@ class Task:
     env = self.session.env
     return {'warm': self.warm, 'warm_buckets': list(self.warm_buckets), 'budget': self.budget,
             'pop_size': int(self.session.config.pop_size),
-            'horizon': int(self.session.horizon),
+            'horizon': int(self.session.horizon), 'fill_steps': int(self.session.fill_steps),
             'action_size': int(env.action_size), 'physics': getattr(env, 'physics', None),
             'node_fields': {k: {'shape': list(s), 'dtype': d.name}
                             for k, (s, d) in self.fields.items()},
@@ -232,7 +241,7 @@ class Server:
             getattr(shared, 'search', shared))
         with jax.default_device(device):
           sessions.append(replan.Session(planner.env, planner.model, planner.config, search,
-                                         mesh=self.mesh))
+                                         mesh=self.mesh, fill_steps=config.fill_steps))
       session = sessions[0]
       spec = planner.env.node_spec
       fields = {f.name: (tuple(getattr(spec, f.name).shape), np.dtype(getattr(spec, f.name).dtype))
@@ -606,6 +615,8 @@ class Server:
                   'search': {k: v[rows] for k, v in answer['search'].items()},
                   'remainder': {k: v[rows] for k, v in answer['remainder'].items()},
                   'follow_s': answer['follow_s'],
+                  **({'fill_length': answer['fill_length'][rows]}
+                     if 'fill_length' in answer else {}),
                   'batch': {'requests': len(requests), 'episodes': num, 'bucket': bucket},
                   'queued_s': began - r.arrived, 'search_s': search_s}
       out.append((response, functools.partial(self._keep, (r.task, r.session), actions, length)))
@@ -668,7 +679,8 @@ class Server:
                               pad(episodes['keys']), time_limit_s, bucket,
                               active=np.arange(bucket) < num)
       first = lambda x: np.asarray(x)[:num]
-      return {'actions': first(answer.actions), 'length': first(answer.length),
+      filled = {} if answer.fill_length is None else {'fill_length': first(answer.fill_length)}
+      return {**filled, 'actions': first(answer.actions), 'length': first(answer.length),
               'kind': first(answer.kind), 'reaches_goal': first(answer.reaches_goal),
               'cost': first(answer.cost), 'evaluated': first(answer.search.evaluated),
               'search': {k: first(getattr(answer.search, k)) for k in SEARCH_FIELDS},

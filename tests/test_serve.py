@@ -2,6 +2,7 @@
 with real clients, on the point mass (a server in a thread, shared by the file) and on PushT
 (`pachs serve` in a subprocess, for SIGTERM)."""
 
+import argparse
 import dataclasses
 import re
 import signal
@@ -15,6 +16,7 @@ import jax.numpy as jnp
 import msgpack
 import numpy as np
 import pytest
+import closed_loop
 from conftest import UniformActorCritic
 from websockets.sync.client import connect
 
@@ -132,6 +134,33 @@ def test_a_server_answers_from_its_largest_bucket_and_warms_the_others_while_idl
           [1, MAX_BATCH] if idle else [MAX_BATCH])
 
 
+def test_a_server_with_fill_steps_answers_how_far_the_policy_may_fill_as_the_library_does(
+    server, planner):
+  states = _starts(planner, 3, seed=17)
+  session = replan.Session(planner.env, planner.model, planner.config, planner.search,
+                           fill_steps=10)
+  want = jax.tree.map(np.asarray, session.plan(states, key=jax.random.PRNGKey(5)))
+  assert np.any(want.length < 10)  # a budget of 64: short answers, whose fill is followed
+  built = serve.Server({TASK: planner}, serve.ServeConfig(
+      max_batch=MAX_BATCH, buckets=(MAX_BATCH,), max_time_limit_s=5.0, fill_steps=10))
+  built.warm()
+  assert built.health()['tasks'][TASK]['fill_steps'] == 10
+  with serve.Running(built) as running, client.Client(running.url) as asking:
+    answer = asking.plan(states, seed=5)
+    # closed_loop.py --server executes the server's fill lengths (episodes.run reads them)
+    args = argparse.Namespace(server=running.url, budget=64, pop_size=None, execute=10,
+                              query_time=None)
+    query, _ = closed_loop.served_query(TASK, args, 3)
+    asked = query(states, jax.random.split(jax.random.PRNGKey(5), 3), np.zeros(3, np.int32),
+                  np.ones(3, bool))
+    np.testing.assert_array_equal(asked.fill_length, want.fill_length)
+  _same(answer, want)
+  np.testing.assert_array_equal(answer.fill_length, want.fill_length)
+  assert np.all(answer.fill_length == 10 - np.minimum(want.length, 10))  # no edge invalid here
+  with client.Client(server.url) as asking:  # a server without fill steps follows no fill
+    assert asking.plan(states, seed=5).fill_length is None
+
+
 def test_a_window_that_restarts_gathers_a_burst_of_requests_whole(planner):
   """Four one-episode requests 0.2 s apart: a 0.3 s window from the first holds two of them;
   restarting at each request (max_wait_s), it holds all four."""
@@ -165,6 +194,9 @@ def test_bad_idle_warm_up_split_and_wait_settings_are_named():
   for bad in (-1.0, float('nan'), True, '2'):
     with pytest.raises(ValueError, match='warm_idle_s must be a finite number of seconds'):
       serve.ServeConfig(warm_idle_s=bad)
+  for bad in (-1, True, 2.0):
+    with pytest.raises(ValueError, match='fill_steps must be an int >= 0'):
+      serve.ServeConfig(fill_steps=bad)
   with pytest.raises(ValueError, match="split must be one of mesh, threads, got 'shards'"):
     serve.ServeConfig(split='shards')
   with pytest.raises(ValueError, match='max_wait_s must be None or a finite number of seconds '
@@ -324,7 +356,8 @@ def test_pachs_serve_refuses_bad_flags_in_one_line(capsys):
                         (['--buckets', '3,16'], 'buckets must be powers of two'),
                         (['--buckets', '1,x'], "--buckets '1,x': comma-separated"),
                         (['-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
-                        (['--query-time', '0'], '--query-time: must be a positive number')):
+                        (['--query-time', '0'], '--query-time: must be a positive number'),
+                        (['--fill-steps', '-1'], '--fill-steps: must be >= 0, got -1')):
     with pytest.raises(SystemExit) as exit_info:
       cli.main(['serve'] + argv)
     assert exit_info.value.code == 2
