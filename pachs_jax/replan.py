@@ -355,8 +355,9 @@ class Session:
     self._follow = jax.jit(lambda *args: follow(env, policy, *args))
     self._safe_length = None if check is None else jax.jit(
         lambda *args: safe_length(env, policy, check, *args))
-    self._fill_length = None if not fill_steps else jax.jit(
-        lambda end, length: fill_length(env, policy, end, length, fill_steps))
+    self._fill_length = None if not fill_steps else jax.jit(  # (live [E]: the episodes searched)
+        lambda end, length, live: fill_length(env, policy, end,
+                                              jnp.where(live, length, fill_steps), fill_steps))
     self._choose = jax.jit(choose, static_argnums=3)
     self._remainder = jax.jit(remainder)
     self._compiled = {}  # episodes -> the compiled follow
@@ -450,7 +451,8 @@ class Session:
             check_starts, args[1][:rows], args[2][:rows], check_keys).compile()
     if self._fill_length is not None and rows not in self._fills:  # (an answer's end states)
       self._fills[rows] = self._fill_length.lower(
-          jax.tree.map(pad, states), jnp.zeros((rows,), jnp.int32)).compile()
+          jax.tree.map(pad, states), jnp.zeros((rows,), jnp.int32),
+          np.ones((rows,), bool)).compile()
     began = time.perf_counter()
     followed = jax.block_until_ready(self._compiled[rows](*args))
     last = jax.tree.map(lambda x: x[:num], followed)
@@ -479,12 +481,12 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
-    if self._fill_length is not None:  # the policy from each answer's end (its last state row),
-      length = answer.length  # of the active episodes only (the others: nothing to fill)
+    if self._fill_length is not None:  # the policy from each answer's end (its last state
+      live = np.arange(rows) < num     # row), of the searched episodes only (no padding)
       if active is not None:
-        length = jnp.where(pad(jnp.asarray(active)), length, self.fill_steps)
+        live[:num] &= np.asarray(active)
       answer = answer.replace(fill_length=self._fills[rows](
-          jax.tree.map(lambda x: x[:, -1], answer.states), length))
+          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length, live))
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
     answer = jax.block_until_ready(answer)
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's and fill's included
