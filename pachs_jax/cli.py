@@ -321,7 +321,7 @@ def _loop(args: argparse.Namespace) -> int:
                **{name: int(log.answers[e, k]) for k, name in enumerate(names)})
           for e, inst in enumerate(instances)]
   print(planner.format_table(rows, ['instance', 'success', 'failed', 'steps', 'queries']
-                             + list(names) + ['policy_steps']))
+                             + list(names) + ['policy_steps', 'cut_fills']))
   print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
   writes = []
   if args.json:
