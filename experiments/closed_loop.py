@@ -58,9 +58,6 @@ def build_parser() -> argtypes.OneLineParser:
                       "PACHS's session follows each short answer's policy fill in the planner's "
                       "physics and the fill stops before the first invalid edge there (a T "
                       "tipped over), the next query sooner (replan.Session.fill_steps)")
-  parser.add_argument('--fill-margin', type=argtypes.integer(0), default=0,
-                      help='with the fill check: a fill it stops short of --execute stops this '
-                      'many actions earlier still (episodes.run fill_margin; default 0)')
   parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=argtypes.positive_int, default=256,
@@ -466,7 +463,7 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
   log = episodes_lib.run(query, episodes, execute=args.execute, max_queries=args.max_queries,
                          key=key, fill_with_policy=bool(args.fill_with_policy),
                          policy=policy_actions(env, model),
-                         stop=stop, on_answer=on_answer, fill_margin=args.fill_margin)
+                         stop=stop, on_answer=on_answer)
   if trace_path:
     np.savez_compressed(trace_path, **episodes_lib.trace(episodes, log))
   return {'config': common.config_record(config),
@@ -507,8 +504,6 @@ def main():
     parser.error('--fill-check follows the policy fill (--fill-with-policy 1) of an in-process '
                  'PACHS; a server checks it when started with pachs serve --fill-steps')
   args.fill_check = fill_check(args)
-  if args.fill_margin and not args.fill_check:
-    parser.error('--fill-margin shortens the fills the check stops (--fill-check 1)')
   common.check_layout(parser, args.task, args.layout)
   if args.task.startswith('playground:') and (args.perturb or args.check_copies):
     parser.error('--perturb and --check-copies apply to the PushT tasks')

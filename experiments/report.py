@@ -1209,6 +1209,14 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'K 1024: 1.73 s, 0 of 5 found; K 256: 2.31 s, 0 of 5 found; K 64: 3.90 s, 3 of 5 found: '
      'the time falls far less than the iterations (each costs more with K) and the wider '
      'searches find no goal; K stays the task\'s', '`ce9adf1`: `serve_gpu/lone_pop_size.json`'),
+    ('A fill the check stopped, ended 2 actions sooner still (`closed_loop.py --fill-margin 2`), '
+     'so that the next query starts further from the invalid edge: traced on a CPU, gate-mirror '
+     '(8 episodes, 8,000 evaluations a query)',
+     'the same episodes, steps and failures as the default\'s trace '
+     '(`closed_loop_trace_cpu/gate-mirror_pachs.json`): the stopped fills before its empty '
+     'answer stopped at 0 actions, the answer\'s own end being the state the policy tips the T '
+     'from, which no margin on the fill reaches; the code left the tree',
+     '`4d82a80`: the code (the run\'s file not kept: identical to the default\'s)'),
 )
 
 

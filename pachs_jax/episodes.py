@@ -213,7 +213,7 @@ def session_query(session: replan.Session, time_limit_s: float) -> Callable:
 def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: int = 10,
         max_queries: int = 30, key: Optional[jax.Array] = None, fill_with_policy: bool = True,
         policy: Optional[Callable] = None, stop: Optional[Callable[[], bool]] = None,
-        on_answer: Optional[Callable] = None, fill_margin: int = 0) -> Log:
+        on_answer: Optional[Callable] = None) -> Log:
   """Runs the worlds' episodes in closed loop: a query for all episodes still running, the
   first `execute` actions of each answer in its world (an empty answer: one action of the
   policy; a shorter answer followed by the policy's actions up to `execute` when
@@ -230,12 +230,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   policy: nodes [E] -> actions [E, A] (None: the session's deterministic actor).
   stop: checked before each query; once True the episodes end where they are.
   on_answer(query, nodes, running [E], executed [E], answer, seconds): after each query.
-  fill_margin: a fill that stops short of `execute` at its `fill_length` (an invalid edge
-    ahead) stops this many actions earlier still, so that the next query starts further from
-    that edge (0: at its `fill_length`).
   """
-  if isinstance(fill_margin, bool) or not isinstance(fill_margin, int) or fill_margin < 0:
-    raise ValueError(f'fill_margin must be an int >= 0, got {fill_margin!r}')
   if isinstance(planner, replan.Session):
     query = session_query(planner, time_limit_s)
     planner.reset()
@@ -282,12 +277,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     actions = answer.actions[:, :execute]
     # the policy's steps stop at the answer's fill length (where the session followed it)
     fill = getattr(answer, 'fill_length', None)
-    if fill is None:
-      fill_ends = np.full(num, execute)
-    else:  # a fill stopped short of `execute` stops fill_margin actions earlier still
-      fill = np.asarray(fill)
-      short = lengths + fill < execute
-      fill_ends = lengths + np.where(short, np.maximum(fill - fill_margin, 0), fill)
+    fill_ends = np.full(num, execute) if fill is None else lengths + np.asarray(fill)
     empty = running & (lengths == 0)
     if empty.any():  # one action of the policy where the answer has none
       actions = actions.copy()

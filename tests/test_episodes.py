@@ -6,7 +6,6 @@ import types
 
 import jax
 import numpy as np
-import pytest
 from PIL import Image
 
 from pachs_jax import cli, envs, episodes, replan
@@ -116,23 +115,6 @@ def test_a_policy_fill_stops_at_the_answer_s_fill_length_and_the_next_query_come
   assert told[1] == [1, replan.DIVERGED, replan.DIVERGED, 3]
   assert log.policy_steps.tolist() == [0, 4, 2, 0]
   assert log.cut_fills.tolist() == [2, 0, 2, 0]
-
-
-def test_a_fill_margin_ends_only_the_fills_stopped_short_that_many_actions_sooner():
-  """Answers of 1, 2 and 1 actions of 5 per query, fills allowed for 3 (short of the 4 left),
-  3 (all that is left) and 1 action: with a margin of 1 episode 0 fills 2, episode 1 all 3,
-  episode 2 none; with a margin of 5 episode 0 none."""
-  answer = types.SimpleNamespace(actions=np.zeros((3, 5, 1), np.float32),
-                                 length=np.array([1, 2, 1]), fill_length=np.array([3, 3, 1]))
-  zeros = lambda nodes: np.zeros((3, 1), np.float32)
-  for margin, steps in ((0, [4, 5, 2]), (1, [3, 5, 1]), (5, [1, 5, 1])):
-    worlds = _FailOnOne(3)
-    log = episodes.run(lambda *args: answer, worlds, execute=5, max_queries=1,
-                       fill_margin=margin, policy=zeros)
-    assert worlds.steps.tolist() == steps, margin
-    assert log.cut_fills.tolist() == [1, 0, 1]
-  with pytest.raises(ValueError, match='fill_margin must be an int >= 0, got -1'):
-    episodes.run(lambda *args: answer, _FailOnOne(3), fill_margin=-1, policy=zeros)
 
 
 def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_state():

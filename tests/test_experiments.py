@@ -232,9 +232,6 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
      '--check-copies checks the answers of an in-process PACHS, not --server'),
     (closed_loop, ['--fill-check', '1', '--fill-with-policy', '0'],
      '--fill-check follows the policy fill (--fill-with-policy 1)'),
-    (closed_loop, ['--fill-check', '0', '--fill-margin', '2'],
-     '--fill-margin shortens the fills the check stops (--fill-check 1)'),
-    (closed_loop, ['--fill-margin', '-1'], '--fill-margin: must be >= 0, got -1'),
     (bench_serve, ['--out', '/tmp', '--clients', '0'], "--clients: client counts must be >= 1"),
     (bench_serve, ['--out', '/tmp', '--big', '-1'], "--big: episode counts must not be negative"),
 ])
@@ -261,7 +258,7 @@ def _closed_loop_args(**changes):
   flags = dict(budget=64, realtime_answer=None, pop_size=4, chain_restart=None,
                compact_fractions=(), candidates=(), replay_remainder=0, chunk_iterations=1,
                max_queries=30, execute=10, query_time=1.0, fill_with_policy=1, server=None,
-               check_copies=0, check_scale=1.0, trace=0, fill_check=0, fill_margin=0)
+               check_copies=0, check_scale=1.0, trace=0, fill_check=0)
   return closed_loop.argparse.Namespace(**{**flags, **changes})
 
 

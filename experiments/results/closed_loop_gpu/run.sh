@@ -9,8 +9,7 @@
 # planner-world (the plans executed in the planners' own physics), nofill (a short answer is
 # not followed by policy actions: the next query comes sooner), noguard (the policy fill after a
 # short answer is not stopped before the first edge the planner's physics finds invalid:
-# closed_loop.py --fill-check 0), margin<N> (a fill the check stops ends N actions earlier
-# still: closed_loop.py --fill-margin N), soft (the soft-blocks physics
+# closed_loop.py --fill-check 0), soft (the soft-blocks physics
 # preset, planners and worlds: the screens in the results' ledger), check (each answer
 # executed up to the first action one of 8 perturbed copies of its start could not take:
 # closed_loop.py --check-copies 8), h<N> (edges of N transitions), trace (also each planner's
@@ -55,7 +54,6 @@ run() {  # the command line of one run
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       nofill) flags+=(--fill-with-policy 0) ;;
       noguard) flags+=(--fill-check 0) ;;
-      margin[0-9]*) flags+=(--fill-margin "${opt#margin}") ;;
       soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
       h[0-9]*) flags+=(-H "${opt#h}") ;;
