@@ -577,7 +577,7 @@ def fill_check_sentence(src: Sources, folder: str) -> str:
   """PACHS with the policy's fill checked (the default) against the same layouts' runs
   without the check (`*_pachs-noguard.json`): episodes solved and failed, summed over the
   layouts run both ways, and the episodes only one of the two solved (same instances)."""
-  solved, failed, only, layouts = [0, 0], [0, 0], [0, 0], []
+  solved, failed, only, layouts, episodes = [0, 0], [0, 0], [0, 0], [], 0
   for layout in CLOSED_LOOP_LAYOUTS:
     names = [f'{folder}/{layout}_pachs.json', f'{folder}/{layout}_pachs-noguard.json']
     if not all(src.exists(n) for n in names):
@@ -589,10 +589,9 @@ def fill_check_sentence(src: Sources, folder: str) -> str:
       failed[i] += summary_of(run, 'pachs')['failures']
       only[i] += sum(a and not b for a, b in zip(success[i], success[1 - i]))
     layouts.append(layout)
+    episodes += len(success[0])
   if not layouts:
     return ''
-  episodes = sum(summary_of(src.load(f'{folder}/{layout}_pachs.json'), 'pachs')['episodes']
-                 for layout in layouts)
   return (f'The policy\'s fill checked against not checked, over the {len(layouts)} layouts '
           f'run both ways ({episodes:,} episodes each, the same instances): {solved[0]:,} '
           f'against {solved[1]:,} solved, {failed[0]} against {failed[1]} with the T tipped '

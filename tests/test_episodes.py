@@ -62,6 +62,20 @@ class _FailOnOne:
       self.failed |= moving & (actions[:, j, 0] == 1)
 
 
+def _run_twice(answer):
+  """(worlds, log, what each query was told executed) of two queries of 3 actions, each
+  answered with `answer` in `_FailOnOne` worlds, the policy's action 0."""
+  num, told = len(answer.length), []
+
+  def query(nodes, keys, executed, running):
+    told.append(np.asarray(executed).tolist())
+    return answer
+  worlds = _FailOnOne(num)
+  log = episodes.run(query, worlds, execute=3, max_queries=2,
+                     policy=lambda nodes: np.zeros((num, 1), np.float32))
+  return worlds, log, told
+
+
 def test_a_failure_on_a_policy_step_is_told_from_one_on_a_planned_step():
   """Episode 0 gets an empty answer and fails on the policy's action; 1 fails on its plan's
   second action; 2 plans 1 action, then the policy fills and fails; 3 never fails."""
@@ -82,14 +96,7 @@ def test_an_answer_cut_by_its_check_runs_to_its_safe_length_then_replans_unfille
   the session keeps its remainder); episode 1's are safe whole."""
   answer = type('Answer', (), {'actions': np.zeros((2, 3, 1), np.float32),
                                'length': np.array([3, 3]), 'safe_length': np.array([1, 3])})
-  told = []
-
-  def query(nodes, keys, executed, running):
-    told.append(np.asarray(executed).tolist())
-    return answer
-  worlds = _FailOnOne(2)
-  log = episodes.run(query, worlds, execute=3, max_queries=2,
-                     policy=lambda nodes: np.zeros((2, 1), np.float32))
+  worlds, log, told = _run_twice(answer)
   assert worlds.steps.tolist() == [2, 6]
   assert told == [[0, 0], [1, 3]]
   assert log.policy_steps.tolist() == [0, 0] and log.cut_answers.tolist() == [2, 0]
@@ -103,14 +110,7 @@ def test_a_policy_fill_stops_at_the_answer_s_fill_length_and_the_next_query_come
   answer = type('Answer', (), {'actions': np.zeros((4, 3, 1), np.float32),
                                'length': np.array([1, 1, 0, 3]),
                                'fill_length': np.array([0, 2, 1, 0])})
-  told = []
-
-  def query(nodes, keys, executed, running):
-    told.append(np.asarray(executed).tolist())
-    return answer
-  worlds = _FailOnOne(4)
-  log = episodes.run(query, worlds, execute=3, max_queries=2,
-                     policy=lambda nodes: np.zeros((4, 1), np.float32))
+  worlds, log, told = _run_twice(answer)
   assert worlds.steps.tolist() == [2, 6, 2, 6]
   assert told[1] == [1, replan.DIVERGED, replan.DIVERGED, 3]
   assert log.policy_steps.tolist() == [0, 4, 2, 0]
