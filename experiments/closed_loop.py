@@ -54,10 +54,11 @@ def build_parser() -> argtypes.OneLineParser:
                       help='1: a path shorter than --execute is followed by policy actions up '
                       'to --execute world steps per query')
   parser.add_argument('--fill-check', type=int, default=None, choices=[0, 1],
-                      help="1 (the default for an in-process PACHS that fills with the policy): "
-                      "PACHS's session follows each short answer's policy fill in the planner's "
-                      "physics and the fill stops before the first invalid edge there (a T "
-                      "tipped over), the next query sooner (replan.Session.fill_steps)")
+                      help="1: PACHS's session follows each short answer's policy fill in the "
+                      "planner's physics and the fill stops before the first invalid edge there "
+                      "(a T tipped over), the next query sooner (replan.Session.fill_steps); "
+                      "default: for an in-process PACHS that fills with the policy, the task's "
+                      "for the query time (planner.replan_fill_check), else 0")
   parser.add_argument('--budget', type=argtypes.positive_int, default=100_000,
                       help='evaluation budget per query and episode')
   parser.add_argument('--copies', type=argtypes.positive_int, default=256,
@@ -481,12 +482,14 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}
 
-def fill_check(args) -> int:
-  """--fill-check as given, else 1 wherever it applies: an in-process PACHS (no --server)
-  that fills short answers with the policy (--fill-with-policy 1)."""
+def fill_check(args, physics: str) -> int:
+  """--fill-check as given, else where it applies (an in-process PACHS, no --server, that
+  fills short answers with the policy, --fill-with-policy 1) the task's for the query time
+  with the planners' physics (`planner.replan_fill_check`), else 0."""
   if args.fill_check is not None:
     return args.fill_check
-  return int(args.server is None and bool(args.fill_with_policy))
+  return int(args.server is None and bool(args.fill_with_policy)
+             and planner.replan_fill_check(args.task, args.query_time, physics))
 
 
 def main():
@@ -503,7 +506,6 @@ def main():
   if args.fill_check and (args.server or not args.fill_with_policy):
     parser.error('--fill-check follows the policy fill (--fill-with-policy 1) of an in-process '
                  'PACHS; a server checks it when started with pachs serve --fill-steps')
-  args.fill_check = fill_check(args)
   common.check_layout(parser, args.task, args.layout)
   if args.task.startswith('playground:') and (args.perturb or args.check_copies):
     parser.error('--perturb and --check-copies apply to the PushT tasks')
@@ -542,6 +544,7 @@ def main():
 
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
                                   physics=args.physics)
+  args.fill_check = fill_check(args, env.physics)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)

@@ -441,10 +441,9 @@ def answer_counts(row: Dict) -> str:
 CLOSED_LOOP_VARIANTS = (
     ('pachs', "PACHS (the default at 3 s: the search's path, the last answer's remainder "
               "replayed in the search, K 128, the policy's fill checked)"),
-    ('pachs-noguard', 'PACHS, the policy\'s fill not checked (`--fill-check 0`)'),
     ('parallel', 'parallel rollout (256 copies)'),
-    ('pachs-q1', 'PACHS, 1 s per query (the default there: K 64)'),
-    ('pachs-noguard-q1', 'PACHS, 1 s per query (K 64), the policy\'s fill not checked'),
+    ('pachs-q1', "PACHS, 1 s per query (the default there: K 64, the policy's fill not "
+                 "checked)"),
     ('parallel-q1', 'parallel rollout, 1 s per query'),
 )
 # the revisions of runs (closed_loop_gpu/, faithful_gpu/) whose Warp planners collided the T
@@ -532,29 +531,28 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
                         episodes_solved(b), episodes_solved(a),
                         points(100 * (b['success_rate'] - a['success_rate'])),
                         f'{failures(b)} / {failures(a)}'])
-          pairs.setdefault((layout, planner), []).append((b['success_rate'], a['success_rate']))
-  pooled = [f'{layout}, {"PACHS" if planner == "pachs" else "the rollout"} '
+          pairs.setdefault((layout, variant), []).append((b['success_rate'], a['success_rate']))
+  pooled = [f'{layout}, {"PACHS" if variant.startswith("pachs") else "the rollout"} '
             f'{pct(sum(o for o, _ in runs) / len(runs))} in its own physics and '
             f'{pct(sum(c for _, c in runs) / len(runs))} in MuJoCo C, a drop of '
             f'{100 * sum(o - c for o, c in runs) / len(runs):.0f} points ({len(runs)} runs)'
-            for (layout, planner), runs in pairs.items() if len(runs) > 1]
+            for (layout, variant), runs in pairs.items() if len(runs) > 1]
   return rows, drops, first, missing, pooled
 
 
 def query_split(src: Sources, folder: str) -> str:
   """Where the default PACHS's closed-loop queries went, per query time: the search's seconds
-  against the whole query's (means over each run's queries, the range over the layouts), the
+  against the whole query's (means over each run's queries, the range over the runs), the
   follow's milliseconds, and the longest query of PACHS and of the rollout."""
   def summaries(variant: str, clock: str) -> List[Dict]:
-    names = [f'{folder}/{layout}_{variant}{clock}.json' for layout in CLOSED_LOOP_LAYOUTS]
+    names = [f'{where}/{layout}_{variant}{clock}.json' for layout in CLOSED_LOOP_LAYOUTS
+             for where in (folder, f'{folder}/{CLOSED_LOOP_REPEATS}')]
     return [summary_of(src.load(name), variant.split('-')[0]) for name in names
             if src.exists(name)]
 
   parts = []
   for clock, label in (('', '3 s'), ('-q1', '1 s')):
     pachs, rollout = summaries('pachs', clock), summaries('parallel', clock)
-    if not pachs:  # (the runs from before the fill check)
-      pachs, label = summaries('pachs-noguard', clock), label + ' without the fill check'
     if not pachs:
       continue
     chosen = [a['choose_s_mean'] for a in pachs if a.get('choose_s_mean') is not None]
@@ -571,31 +569,6 @@ def query_split(src: Sources, folder: str) -> str:
   return ('Where a PACHS query went: ' + '; '.join(parts) + '. The rest of a query is the '
           'search\'s setup (the model check on the new states, its arrays) and the choice.'
           ) if parts else ''
-
-
-def fill_check_sentence(src: Sources, folder: str) -> str:
-  """PACHS with the policy's fill checked (the default) against the same layouts' runs
-  without the check (`*_pachs-noguard.json`): episodes solved and failed, summed over the
-  layouts run both ways, and the episodes only one of the two solved (same instances)."""
-  solved, failed, only, layouts, episodes = [0, 0], [0, 0], [0, 0], [], 0
-  for layout in CLOSED_LOOP_LAYOUTS:
-    names = [f'{folder}/{layout}_pachs.json', f'{folder}/{layout}_pachs-noguard.json']
-    if not all(src.exists(n) for n in names):
-      continue
-    runs = [src.load(n) for n in names]
-    success = [run['episodes']['pachs']['success'] for run in runs]
-    for i, run in enumerate(runs):
-      solved[i] += sum(success[i])
-      failed[i] += summary_of(run, 'pachs')['failures']
-      only[i] += sum(a and not b for a, b in zip(success[i], success[1 - i]))
-    layouts.append(layout)
-    episodes += len(success[0])
-  if not layouts:
-    return ''
-  return (f'The policy\'s fill checked against not checked, over the {len(layouts)} layouts '
-          f'run both ways ({episodes:,} episodes each, the same instances): {solved[0]:,} '
-          f'against {solved[1]:,} solved, {failed[0]} against {failed[1]} with the T tipped '
-          f'over; {only[0]} episodes solved only with the check, {only[1]} only without.')
 
 
 CLOSED_LOOP_COLUMNS = ['layout', 'planner', 'T-block contacts', 'solved',
@@ -646,7 +619,7 @@ def closed_loop_sessions(src: Sources) -> str:
       '"on policy steps": failed while playing an empty answer\'s policy action or the '
       'policy\'s fill of a short answer).'
       + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else '')
-      + ' ' + query_split(src, folder) + ' ' + fill_check_sentence(src, folder),
+      + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
       'MuJoCo C world, same protocol:',
       table(['layout', 'planner', 'T-block contacts', 'own physics', 'MuJoCo C', 'drop',
@@ -1187,7 +1160,9 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`closed_loop_trace_cpu/{slot,gate-mirror,wall-right}_pachs*`; `eeeedd4`: '
      '`closed_loop_gpu/{gate,wall,detour,wall-right}_{pachs,parallel}.json`, '
      '`closed_loop_gpu/{gate,wall}_*-planner-world.json`, '
-     '`closed_loop_gpu/repeat/wall_pachs.json`'),
+     '`closed_loop_gpu/repeat/wall_pachs.json`; `1f6c582`: '
+     '`closed_loop_gpu/{slot,gate-mirror,detour}_parallel-q1.json` (the rollout at 1 s: 6%, '
+     '1% and 0%)'),
     ('The closed loop through a server on blocks without a margin, K 64 (wall, one H200)',
      'PACHS 95% [91, 99] served, 90% [83, 96] in process; 5,654 edges per query and episode '
      'against 5,760: superseded by the default physics\' run with K 128',
@@ -1216,6 +1191,29 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'answer stopped at 0 actions, the answer\'s own end being the state the policy tips the T '
      'from, which no margin on the fill reaches; the code left the tree',
      '`4d82a80`: the code (the run\'s file not kept: identical to the default\'s)'),
+    ('The policy\'s fill not checked at 3 s per query (`closed_loop.py --fill-check 0`; default '
+     'physics, one H200 per planner, the seven layouts, the same instances)',
+     'in MuJoCo C 536 episodes solved against the check\'s 547 (44 solved only without the '
+     'check, 55 only with it) and 66 Ts tipped over against 33 (gate 1 against 3, wall 5 '
+     'against 2, detour 17 against 11, two-gaps 21 against 10, gate-mirror 15 against 3, '
+     'wall-right 5 against 2, slot 2 against 2); in the planners\' own physics 550 solved '
+     'against 569; edges per query 0.87-1.08x the rollout\'s against 0.85-1.03x: the check '
+     'stays on at 3 s',
+     '`1b7cee0`: `closed_loop_gpu/*_pachs-noguard.json`, '
+     '`closed_loop_gpu/*_pachs-noguard-planner-world.json`'),
+    ('The policy\'s fill checked at 1 s per query (`--fill-check 1`, K 64; default physics, '
+     'one H200 per planner, the seven layouts, the same instances)',
+     'in MuJoCo C 288 episodes solved against 329 unchecked (93 solved only with the check, '
+     '134 only without: gate 62 against 78, wall 80 against 69, two-gaps 34 against 29, '
+     'gate-mirror 25 against 36, wall-right 45 against 55, slot 41 against 56, detour 1 '
+     'against 6) and 83 Ts tipped over against 169. Its follow took 84-126 ms of each query, '
+     'the search 0.74-0.81 s against 0.88-0.92 s (edges per query 0.59-0.68x the rollout\'s '
+     'against 0.73-0.83x), and the episodes it kept upright ran out of queries instead (empty '
+     'answers on two-gaps 28 against 0); in its own physics gate 65% and wall 82%, drops of 3 '
+     'and 2 points (the rollout\'s -9 and -2): the check runs in queries of 2 s or more '
+     '(`TaskSpec.replan_fill_check_s`)',
+     '`1b7cee0`: `closed_loop_gpu/*_pachs-guard-q1.json`, '
+     '`closed_loop_gpu/{gate,wall}_pachs-guard-q1-planner-world.json`'),
 )
 
 

@@ -302,6 +302,8 @@ def _loop(args: argparse.Namespace) -> int:
                                pop_size=args.pop_size)
   if planning.physics_note is not None:
     print(f'note: {planning.physics_note}', file=sys.stderr, flush=True)
+  if args.fill_check is None:  # the task's for the query time (`Planner.replan_fill_check`)
+    args.fill_check = int(planning.replan_fill_check(args.query_time))
   env, session = planning.env, planning.session(
       query_time_s=args.query_time, fill_steps=args.execute if args.fill_check else 0)
   config = session.config
@@ -588,10 +590,11 @@ def _main(words, prefetch=None, guard=None) -> int:
                     help='actions of each answer executed before the next query (default 10)')
   loop.add_argument('--max-queries', type=argtypes.positive_int, default=30,
                     help='queries per episode (default 30)')
-  loop.add_argument('--fill-check', type=int, default=1, choices=[0, 1],
-                    help="1 (default): a short answer's policy fill stops before the first edge "
-                    "the planner's physics finds invalid (a T tipped over), the next query "
-                    'sooner; 0: the policy fills up to --execute actions')
+  loop.add_argument('--fill-check', type=int, default=None, choices=[0, 1],
+                    help="1: a short answer's policy fill stops before the first edge the "
+                    "planner's physics finds invalid (a T tipped over), the next query sooner; "
+                    '0: the policy fills up to --execute actions (default: 1; on a GPU from '
+                    "the task's query time on, pusht-obs's 2 s)")
   loop.add_argument('--budget', type=argtypes.positive_int, default=None,
                     help="edge evaluations per query and episode (default: the task's)")
   loop.add_argument('--seed', type=argtypes.seed, default=0, help='PRNG seed (64-bit integer)')

@@ -54,6 +54,18 @@ def replan_pop_size(task: str, query_time_s: Optional[float], physics: str) -> O
   return envs.spec(task).replan_pop_size(query_time_s)
 
 
+def replan_fill_check(task: str, query_time_s: Optional[float], physics: str) -> bool:
+  """Whether a task's replanning with queries of query_time_s seconds, its edges simulated with
+  `physics` (as in `replan_pop_size`), checks the policy's fill of its short answers
+  (`replan.Session.fill_steps`): on an accelerator from the task's query time
+  (`TaskSpec.replan_fill_check`); always on a CPU-only machine, with MuJoCo C physics (whose
+  fill is a few CPU physics steps of each episode, not a chain of latency-bound GPU calls) and
+  for a task outside the registry."""
+  if jax.default_backend() == 'cpu' or physics == 'mujoco-c' or task not in envs.TASKS:
+    return True
+  return envs.spec(task).replan_fill_check(query_time_s)
+
+
 def command_config(task: Optional[str], on_cpu: bool, mujoco_c: bool,
                    budget: Optional[int] = None, algorithm: str = 'pachs',
                    **explicit) -> SearchConfig:
@@ -304,6 +316,14 @@ class Planner:
                 else replan_pop_size(self._replan_task, query_time_s, self.env.physics))
     return self.config if pop_size is None else dataclasses.replace(self.config,
                                                                     pop_size=pop_size)
+
+
+  def replan_fill_check(self, query_time_s: Optional[float]) -> bool:
+    """Whether a replanning session with queries of query_time_s seconds should check the
+    policy's fill of its short answers (`replan_fill_check`; a user's or a Playground task:
+    always); ValueError as `replan_config`'s."""
+    self.replan_config(query_time_s)  # (query_time_s checked)
+    return replan_fill_check(self.task, query_time_s, self.env.physics)
 
 
 def check_indices(instances, available: int) -> np.ndarray:

@@ -15,7 +15,7 @@ import merge_results  # noqa: E402  pylint: disable=wrong-import-position
 import open_loop  # noqa: E402  pylint: disable=wrong-import-position
 import stats  # noqa: E402  pylint: disable=wrong-import-position
 import trace_replay  # noqa: E402  pylint: disable=wrong-import-position
-from pachs_jax import envs  # noqa: E402  pylint: disable=wrong-import-position
+from pachs_jax import envs, planner  # noqa: E402  pylint: disable=wrong-import-position
 from pachs_jax.envs import point_mass, pusht  # noqa: E402  pylint: disable=wrong-import-position
 
 
@@ -245,9 +245,14 @@ def test_bad_script_flags_stop_in_one_line_before_any_work(script, argv, message
   assert message in err and err.count('\n') == 1, err
 
 
-def test_the_policy_fill_is_checked_by_default_wherever_a_session_fills():
-  parse = lambda *argv: closed_loop.fill_check(closed_loop.build_parser().parse_args(list(argv)))
-  assert parse() == 1
+def test_the_policy_fill_is_checked_by_default_wherever_a_session_fills(monkeypatch):
+  parse = lambda *argv, physics='warp': closed_loop.fill_check(
+      closed_loop.build_parser().parse_args(['--task', 'pusht-obs', *argv]), physics)
+  monkeypatch.setattr(planner.jax, 'default_backend', lambda: 'gpu')  # the task's rule
+  assert parse() == 1 and parse('--query-time', '3') == 1
+  assert parse('--query-time', '1') == 0  # pusht-obs: from 2 s on an accelerator
+  assert parse('--query-time', '1', physics='mujoco-c') == 1
+  assert parse('--query-time', '1', '--fill-check', '1') == 1
   assert parse('--fill-with-policy', '0') == 0
   assert parse('--server', 'localhost:8765') == 0
   assert parse('--fill-check', '0') == 0

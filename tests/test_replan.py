@@ -324,6 +324,12 @@ def test_a_planner_on_an_accelerator_takes_k_from_the_query_time_unless_its_edge
   for kwargs in (dict(backend='mujoco-c'), dict(backend='mjx', pop_size=32)):
     kept = planner.Planner('pusht-obs', budget=400, cache=False, **kwargs)
     assert kept.replan_config(3.0) == kept.config
+  # the fill check likewise: MJX edges from the task's query time on, MuJoCo C edges always
+  assert on_gpu.replan_fill_check(3.0) and not on_gpu.replan_fill_check(1.0)
+  assert planner.Planner('pusht-obs', backend='mujoco-c', budget=400,
+                         cache=False).replan_fill_check(1.0)
+  with pytest.raises(ValueError, match='query_time_s must be a number of seconds > 0'):
+    on_gpu.replan_fill_check(-1.0)
 
 
 def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
@@ -335,6 +341,21 @@ def test_the_replanning_k_follows_the_query_time_on_an_accelerator():
   if jax.default_backend() == 'cpu':
     assert planner.replan_pop_size('pusht-obs', 3.0, 'mjx') is None
   assert envs.spec('pusht-fixed').replan_pop_size(3.0) is None
+
+
+def test_the_fill_check_follows_the_query_time_on_an_accelerator(monkeypatch):
+  from pachs_jax import planner  # pylint: disable=import-outside-toplevel
+  obs = envs.spec('pusht-obs')
+  assert [obs.replan_fill_check(t) for t in (3.0, 2.0, 1.99, 1.0, None)] == [
+      True, True, False, False, True]
+  assert envs.spec('pusht-fixed').replan_fill_check(0.5)  # no threshold: always
+  monkeypatch.setattr(planner.jax, 'default_backend', lambda: 'gpu')
+  assert not planner.replan_fill_check('pusht-obs', 1.0, 'warp')
+  assert planner.replan_fill_check('pusht-obs', 3.0, 'warp')
+  assert planner.replan_fill_check('pusht-obs', 1.0, 'mujoco-c')
+  assert planner.replan_fill_check('playground:ReacherEasy', 1.0, 'mjx')  # outside the registry
+  monkeypatch.setattr(planner.jax, 'default_backend', lambda: 'cpu')
+  assert planner.replan_fill_check('pusht-obs', 1.0, 'mjx')
 
 
 class Cliff(PointMassEnv):

@@ -29,6 +29,9 @@ class TaskSpec:
   replan_pop_sizes: (seconds, K) pairs, longest first: on an accelerator, a replanning session
     whose queries last at least that many seconds pops K edges per iteration (`replan_pop_size`;
     none: search_defaults' K at every query time).
+  replan_fill_check_s: on an accelerator, a replanning session whose queries last at least that
+    many seconds checks the policy's fill of its short answers (`replan_fill_check`; 0: at
+    every query time).
   """
 
   name: str
@@ -40,6 +43,7 @@ class TaskSpec:
   cpu_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
   options: Tuple[str, ...] = ()
   replan_pop_sizes: Tuple[Tuple[float, int], ...] = ()
+  replan_fill_check_s: float = 0.0
 
   def algorithm_defaults(self, algorithm: str = 'pachs') -> Mapping[str, Any]:
     """The SearchConfig field values of an algorithm of `ALGORITHMS`; ValueError naming them."""
@@ -55,6 +59,12 @@ class TaskSpec:
     if query_time_s is None:
       return None
     return next((k for seconds, k in self.replan_pop_sizes if query_time_s >= seconds), None)
+
+  def replan_fill_check(self, query_time_s: Optional[float]) -> bool:
+    """Whether replanning on an accelerator with queries of query_time_s seconds (None: no
+    clock) follows each short answer's policy fill in the planner's physics and stops it
+    before the first invalid edge (`replan.Session.fill_steps`; `replan_fill_check_s`)."""
+    return query_time_s is None or query_time_s >= self.replan_fill_check_s
 
 
 def _pusht(variant: str) -> Callable[..., base.Env]:
@@ -97,6 +107,10 @@ _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal
 # query and 0.86-1.2x the rollout's edges; K 64: 0.60-0.77x); shorter ones keep 64 (at 1 s K 128
 # gets 3-5 iterations, too shallow). docs/task_defaults.md.
 _PUSHT_OBS_REPLAN_POP_SIZES = ((2.0, 128),)
+# ... and check the policy's fill in queries of 2 s or more: at 3 s the check halved the Ts
+# tipped over and solved as many episodes; at 1 s its follow took a tenth of each query and
+# it solved fewer (docs/task_defaults.md).
+_PUSHT_OBS_REPLAN_FILL_CHECK_S = 2.0
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
     TaskSpec('pusht-fixed', _pusht('fixed'), 'pusht-fixed', 30, _PUSHT, _SEARCH,
@@ -107,7 +121,8 @@ SPECS: Dict[str, TaskSpec] = {s.name: s for s in (
              dict(_SEARCH, pop_size=256, lattice_resolution=(0.005, 0.005, 0.05, 0.01, 0.01)),
              cpu_overrides={'pop_size': 64,
                             'lattice_resolution': (0.01, 0.01, 0.1, 0.02, 0.02)},
-             options=('layout', 'physics'), replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES),
+             options=('layout', 'physics'), replan_pop_sizes=_PUSHT_OBS_REPLAN_POP_SIZES,
+             replan_fill_check_s=_PUSHT_OBS_REPLAN_FILL_CHECK_S),
     TaskSpec('shelf', _shelf, 'shelf', 100,
              dict(_SEARCH, pop_size=16, budget=20_000)),
 )}

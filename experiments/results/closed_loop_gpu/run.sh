@@ -7,13 +7,14 @@
 # query time) or parallel (the parallel rollout), then options joined by '-': remainder, policy
 # (the session's candidates), k<N> (N edges per iteration), q<S> (S seconds per query),
 # planner-world (the plans executed in the planners' own physics), nofill (a short answer is
-# not followed by policy actions: the next query comes sooner), noguard (the policy fill after a
-# short answer is not stopped before the first edge the planner's physics finds invalid:
-# closed_loop.py --fill-check 0), soft (the soft-blocks physics
-# preset, planners and worlds: the screens in the results' ledger), check (each answer
-# executed up to the first action one of 8 perturbed copies of its start could not take:
-# closed_loop.py --check-copies 8), h<N> (edges of N transitions), trace (also each planner's
-# episodes, world states, actions and PACHS's planned states: <run>.<planner>.trace.npz).
+# not followed by policy actions: the next query comes sooner), guard / noguard (the policy
+# fill after a short answer is / is not stopped before the first edge the planner's physics
+# finds invalid: closed_loop.py --fill-check 1 / 0; by default the task's for the query time),
+# soft (the soft-blocks physics preset, planners and worlds: the screens in the results'
+# ledger), check (each answer executed up to the first action one of 8 perturbed copies of
+# its start could not take: closed_loop.py --check-copies 8), h<N> (edges of N transitions),
+# trace (also each planner's episodes, world states, actions and PACHS's planned states:
+# <run>.<planner>.trace.npz).
 # A line is a comma-separated list of runs (the results' runs: 2 to 4 GPUs a command):
 #   OUT=dir bash experiments/results/closed_loop_gpu/run.sh 'wall/pachs,wall/pachs-k256' \
 #     'wall/parallel,wall/pachs-remainder-policy'
@@ -53,6 +54,7 @@ run() {  # the command line of one run
       q[0-9]*) flags+=(--query-time "${opt#q}") ;;
       planner|world) [ "$opt" = world ] && flags+=(--world planner) ;;
       nofill) flags+=(--fill-with-policy 0) ;;
+      guard) flags+=(--fill-check 1) ;;
       noguard) flags+=(--fill-check 0) ;;
       soft) flags+=(--physics soft-blocks) ;;
       check) flags+=(--check-copies 8) ;;
