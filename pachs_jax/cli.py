@@ -311,7 +311,8 @@ def _loop(args: argparse.Namespace) -> int:
   print(f'closed loop: {env.name} instances {args.instances} in MuJoCo C worlds, planned with '
         f'{env.physics} physics: {args.query_time:g} s per query, {args.execute} actions '
         f'executed, at most {args.max_queries} queries, budget {config.budget}, '
-        f'K {config.pop_size}', flush=True)
+        f'K {config.pop_size}, the policy\'s fill {"" if args.fill_check else "not "}checked',
+        flush=True)
   import jax  # pylint: disable=import-outside-toplevel
   log = episodes.run(session, worlds, args.query_time, args.execute,
                      args.max_queries, jax.random.PRNGKey(args.seed))
