@@ -626,8 +626,9 @@ def closed_loop_sessions(src: Sources) -> str:
              'T tipped (failed), own physics / MuJoCo C'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       traced_tilts(src),
-      'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill) and '
-      'the screens on blocks without a margin: [measured and not kept](#measured-and-not-kept).'])
+      'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill, '
+      'the fill unchecked at 3 s and checked at 1 s) and the screens on blocks without a '
+      'margin: [measured and not kept](#measured-and-not-kept).'])
 
 
 # traced closed loops on a CPU (closed_loop_trace_cpu/): file suffix -> what ran
