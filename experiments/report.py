@@ -1657,16 +1657,22 @@ def headline_table(root: str = ROOT) -> Tuple[str, List[str]]:
 
 def closed_loop_headline(src: Sources) -> str:
   """The README's closed-loop sentence: PACHS (today's default) against the rollout on each
-  layout run, each planner's episodes pooled over its runs (first runs and repeats)."""
-  folder, pairs, devices, repeated, convex = 'closed_loop_gpu', [], set(), [], []
-  for layout in CLOSED_LOOP_LAYOUTS:
-    names = [f'{folder}/{layout}_{variant}.json' for variant in ('pachs', 'parallel')]
-    if all(src.exists(n) for n in names):
+  layout run, each planner's episodes pooled over its runs (first runs and repeats), at the
+  original's 3 s per query and, where run, at 1 s."""
+  folder, devices, repeated, convex = 'closed_loop_gpu', set(), [], []
+
+  def pairs_at(clock: str) -> List[str]:
+    pairs = []
+    for layout in CLOSED_LOOP_LAYOUTS:
+      names = [f'{folder}/{layout}_{variant}{clock}.json' for variant in ('pachs', 'parallel')]
+      if not all(src.exists(n) for n in names):
+        continue
       rates = []
       for n, planner in zip(names, ('pachs', 'parallel')):
         again = n.replace(f'{folder}/', f'{folder}/{CLOSED_LOOP_REPEATS}/')
         runs = [src.load(x) for x in (n, again) if src.exists(x)]
-        devices |= {r['provenance']['device'].split(': ')[-1].replace(' x1', '') for r in runs}
+        devices.update(r['provenance']['device'].split(': ')[-1].replace(' x1', '')
+                       for r in runs)
         summaries = [summary_of(r, planner) for r in runs]
         rates.append(sum(a['successes'] for a in summaries)
                      / sum(a['episodes'] for a in summaries))
@@ -1674,14 +1680,19 @@ def closed_loop_headline(src: Sources) -> str:
           repeated.append(f'{layout}\'s {"PACHS" if planner == "pachs" else "rollout"}')
         if 'convex' in {box_contacts(r) for r in runs} and layout not in convex:
           convex.append(layout)
-      settings = src.load(names[0])['settings']
       pairs.append(f'{layout} {pct(rates[0])} / {pct(rates[1])}')
+    return pairs
+
+  pairs, quick = pairs_at(''), pairs_at('-q1')
+  settings = src.load(f'{folder}/gate_pachs.json')['settings']
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
           'episodes per layout and run, each planner alone on '
           f'one {" or one ".join(sorted(devices))}), PACHS / parallel rollout: '
-          + ', '.join(pairs) + ' (gate-mirror and wall-right held out'
+          + ', '.join(pairs)
+          + (f'; planning 1 s a query: {", ".join(quick)}' if quick else '')
+          + ' (gate-mirror and wall-right held out'
           + (f'; {", ".join(repeated)} over two runs' if repeated else '')
           + (f'; {", ".join(convex)} measured while the Warp planners collided the T with the '
              'blocks by Warp\'s convex collider, not as MuJoCo C does' if convex else '')
