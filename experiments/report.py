@@ -1684,7 +1684,9 @@ def closed_loop_headline(src: Sources) -> str:
     return pairs
 
   pairs, quick = pairs_at(''), pairs_at('-q1')
-  settings = src.load(f'{folder}/gate_pachs.json')['settings']
+  settings = src.load(next(n for n in (f'{folder}/{layout}_pachs.json'
+                                       for layout in CLOSED_LOOP_LAYOUTS)
+                           if src.exists(n)))['settings']
   return (f'Closed loop, the original\'s protocol (plan {settings["query_time"]:g} s, execute '
           f'{settings["execute"]} actions in a MuJoCo C world, replan; at most '
           f'{settings["max_queries"]} queries; {settings["instances"] * settings["rounds"]} '
