@@ -215,10 +215,10 @@ def make_query(name: str, task: str, env, model, args, num: int):
                              chunk_iterations=args.chunk_iterations, check=check,
                              fill_steps=args.execute if args.fill_check else 0)
 
-    def query(nodes, keys, executed, running):
-      answer = jax.tree.map(np.asarray, session.plan(nodes, executed, keys,
-                                                     time_limit_s=args.query_time,
-                                                     active=running))
+    session_query = episodes_lib.session_query(session)
+
+    def query(nodes, keys, executed, running, time_limit_s):
+      answer = session_query(nodes, keys, executed, running, time_limit_s)
       search = answer.search
       return Asked(answer.actions, answer.length, search.evaluated, answer.reaches_goal,
               {'kind': answer.kind, 'search_length': search.path_length,
@@ -241,7 +241,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     compiled, steps, timing = {}, {}, {}
     episodes_at_goal = jax.jit(env.is_goal)
 
-    def query(nodes, keys, executed, running):
+    def query(nodes, keys, executed, running, time_limit_s):
       if not compiled:  # compiled in the first query, before its clock, as PACHS and MPPI are
         shape = jax.eval_shape(rollout.init, nodes, keys)
         compiled.update(init=rollout.init.lower(nodes, keys).compile(),
@@ -262,7 +262,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
       start = time.perf_counter()
       out = anytime.timed_result(chunk, compiled['init'](nodes, keys),
                                  lambda state: compiled['result'](compiled['stop'](state)),
-                                 args.query_time, start, timing)
+                                 time_limit_s, start, timing)
       return Asked(np.asarray(out.path_actions), np.asarray(out.path_length),
                    np.asarray(out.evaluated), np.asarray(out.found),
                    {'iterations': np.asarray(out.iterations)})
@@ -274,7 +274,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     mppi = bl.make_mppi(env, model, config)
     previous, timing = {}, {}
 
-    def query(nodes, keys, executed, running):
+    def query(nodes, keys, executed, running, time_limit_s):
       # warm start: the last plan without its executed actions (its last action repeated),
       # or the policy's rollout from the current state where nothing of it is left
       nominal = np.asarray(mppi.init(nodes, keys).nominal)
@@ -285,7 +285,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
         shifted = np.take_along_axis(previous['actions'], idx[:, :, None], axis=1)
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
       out = anytime.run_search(mppi, nodes, keys, jnp.asarray(nominal),
-                               time_limit_s=args.query_time, timing=timing)
+                               time_limit_s=time_limit_s, timing=timing)
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return Asked(previous['actions'], previous['length'], np.asarray(out.evaluated),
                    np.asarray(out.found), {})
@@ -317,11 +317,11 @@ def served_query(task: str, args, num: int):
   pool = concurrent.futures.ThreadPoolExecutor(len(parts))
   asked = [0]
 
-  def query(nodes, keys, executed, running):
+  def query(nodes, keys, executed, running, time_limit_s):
     fields = client.node_fields(nodes)
     ask = lambda c, rows: c.plan({k: v[rows] for k, v in fields.items()},
                                  executed=np.asarray(executed)[rows], keys=np.asarray(keys)[rows],
-                                 time_limit_s=args.query_time, reset=asked[0] == 0)
+                                 time_limit_s=time_limit_s, reset=asked[0] == 0)
     answers = list(pool.map(ask, clients, parts))
     asked[0] += 1
     join = lambda get: np.concatenate([get(a) for a in answers])
@@ -461,7 +461,8 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
     actions_per_query.extend(lengths[running].tolist())
     evaluations_per_query.extend(answer.evaluated[running].tolist())
 
-  log = episodes_lib.run(query, episodes, execute=args.execute, max_queries=args.max_queries,
+  log = episodes_lib.run(query, episodes, args.query_time, execute=args.execute,
+                         max_queries=args.max_queries,
                          key=key, fill_with_policy=bool(args.fill_with_policy),
                          policy=policy_actions(env, model),
                          stop=stop, on_answer=on_answer)
@@ -478,6 +479,9 @@ def run_planner(name, task, env, model, episodes: Worlds, args, key,
           'failures_on_policy_steps': int(log.failed_on_policy.sum()),
           'cut_answers': int(log.cut_answers.sum()),
           'cut_fills': int(log.cut_fills.sum()),
+          'fill_wait_s_mean': stats.mean_or_none(log.fill_wait_s),
+          'fill_charged_s_mean': stats.mean_or_none(log.charged_s),
+          'fill_charged_s_max': max(log.charged_s) if log.charged_s else None,
           'actions_per_query_mean': stats.mean_or_none(actions_per_query),
           'evaluations_per_query_mean': stats.mean_or_none(evaluations_per_query),
           **answers.summary()}

@@ -18,6 +18,10 @@ from pachs_jax.envs import base, playground, playground_world
 from pachs_jax.envs import world as world_lib
 
 
+# a query's clock is never cut below this share of the loop's by a fill's wait
+MIN_CLOCK_SHARE = 0.5
+
+
 def make_worlds(env: base.Env, num: int,
                 perturbation: Optional[world_lib.Perturbation] = None) -> list:
   """num MuJoCo C worlds of env: `world.World`s of a PushT env (any backend), or
@@ -117,6 +121,9 @@ class Log:
     states in the planner's physics NodeState [E, T + 1] (numpy), the answer's length [E]);
     for answers that carry their states.
   interrupted_at_query: the query before which `stop` ended the episodes (None: it did not).
+  clock_s: per query, the clock it was given (s; None: none).
+  fill_wait_s, charged_s: per answer with a fill_length, the s waited for it after the answer
+    came, and the part of that wait charged to the next query (past the answer's own actions).
   """
 
   queries: np.ndarray
@@ -127,6 +134,9 @@ class Log:
   cut_fills: np.ndarray = None
   plans: list = dataclasses.field(default_factory=list)
   interrupted_at_query: Optional[int] = None
+  clock_s: list = dataclasses.field(default_factory=list)
+  fill_wait_s: list = dataclasses.field(default_factory=list)
+  charged_s: list = dataclasses.field(default_factory=list)
 
   def executed_plans(self, episode: int, num_states: int) -> list:
     """Per world state s < num_states of `episode`, the answer being executed there (its
@@ -202,18 +212,44 @@ def video_frames(worlds: Worlds, log: Log, episode: int, title: str) -> np.ndarr
   return render.loop_frames(worlds.env, states, plans, title)
 
 
-def session_query(session: replan.Session, time_limit_s: float) -> Callable:
-  """query(nodes [E], keys [E, 2], executed [E], running [E]) -> the session's
-  `replan.Answer` (numpy) of a `time_limit_s` query, searched for the running episodes (`run`'s
-  planner)."""
-  return lambda nodes, keys, executed, running: jax.tree.map(np.asarray, session.plan(
-      nodes, executed, keys, time_limit_s=time_limit_s, active=running))
+def control_period_s(env: Optional[base.Env]) -> float:
+  """s of a robot's time per action of env: PushT's physics_dt x substeps, a Playground task's
+  control dt; 0 for an env with no real time (the analytic envs, None)."""
+  if isinstance(env, playground.PlaygroundEnv):
+    return float(env.playground_env.dt)
+  config = getattr(env, 'config', None)
+  if hasattr(config, 'physics_dt') and hasattr(config, 'substeps'):
+    return float(config.physics_dt) * int(config.substeps)
+  return 0.0
+
+
+def session_query(session: replan.Session) -> Callable:
+  """query(nodes [E], keys [E, 2], executed [E], running [E], time_limit_s) -> the session's
+  `replan.Answer` (numpy, but fill_length still being computed) of a time_limit_s query,
+  searched for the running episodes (`run`'s planner)."""
+
+  def query(nodes, keys, executed, running, time_limit_s):
+    answer = session.plan(nodes, executed, keys, time_limit_s=time_limit_s, active=running)
+    fill = answer.fill_length
+    return jax.tree.map(np.asarray, answer.replace(fill_length=None)).replace(fill_length=fill)
+  return query
+
+
+def fill_cover_s(lengths: np.ndarray, running: np.ndarray, need: np.ndarray,
+                 period_s: float) -> float:
+  """s of a robot's time that executing the answers' own actions, lengths [E], covers before a
+  fill is needed: the soonest episode to need its fill (need [E]: its answer is short; an empty
+  answer's one policy action first), else the longest of the running episodes' actions (the
+  next query waits for them)."""
+  if need.any():
+    return period_s * float(np.min(np.maximum(lengths[need], 1)))
+  return period_s * float(np.max(lengths[running], initial=0))
 
 
 def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: int = 10,
         max_queries: int = 30, key: Optional[jax.Array] = None, fill_with_policy: bool = True,
         policy: Optional[Callable] = None, stop: Optional[Callable[[], bool]] = None,
-        on_answer: Optional[Callable] = None) -> Log:
+        on_answer: Optional[Callable] = None, period_s: Optional[float] = None) -> Log:
   """Runs the worlds' episodes in closed loop: a query for all episodes still running, the
   first `execute` actions of each answer in its world (an empty answer: one action of the
   policy; a shorter answer followed by the policy's actions up to `execute` when
@@ -221,18 +257,25 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
   shorter `safe_length`, `replan.AnswerCheck`: that many, then the next query), until every
   episode reached the goal or made max_queries queries.
 
+  An answer's fill_length may still be computing when it comes (`replan.Session.fill_steps`):
+  a robot executes the answer's own actions meanwhile, so a wait for it longer than those
+  actions take (period_s each, `fill_cover_s`) is charged to the next query's clock
+  (`Log.charged_s`).
+
   planner: a `replan.Session` (reset, then asked for `time_limit_s` s per query), or
-    query(nodes [E], keys [E, 2], executed [E], running [E]) -> an answer with actions
-    [E, T, A] and length [E] (numpy; its kind and states are logged where it has them).
+    query(nodes [E], keys [E, 2], executed [E], running [E], time_limit_s) -> an answer with
+    actions [E, T, A] and length [E] (numpy; its kind and states are logged where it has them).
     executed: the actions of the last answer executed (`replan.DIVERGED` where the policy
-    moved the episode after it); running: the episodes still going (`Worlds.active`).
+    moved the episode after it); running: the episodes still going (`Worlds.active`);
+    time_limit_s: the query's clock (s; None: the planner's own).
   key: the PRNG key each query's per-episode keys are folded from (None: PRNGKey(0)).
   policy: nodes [E] -> actions [E, A] (None: the session's deterministic actor).
   stop: checked before each query; once True the episodes end where they are.
   on_answer(query, nodes, running [E], executed [E], answer, seconds): after each query.
+  period_s: s of a robot's time per action (None: `control_period_s` of the worlds' env).
   """
   if isinstance(planner, replan.Session):
-    query = session_query(planner, time_limit_s)
+    query = session_query(planner)
     planner.reset()
     if policy is None:
       env, model = planner.env, planner.actor_critic
@@ -241,6 +284,10 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     query = planner
   if policy is None:
     raise ValueError('run needs the policy that fills short answers (policy=...)')
+  if time_limit_s is not None and not time_limit_s > 0:
+    raise ValueError(f'time_limit_s must be a number of seconds > 0 or None, got '
+                     f'{time_limit_s!r}')
+  period_s = control_period_s(getattr(worlds, 'env', None)) if period_s is None else period_s
   num = worlds.num
   log = Log(queries=np.zeros(num, np.int64),
             answers=np.zeros((num, len(replan.AnswerKind.NAMES)), np.int64),
@@ -248,6 +295,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
             cut_answers=np.zeros(num, np.int64), cut_fills=np.zeros(num, np.int64))
   key = jax.random.PRNGKey(0) if key is None else key
   executed = np.zeros(num, np.int64)
+  charge = 0.0  # s the last fill's wait takes from this query's clock
   for number in range(max_queries):
     running = worlds.active
     if not running.any():
@@ -258,14 +306,12 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     nodes = worlds.batch()
     keys = jax.vmap(lambda i, q=number: jax.random.fold_in(jax.random.fold_in(key, q), i))(
         jnp.arange(num))
+    limit = None if time_limit_s is None else max(time_limit_s - charge,
+                                                   MIN_CLOCK_SHARE * time_limit_s)
+    log.clock_s.append(limit)
     began = time.perf_counter()
-    answer = query(nodes, keys, executed, running)
-    if on_answer is not None:
-      on_answer(number, nodes, running, executed, answer, time.perf_counter() - began)
-    log.queries += running
-    if getattr(answer, 'kind', None) is not None:
-      log.answers[np.flatnonzero(running), answer.kind[running]] += 1
-      log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
+    answer = query(nodes, keys, executed, running, limit)
+    answered = time.perf_counter()
     lengths = np.minimum(answer.length, execute)
     # an answer that a check cut (`replan.AnswerCheck`) is executed up to its safe length, then
     # replanned at once: no policy fill
@@ -273,11 +319,24 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     safe = lengths if safe is None else np.asarray(safe)
     cut = running & (safe < lengths)
     lengths = np.where(cut, safe, lengths)
+    fill, charge = getattr(answer, 'fill_length', None), 0.0
+    if fill is not None:  # followed while the answer's own actions execute: a wait past them
+      fill = np.asarray(fill)  # is the next query's
+      waited = time.perf_counter() - answered
+      short = running & ~cut & (lengths < execute) if fill_with_policy else np.zeros(num, bool)
+      charge = max(0.0, waited - fill_cover_s(lengths, running, short, period_s))
+      log.fill_wait_s.append(waited)
+      log.charged_s.append(charge)
+    if on_answer is not None:
+      on_answer(number, nodes, running, executed, answer, answered - began)
+    log.queries += running
+    if getattr(answer, 'kind', None) is not None:
+      log.answers[np.flatnonzero(running), answer.kind[running]] += 1
+      log.plans.append((np.where(running, worlds.steps, -1), answer.states, answer.length))
     log.cut_answers += cut
     actions = answer.actions[:, :execute]
     # the policy's steps stop at the answer's fill length (where the session followed it)
-    fill = getattr(answer, 'fill_length', None)
-    fill_ends = np.full(num, execute) if fill is None else lengths + np.asarray(fill)
+    fill_ends = np.full(num, execute) if fill is None else lengths + fill
     empty = running & (lengths == 0)
     if empty.any():  # one action of the policy where the answer has none
       actions = actions.copy()

@@ -128,7 +128,8 @@ class Answer:
     length, or where an `AnswerCheck` found a perturbed copy of the start that could not take
     one of its first actions, the actions before it (at least 1).
   fill_length: [E] int32 the policy's actions that may follow a short answer before the next
-    query (`fill_length`, a session with `fill_steps`); None: as many as the caller fills.
+    query (`fill_length`, a session with `fill_steps`; `Session.answer` returns it still being
+    computed); None: as many as the caller fills.
   """
 
   actions: jax.Array
@@ -296,7 +297,9 @@ class Session:
   fill_steps: the actions a closed loop executes per query: where an answer is shorter, the
     policy's actions up to fill_steps in all are followed from its end in the planner's physics
     and `Answer.fill_length` says how many it took before an invalid edge (0: not followed,
-    fill_length None).
+    fill_length None). The answer is returned before that follow ends (fill_length an array
+    still being computed, off the query's clock), so that a caller can execute the answer's own
+    actions meanwhile (`episodes.run` does, and charges a longer wait to the next query).
   """
 
   env: base.Env
@@ -481,13 +484,14 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
+    fill = None
     if self._fill_length is not None:  # the policy from each answer's end (its last state
       live = np.arange(rows) < num     # row), of the searched episodes only (no padding)
       if active is not None:
         live[:num] &= np.asarray(active)
-      answer = answer.replace(fill_length=self._fills[rows](
-          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length, live))
+      fill = self._fills[rows](jax.tree.map(lambda x: x[:, -1], answer.states), answer.length,
+                               live)[:num]
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
-    answer = jax.block_until_ready(answer)
-    self.timing['choose_s'] = time.perf_counter() - choosing  # the check's and fill's included
-    return answer
+    answer = jax.block_until_ready(answer)  # (the fill, queued after it, not waited for)
+    self.timing['choose_s'] = time.perf_counter() - choosing  # the check's included
+    return answer.replace(fill_length=fill)

@@ -2,6 +2,7 @@
 drives them, and what the command writes."""
 
 import json
+import time
 import types
 
 import jax
@@ -67,7 +68,7 @@ def _run_twice(answer):
   answered with `answer` in `_FailOnOne` worlds, the policy's action 0."""
   num, told = len(answer.length), []
 
-  def query(nodes, keys, executed, running):
+  def query(nodes, keys, executed, running, time_limit_s):
     told.append(np.asarray(executed).tolist())
     return answer
   worlds = _FailOnOne(num)
@@ -117,6 +118,44 @@ def test_a_policy_fill_stops_at_the_answer_s_fill_length_and_the_next_query_come
   assert log.cut_fills.tolist() == [2, 0, 2, 0]
 
 
+class _Slow:
+  """An array still being computed: reading it takes `seconds` the first time."""
+
+  def __init__(self, value, seconds):
+    self.value, self.seconds = value, seconds
+
+  def __array__(self, dtype=None, copy=None):
+    time.sleep(self.seconds)
+    self.seconds = 0.0
+    return np.asarray(self.value, dtype)
+
+
+def test_a_fill_still_computing_past_the_answer_s_own_actions_is_charged_to_the_next_query():
+  """Answers of 2 and 3 actions of 3 (0.1 s of a robot's time per action) whose fill length takes
+  0.3 s to read at the first query: episode 0 needs its fill after 0.2 s, so the wait past that
+  comes off the second query's 1 s clock; the second answer's fill is ready (no charge), and a
+  wait of more than half a clock takes only half (the charge still logged whole)."""
+  clocks = []
+
+  def run(seconds):
+    answers = iter([0.3, 0.0, 0.0])
+
+    def query(nodes, keys, executed, running, time_limit_s):
+      clocks.append(time_limit_s)
+      return types.SimpleNamespace(actions=np.zeros((2, 3, 1), np.float32),
+                                   length=np.array([2, 3]),
+                                   fill_length=_Slow(np.array([1, 0]), next(answers) * seconds))
+    return episodes.run(query, _FailOnOne(2), 1.0, execute=3, max_queries=3, period_s=0.1,
+                        policy=lambda nodes: np.zeros((2, 1), np.float32))
+  log = run(1.0)
+  assert log.fill_wait_s[0] >= 0.3 and log.charged_s[0] == log.fill_wait_s[0] - 0.2
+  assert log.clock_s == clocks[:3] == [1.0, 1.0 - log.charged_s[0], 1.0 - log.charged_s[1]]
+  assert log.charged_s[1] < 0.05  # (read at once)
+  clocks.clear()
+  log = run(3.0)  # 0.9 s of fill: a charge of 0.7 s, half the clock taken
+  assert log.charged_s[0] >= 0.7 and log.clock_s[1] == 0.5
+
+
 def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_state():
   """Episode 0 executes 3 planned actions per query; episode 1's answers hold 1, the policy
   fills 2. The trace's planned qpos at world state s is the state the answer being executed
@@ -128,7 +167,7 @@ def test_trace_records_the_actions_who_took_them_and_the_plan_for_each_world_sta
   size = np.asarray(away.qpos).shape[-1]
   asked = []
 
-  def query(nodes, keys, executed, running):
+  def query(nodes, keys, executed, running, time_limit_s):
     number = len(asked)
     asked.append(number)
     planned = number + 0.1 * np.arange(4)[None, :, None] + np.zeros((2, 4, size))
