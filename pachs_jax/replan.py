@@ -4,6 +4,7 @@ the policy's rollout (docs/closed_loop.md)."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import numbers
 import time
@@ -128,8 +129,8 @@ class Answer:
     length, or where an `AnswerCheck` found a perturbed copy of the start that could not take
     one of its first actions, the actions before it (at least 1).
   fill_length: [E] int32 the policy's actions that may follow a short answer before the next
-    query (`fill_length`, a session with `fill_steps`; `Session.answer` returns it still being
-    computed); None: as many as the caller fills.
+    query (`fill_length`, a session with `fill_steps`; `Session.answer` returns it as a
+    `PendingFill`, still being followed); None: as many as the caller fills.
   """
 
   actions: jax.Array
@@ -141,6 +142,24 @@ class Answer:
   search: SearchResult
   safe_length: jax.Array = None
   fill_length: jax.Array = None
+
+
+class PendingFill:
+  """[E] int32 fill lengths (`fill_length`) that a session's background thread is still
+  following: np.asarray(pending), result() or block_until_ready() wait for them."""
+
+  def __init__(self, future: concurrent.futures.Future):
+    self._future = future
+
+  def result(self) -> np.ndarray:
+    return np.asarray(self._future.result())
+
+  def block_until_ready(self) -> 'PendingFill':
+    self._future.result()
+    return self
+
+  def __array__(self, dtype=None, copy=None):  # pylint: disable=unused-argument
+    return self.result() if dtype is None else self.result().astype(dtype)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -297,9 +316,10 @@ class Session:
   fill_steps: the actions a closed loop executes per query: where an answer is shorter, the
     policy's actions up to fill_steps in all are followed from its end in the planner's physics
     and `Answer.fill_length` says how many it took before an invalid edge (0: not followed,
-    fill_length None). The answer is returned before that follow ends (fill_length an array
-    still being computed, off the query's clock), so that a caller can execute the answer's own
-    actions meanwhile (`episodes.run` does, and charges a longer wait to the next query).
+    fill_length None). That follow runs on a background thread after the answer is returned
+    (fill_length a `PendingFill`, off the query's clock), so that a caller can execute the
+    answer's own actions meanwhile (`episodes.run` does, and charges a longer wait to the next
+    query).
   """
 
   env: base.Env
@@ -366,6 +386,8 @@ class Session:
     self._compiled = {}  # episodes -> the compiled follow
     self._checks = {}  # episodes -> the compiled check
     self._fills = {}  # episodes -> the compiled fill_length
+    self._background = (concurrent.futures.ThreadPoolExecutor(1, 'pachs-fill') if fill_steps
+                        else None)
     self._sharded = (None if self.mesh is None
                      else sharding.ShardedSearch(self.search.search, self.mesh))
     self.last: Optional[Answer] = None
@@ -484,14 +506,15 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
+    answer = jax.block_until_ready(answer)
     fill = None
     if self._fill_length is not None:  # the policy from each answer's end (its last state
-      live = np.arange(rows) < num     # row), of the searched episodes only (no padding)
-      if active is not None:
-        live[:num] &= np.asarray(active)
-      fill = self._fills[rows](jax.tree.map(lambda x: x[:, -1], answer.states), answer.length,
-                               live)[:num]
+      live = np.arange(rows) < num     # row), of the searched episodes only (no padding),
+      if active is not None:           # on a thread: the answer goes out meanwhile (its
+        live[:num] &= np.asarray(active)  # physics' loops hold the thread that runs them)
+      fill = PendingFill(self._background.submit(
+          lambda run, ends, length: np.asarray(run(ends, length, live))[:num], self._fills[rows],
+          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length))
     answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
-    answer = jax.block_until_ready(answer)  # (the fill, queued after it, not waited for)
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's included
     return answer.replace(fill_length=fill)

@@ -434,7 +434,9 @@ def test_a_session_with_fill_steps_says_how_far_the_policy_may_fill_each_answer(
   # an episode the query does not search (its episode over) gets no fill
   quiet = session.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0),
                        active=np.array([True, True, False]))
-  assert int(quiet.length[2]) < 10 and int(quiet.fill_length[2]) == 0
+  # (followed on the session's thread after the answer: a PendingFill)
+  assert isinstance(quiet.fill_length, replan.PendingFill)
+  assert int(quiet.length[2]) < 10 and int(quiet.fill_length.result()[2]) == 0
   # without fill_steps no fill is followed
   plain = replan.Session(env, TowardGoal(DIM), config, horizon=16)
   assert plain.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0)).fill_length is None

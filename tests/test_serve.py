@@ -152,7 +152,7 @@ def test_a_server_with_fill_steps_answers_how_far_the_policy_may_fill_as_the_lib
                               query_time=None)
     query, _ = closed_loop.served_query(TASK, args, 3)
     asked = query(states, jax.random.split(jax.random.PRNGKey(5), 3), np.zeros(3, np.int32),
-                  np.ones(3, bool))
+                  np.ones(3, bool), None)
     np.testing.assert_array_equal(asked.fill_length, want.fill_length)
   _same(answer, want)
   np.testing.assert_array_equal(answer.fill_length, want.fill_length)
