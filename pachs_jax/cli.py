@@ -326,6 +326,10 @@ def _loop(args: argparse.Namespace) -> int:
   print(planner.format_table(rows, ['instance', 'success', 'failed', 'steps', 'queries']
                              + list(names) + ['policy_steps', 'cut_fills']))
   print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
+  if log.fill_wait_s:  # (the fill's follow after each answer, while its own actions ran)
+    print(f'the checked fill took {1e3 * sum(log.fill_wait_s) / len(log.fill_wait_s):.0f} ms a query after '
+          f'the answer, {1e3 * sum(log.charged_s):.0f} ms of it charged to the next queries\' '
+          f'clocks')
   writes = []
   if args.json:
     document = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,
@@ -334,7 +338,9 @@ def _loop(args: argparse.Namespace) -> int:
                 'settings': {'query_time_s': args.query_time, 'execute': args.execute,
                              'max_queries': args.max_queries, 'fill_check': args.fill_check,
                              'seed': args.seed},
-                'rows': rows}
+                'rows': rows,
+                'queries': {'clock_s': log.clock_s, 'fill_wait_s': log.fill_wait_s,
+                            'charged_s': log.charged_s}}
 
     def write_json():
       outputs.write_json(args.json, document)

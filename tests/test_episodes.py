@@ -225,6 +225,14 @@ def test_pachs_loop_runs_episodes_and_writes_rows_and_a_video(tmp_path):
     if not row['success']:
       assert (row['steps'] < 4 * row['queries'] if row['cut_fills']
               else row['steps'] == 4 * row['queries'])
+  # each query's clock: 0.5 s less what the last fill's wait past its answer's own actions
+  # charged (the fill followed after each answer)
+  clocks = saved['queries']
+  assert len(clocks['clock_s']) == max(r['queries'] for r in saved['rows'])
+  assert len(clocks['fill_wait_s']) == len(clocks['charged_s']) == len(clocks['clock_s'])
+  assert clocks['clock_s'][0] == 0.5 and all(
+      c == max(0.5 - charged, 0.5 * episodes.MIN_CLOCK_SHARE)
+      for c, charged in zip(clocks['clock_s'][1:], clocks['charged_s']))
   with Image.open(video) as gif:  # a frame per world state of instance 3
     assert gif.n_frames == saved['rows'][1]['steps'] + 1
 
