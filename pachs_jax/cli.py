@@ -327,9 +327,9 @@ def _loop(args: argparse.Namespace) -> int:
                              + list(names) + ['policy_steps', 'cut_fills']))
   print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
   if log.fill_wait_s:  # (the fill's follow after each answer, while its own actions ran)
-    print(f'the checked fill took {1e3 * sum(log.fill_wait_s) / len(log.fill_wait_s):.0f} ms a query after '
-          f'the answer, {1e3 * sum(log.charged_s):.0f} ms of it charged to the next queries\' '
-          f'clocks')
+    waited = 1e3 * sum(log.fill_wait_s) / len(log.fill_wait_s)
+    print(f'the checked fill took {waited:.0f} ms a query after the answer, '
+          f'{1e3 * sum(log.charged_s):.0f} ms of it charged to the next queries\' clocks')
   writes = []
   if args.json:
     document = {'task': args.task, 'layout': getattr(env, 'layout', None) and env.layout.name,

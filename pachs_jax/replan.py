@@ -515,6 +515,6 @@ class Session:
       fill = PendingFill(self._background.submit(
           lambda run, ends, length: np.asarray(run(ends, length, live))[:num], self._fills[rows],
           jax.tree.map(lambda x: x[:, -1], answer.states), answer.length))
-    answer = jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer)
+    answer = jax.block_until_ready(jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer))
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's included
     return answer.replace(fill_length=fill)
