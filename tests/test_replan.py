@@ -1,6 +1,8 @@
 """Replanning sessions (`replan`) on the analytic point mass (CPU): candidates followed in the
 planner's physics, the choice between them, and a session that keeps its last answer."""
 
+import threading
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -440,6 +442,25 @@ def test_a_session_with_fill_steps_says_how_far_the_policy_may_fill_each_answer(
   # without fill_steps no fill is followed
   plain = replan.Session(env, TowardGoal(DIM), config, horizon=16)
   assert plain.plan(_nodes(env, starts, goals), key=jax.random.PRNGKey(0)).fill_length is None
+
+
+def test_a_session_answers_before_the_policy_s_fill_is_followed():
+  """The fill's follow runs after the answer is returned (`replan.PendingFill`): a follow that
+  can only end once the caller holds the answer still ends, and its lengths arrive."""
+  env = Cliff()
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, fill_steps=10)
+  starts = np.array([[0.0, 0.0], [0.3, 0.0], [-0.5, 0.0]], np.float32)
+  nodes = _nodes(env, starts, np.array([[2.0, 0.0]] * 3, np.float32))
+  session.plan(nodes, key=jax.random.PRNGKey(0))  # compiles the follow for 3 episodes
+  answered = threading.Event()
+
+  def follow(ends, length, live):  # stands in for the compiled follow
+    return np.where(answered.wait(timeout=60), 7, -1) + np.zeros(len(live), np.int32)
+  session._fills[3] = follow  # pylint: disable=protected-access
+  answer = session.plan(nodes, key=jax.random.PRNGKey(0))
+  answered.set()
+  np.testing.assert_array_equal(np.asarray(answer.fill_length), [7, 7, 7])
 
 
 def test_a_session_with_a_check_answers_with_its_safe_length():
