@@ -21,12 +21,15 @@
 # A one-episode call first compiles MuJoCo Warp's kernels, so that no measured query does
 # (WARM=0 leaves it to each run's first query, before its clock). EXTRA: more closed_loop.py
 # flags for every run. GPU_OFFSET=n: the lines start at GPU n (beside another job script).
+# BUDGET_S counts from T0 (epoch seconds; default: this script's start): set T0=$(date +%s)
+# first in the device command, so that the wheels' install on a fresh machine (up to a minute)
+# counts too and the results' tarball is written before the command's limit.
 set -u
 if [ "$#" -lt 1 ]; then
   echo "usage: OUT=dir bash $0 RUNS [RUNS ...] (one line per GPU; a run: LAYOUT/VARIANT)" >&2
   exit 2
 fi
-END=$((SECONDS + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
+END=$((${T0:-$(date +%s)} + ${BUDGET_S:-570}))  # the device tool's 600 s, less packing
 o=$OUT/r; mkdir -p "$o"
 CL="python3 experiments/heldout_layouts.py experiments/closed_loop.py --task pusht-obs --backend ${BACKEND:-warp} ${EXTRA:-}"
 if [ "${WARM:-1}" = 1 ]; then  # each physics the runs use
@@ -68,6 +71,6 @@ run() {  # the command line of one run
        "> $o/${layout}_$variant.log 2>&1; echo $1; tail -c 900 $o/${layout}_$variant.log"
 }
 export -f run; export CL o
-left=$((END - SECONDS)); [ "$left" -gt 0 ] || left=1  # 0 would mean no limit
+left=$((END - $(date +%s))); [ "$left" -gt 0 ] || left=1  # 0 would mean no limit
 bash experiments/parallel_gpus.sh --lines run "$o/logs" "$left" "$@"
 cd "$OUT" && tar czf closed_loop.tgz r && rm -rf r
