@@ -16,6 +16,7 @@ import numpy as np
 from pachs_jax import replan
 from pachs_jax.envs import base, playground, playground_world
 from pachs_jax.envs import world as world_lib
+from pachs_jax.search.checks import check_seconds
 
 
 # a query's clock is never cut below this share of the loop's by a fill's wait
@@ -284,9 +285,7 @@ def run(planner, worlds: Worlds, time_limit_s: Optional[float] = None, execute: 
     query = planner
   if policy is None:
     raise ValueError('run needs the policy that fills short answers (policy=...)')
-  if time_limit_s is not None and not time_limit_s > 0:
-    raise ValueError(f'time_limit_s must be a number of seconds > 0 or None, got '
-                     f'{time_limit_s!r}')
+  check_seconds(time_limit_s, 'time_limit_s')
   period_s = control_period_s(getattr(worlds, 'env', None)) if period_s is None else period_s
   num = worlds.num
   log = Log(queries=np.zeros(num, np.int64),

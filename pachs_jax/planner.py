@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
-import math
-import numbers
 import os
 import warnings
 from typing import Callable, List, Optional, Sequence
@@ -19,6 +17,7 @@ from pachs_jax.runtime import compile_cache, programs, sharding, signals
 from pachs_jax.envs import backends, playground, pusht, registry
 from pachs_jax.sac import checkpoint as checkpoint_lib
 from pachs_jax.search import capacity, pachs
+from pachs_jax.search.checks import check_seconds
 from pachs_jax.search.config import SearchConfig
 from pachs_jax.search.result import SearchResult, StopReason
 
@@ -307,7 +306,7 @@ class Planner:
     planner's, with the task's K for that query time (`TaskSpec.replan_pop_size`; on an
     accelerator, when the planner was given no K); ValueError unless query_time_s is None or
     a finite number of seconds > 0."""
-    _check_query_time(query_time_s)
+    check_seconds(query_time_s, 'query_time_s')
     pop_size = (None if self._replan_task is None
                 else replan_pop_size(self._replan_task, query_time_s, self.env.physics))
     return self.config if pop_size is None else dataclasses.replace(self.config,
@@ -317,17 +316,8 @@ class Planner:
     """Whether a replanning session with queries of query_time_s seconds should check the
     policy's fill of its short answers (`replan_fill_check`; a user's or a Playground task:
     always); ValueError as `replan_config`'s."""
-    _check_query_time(query_time_s)
+    check_seconds(query_time_s, 'query_time_s')
     return replan_fill_check(self.task, query_time_s, self.env.physics)
-
-
-def _check_query_time(query_time_s) -> None:
-  """ValueError unless query_time_s is None or a finite number of seconds > 0."""
-  if query_time_s is not None and (
-      isinstance(query_time_s, bool) or not isinstance(query_time_s, numbers.Real)
-      or not math.isfinite(query_time_s) or query_time_s <= 0):
-    raise ValueError(f'query_time_s must be a number of seconds > 0 or None, got '
-                     f'{query_time_s!r}')
 
 
 def check_indices(instances, available: int) -> np.ndarray:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
-import numbers
 import time
 from typing import Callable, Optional, Sequence
 
@@ -19,7 +18,7 @@ from pachs_jax import trees
 from pachs_jax.runtime import programs, sharding
 from pachs_jax.envs import base
 from pachs_jax.search import capacity
-from pachs_jax.search.checks import check_start_nodes, instance_keys
+from pachs_jax.search.checks import check_seconds, check_start_nodes, instance_keys
 from pachs_jax.search.result import SearchResult
 
 # `Session.plan`'s `executed` for an episode whose last answer was not followed as given
@@ -274,10 +273,7 @@ def _counts(executed, num: int) -> np.ndarray:
 def _check_query(time_limit_s, active, num: int) -> None:
   """ValueError naming the argument for a time limit that is not seconds > 0 (or None) and an
   active mask that is not [num] bools."""
-  if time_limit_s is not None and (isinstance(time_limit_s, bool) or not isinstance(
-      time_limit_s, numbers.Real) or not time_limit_s > 0 or not np.isfinite(time_limit_s)):
-    raise ValueError(f'time_limit_s must be a number of seconds > 0 or None, got '
-                     f'{time_limit_s!r}')
+  check_seconds(time_limit_s, 'time_limit_s')
   if active is not None:
     mask = np.asarray(active)
     if mask.shape != (num,) or mask.dtype != bool:
@@ -506,15 +502,17 @@ class Session:
     if self.check is not None:
       answer = answer.replace(safe_length=self._checks[rows](
           check_starts, answer.actions, answer.length, check_keys))
-    answer = jax.block_until_ready(answer)
-    fill = None
-    if self._fill_length is not None:  # the policy from each answer's end (its last state
-      live = np.arange(rows) < num     # row), of the searched episodes only (no padding),
-      if active is not None:           # on a thread: the answer goes out meanwhile (its
-        live[:num] &= np.asarray(active)  # physics' loops hold the thread that runs them)
-      fill = PendingFill(self._background.submit(
-          lambda run, ends, length: np.asarray(run(ends, length, live))[:num], self._fills[rows],
-          jax.tree.map(lambda x: x[:, -1], answer.states), answer.length))
+    padded = answer
     answer = jax.block_until_ready(jax.tree.map(lambda x: x[:num] if jnp.ndim(x) else x, answer))
     self.timing['choose_s'] = time.perf_counter() - choosing  # the check's included
-    return answer.replace(fill_length=fill)
+    if self._fill_length is None:
+      return answer
+    # the policy from each answer's end (its last state row), of the searched episodes only
+    # (no padding), on a thread once the answer is ready (its physics' loops hold the thread
+    # that runs them), while the caller executes the answer
+    live = np.arange(rows) < num
+    if active is not None:
+      live[:num] &= np.asarray(active)
+    return answer.replace(fill_length=PendingFill(self._background.submit(
+        lambda run, ends, length: np.asarray(run(ends, length, live))[:num], self._fills[rows],
+        jax.tree.map(lambda x: x[:, -1], padded.states), padded.length)))

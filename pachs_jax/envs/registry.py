@@ -108,8 +108,8 @@ _PUSHT_OBS = dict(_PUSHT, rollout_share=0.875, chain_restart='novel', after_goal
 # gets 3-5 iterations, too shallow). docs/task_defaults.md.
 _PUSHT_OBS_REPLAN_POP_SIZES = ((2.0, 128),)
 # ... and check the policy's fill in queries of 2 s or more: at 3 s the check halved the Ts
-# tipped over and solved as many episodes; at 1 s its follow took a tenth of each query and
-# it solved fewer (docs/task_defaults.md).
+# tipped over and solved as many episodes; at 1 s its stopped fills left more episodes out of
+# queries and it solved fewer (docs/task_defaults.md).
 _PUSHT_OBS_REPLAN_FILL_CHECK_S = 2.0
 
 SPECS: Dict[str, TaskSpec] = {s.name: s for s in (

@@ -5,12 +5,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from pachs_jax.envs import base
+
+
+def check_seconds(value, name: str) -> None:
+  """ValueError naming `name` unless value is None or a finite number of seconds > 0."""
+  if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                            or not math.isfinite(value) or value <= 0):
+    raise ValueError(f'{name} must be a number of seconds > 0 or None, got {value!r}')
 
 
 def check_actor_critic(actor_critic, names) -> None:
