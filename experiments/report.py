@@ -636,11 +636,6 @@ def closed_loop_sessions(src: Sources) -> str:
       'margin: [measured and not kept](#measured-and-not-kept).'])
 
 
-# traced closed loops on a CPU (closed_loop_trace_cpu/): file suffix -> what ran
-TRACED_VARIANTS = (('pachs', 'PACHS'),
-                   ('pachs-noguard', 'PACHS, the policy\'s fill not checked (`--fill-check 0`)'))
-
-
 def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
                  margin_deg: float = 20.0) -> str:
   """The traced closed loops (`closed_loop.py --trace 1`) of a folder: per run, the episodes
@@ -652,26 +647,25 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   tilt = lambda q: np.degrees(np.asarray(pusht.t_tilt(np.nan_to_num(q).astype(np.float32))))
   rows, replays, first = [], [], None
   for layout in CLOSED_LOOP_LAYOUTS:
-    for variant, label in TRACED_VARIANTS:
-      name = f'{folder}/{layout}_{variant}.json'
-      if not src.exists(name):
-        continue
-      p = first = src.load(name)
-      trace = np.load(os.path.join(src.root, RESULTS, name[:-len('.json')] + '.pachs.trace.npz'))
-      a, steps = summary_of(p, 'pachs'), trace['steps']
-      planned = np.where(np.isnan(trace['planned_qpos'][..., 0]), 0.0,
-                         tilt(trace['planned_qpos']))
-      planned = [planned[e, :steps[e] + 1] for e in range(len(steps))]  # per world state
-      failed = np.flatnonzero(trace['failed'])
-      again = f'{name[:-len(".json")]}.replay.json'
-      if src.exists(again):  # `trace_replay.py`: the failed episodes' last queries replayed
-        replays.append(replay_sentence(layout, again, src.load(again), margin_deg))
-      rows.append([layout, label, box_contacts(p), f'{a["successes"]}/{a["episodes"]}',
-                   failures(a),
-                   f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
-                   f'{max(t.max() for t in planned):.1f}',
-                   f'{sum(bool(np.any(planned[e][-11:] > margin_deg)) for e in failed)}'
-                   f'/{len(failed)}'])
+    name = f'{folder}/{layout}_pachs.json'
+    if not src.exists(name):
+      continue
+    p = first = src.load(name)
+    trace = np.load(os.path.join(src.root, RESULTS, name[:-len('.json')] + '.pachs.trace.npz'))
+    a, steps = summary_of(p, 'pachs'), trace['steps']
+    planned = np.where(np.isnan(trace['planned_qpos'][..., 0]), 0.0,
+                       tilt(trace['planned_qpos']))
+    planned = [planned[e, :steps[e] + 1] for e in range(len(steps))]  # per world state
+    failed = np.flatnonzero(trace['failed'])
+    again = f'{name[:-len(".json")]}.replay.json'
+    if src.exists(again):  # `trace_replay.py`: the failed episodes' last queries replayed
+      replays.append(replay_sentence(layout, again, src.load(again), margin_deg))
+    rows.append([layout, 'PACHS', box_contacts(p), f'{a["successes"]}/{a["episodes"]}',
+                 failures(a),
+                 f'{sum(bool(np.any(t > margin_deg)) for t in planned)}/{len(planned)}',
+                 f'{max(t.max() for t in planned):.1f}',
+                 f'{sum(bool(np.any(planned[e][-11:] > margin_deg)) for e in failed)}'
+                 f'/{len(failed)}'])
   if not rows:
     return ''
   s = first['settings']
@@ -1203,10 +1197,15 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'check, 55 only with it) and 66 Ts tipped over against 33 (gate 1 against 3, wall 5 '
      'against 2, detour 17 against 11, two-gaps 21 against 10, gate-mirror 15 against 3, '
      'wall-right 5 against 2, slot 2 against 2); in the planners\' own physics 550 solved '
-     'against 569; edges per query 0.87-1.08x the rollout\'s against 0.85-1.03x: the check '
-     'stays on at 3 s',
+     'against 569; edges per query 0.87-1.08x the rollout\'s against 0.85-1.03x. Traced on a '
+     'CPU (8 instances, 8,000 evaluations a query, no clock) two-gaps solved 6/8 and '
+     'gate-mirror 5/8 without the check (7/8 and 5/8 with it); of their 3 failed episodes, '
+     'replayed from the world\'s states (`trace_replay.py`), 2 tipped the T alike in both '
+     'engines on a policy step and 1 was an engine difference (a plan that kept the T within '
+     '20 degrees in Warp, 30.3 in MuJoCo C): the check stays on at 3 s',
      '`1b7cee0`: `closed_loop_gpu/*_pachs-noguard.json`, '
-     '`closed_loop_gpu/*_pachs-noguard-planner-world.json`'),
+     '`closed_loop_gpu/*_pachs-noguard-planner-world.json`; `b1ec95b`: '
+     '`closed_loop_trace_cpu/*_pachs-noguard*`'),
     ('The policy\'s fill checked at 1 s per query (`--fill-check 1`, K 64; default physics, '
      'one H200 per planner, the seven layouts, the same instances)',
      'in MuJoCo C 288 episodes solved against 329 unchecked (93 solved only with the check, '
