@@ -631,6 +631,7 @@ def closed_loop_sessions(src: Sources) -> str:
              'T tipped (failed), own physics / MuJoCo C'], drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       traced_tilts(src),
+      traced_tilts(src, 'closed_loop_trace_gpu'),
       'The variants that lost (the session\'s candidates, K 256, no replay, no policy fill, '
       'the fill unchecked at 3 s and checked at 1 s) and the screens on blocks without a '
       'margin: [measured and not kept](#measured-and-not-kept).'])
@@ -669,11 +670,14 @@ def traced_tilts(src: Sources, folder: str = 'closed_loop_trace_cpu',
   if not rows:
     return ''
   s = first['settings']
+  how = (f'Warp planners on the CPU, MuJoCo C worlds, {s["instances"]} instances, '
+         f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock'
+         if first['provenance']['device'].startswith('cpu') else
+         f'the default at {s["query_time"]:g} s per query, MuJoCo C worlds, {s["instances"]} '
+         f'instances x {s["rounds"]} rounds')
   return '\n\n'.join([
-      f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, Warp '
-      f'planners on the CPU, MuJoCo C worlds, {s["instances"]} instances, '
-      f'{s["budget"]:,} evaluations an episode and query, K {s["pop_size"]}, no clock): how far '
-      'the plans tilt the T (the world\'s T tips over at '
+      f'Traced closed loops (`closed_loop.py --trace 1`; {first["provenance"]["device"]}, '
+      f'{how}): how far the plans tilt the T (the world\'s T tips over at '
       f'{np.degrees(pusht.MAX_T_TILT):g} degrees, where the episode fails).',
       table(['layout', 'planner', 'T-block contacts', 'solved', 'T tipped (failed)',
              f'episodes whose plans tilted the T past {margin_deg:g} degrees',
