@@ -224,6 +224,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
               {'kind': answer.kind, 'search_length': search.path_length,
                'generated': search.generated, 'invalid': search.invalid,
                'iterations': search.iterations, 'stop': search.stop_reason,
+               'lane_utilization': search.lane_utilization,
                'search_s': float(search.wall_time_s), 'follow_s': session.timing['follow_s'],
                'choose_s': session.timing['choose_s'],
                'remainder_followed': 'remainder' in session.candidates,
@@ -248,6 +249,10 @@ def make_query(name: str, task: str, env, model, args, num: int):
                         **{f: getattr(rollout, f).lower(shape).compile()
                            for f in ('stop', 'result')})
         steps.update({s: rollout.step.lower(shape, size=s).compile() for s in (None,) + sizes})
+        # one unclocked run, as PACHS's: what the programs' first run loads lazily (MuJoCo
+        # Warp's kernel modules, XLA's kernels) is not on the first query's clock
+        jax.block_until_ready(compiled['result'](compiled['stop'](
+            steps[None](compiled['init'](nodes, keys)))))
       # the smallest batch that holds the running episodes' copies (instances only stop)
       live = int(np.sum(~np.asarray(episodes_at_goal(nodes)))) * args.copies
       size = next((s for s in sizes if s >= live), None)
@@ -378,6 +383,8 @@ class SessionAnswers:
                          't_tipped': 0, 't_tipped_queries': 0}
     self.iterations, self.search_s, self.follow_s, self.choose_s = [], [], [], []
     self.clocked, self.ended_before_clock = [], 0  # evaluations [per query and episode], count
+    self.clocked_lanes, self.clocked_iterations = [], []  # of the clocked searches: evaluations
+    # over their lanes' transitions, iterations
     self.previous_goal, self.survival, self.followed = None, [0, 0], False
 
   def add(self, query: int, info: Dict, nodes, running, evaluated, executed, found) -> None:
@@ -386,6 +393,9 @@ class SessionAnswers:
       self.kinds += np.bincount(info['kind'][running], minlength=len(self.kinds))
       clocked = running & (info['stop'] == StopReason.TIME_LIMIT)
       self.clocked.extend(evaluated[clocked].tolist())
+      if 'lane_utilization' in info:
+        self.clocked_lanes.extend(np.asarray(info['lane_utilization'])[clocked].tolist())
+        self.clocked_iterations.extend(np.asarray(info['iterations'])[clocked].tolist())
       self.ended_before_clock += int(np.sum(running & ~clocked))
       nothing = running & (info['search_length'] == 0)
       empty = self.empty_search
@@ -424,6 +434,8 @@ class SessionAnswers:
             'empty_search': self.empty_search if session else None,
             'iterations_per_query_mean': stats.mean_or_none(self.iterations),
             'evaluations_per_clocked_query_mean': stats.mean_or_none(self.clocked),
+            'lane_utilization_clocked_mean': stats.mean_or_none(self.clocked_lanes),
+            'iterations_per_clocked_query_mean': stats.mean_or_none(self.clocked_iterations),
             'searches_ended_before_clock': self.ended_before_clock if session else None,
             'goal_answers_followed': self.survival[0] if self.followed else None,
             'remainders_still_at_goal': self.survival[1] if self.followed else None,

@@ -463,6 +463,34 @@ def test_a_session_answers_before_the_policy_s_fill_is_followed():
   np.testing.assert_array_equal(np.asarray(answer.fill_length), [7, 7, 7])
 
 
+def test_a_session_s_first_clocked_query_first_answers_once_off_its_clock(env, monkeypatch):
+  """The first clocked query (per bucket) first runs a throwaway answer with a clock of
+  `replan.WARM_UP_S` (compiling the choice, the programs' first runs), then its own; later
+  and unclocked queries search once; the answer is the one an unclocked query gives."""
+  config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)
+  session = replan.Session(env, TowardGoal(DIM), config, horizon=16, fill_steps=10)
+  clocks = []
+  plan = replan.programs.plan
+
+  def spy(*args, **kwargs):
+    clocks.append(kwargs['time_limit_s'])
+    return plan(*args, **kwargs)
+  monkeypatch.setattr(replan.programs, 'plan', spy)
+  starts = np.array([[0.0, 0.0], [0.3, 0.0], [-0.5, 0.0]], np.float32)
+  nodes = _nodes(env, starts, np.array([[0.6, 0.0]] * 3, np.float32))
+  unclocked = jax.tree.map(np.asarray, session.plan(nodes, key=jax.random.PRNGKey(0)))
+  assert clocks == [None]
+  clocked = session.plan(nodes, key=jax.random.PRNGKey(0), time_limit_s=600.0)
+  assert len(clocks) == 3 and clocks[1] == replan.WARM_UP_S and clocks[2] > 100
+  assert session.last is clocked  # the throwaway answer is not kept
+  # a 600 s clock and a budget of 16: the search runs to its budget, as unclocked
+  np.testing.assert_array_equal(np.asarray(clocked.length), unclocked.length)
+  np.testing.assert_array_equal(np.asarray(clocked.actions), unclocked.actions)
+  np.testing.assert_array_equal(np.asarray(clocked.fill_length), unclocked.fill_length)
+  session.plan(nodes, key=jax.random.PRNGKey(0), time_limit_s=600.0)
+  assert len(clocks) == 4
+
+
 def test_a_session_with_a_check_answers_with_its_safe_length():
   env = Cliff(PointMassConfig(success_radius=0.01))
   config = SearchConfig(weight=1.0, pop_size=4, num_actions=4, budget=16)

@@ -63,7 +63,8 @@ class Programs:
   search: a `make_search` result. prefetch: a command line's `compile_cache.Prefetch` (None:
     nothing loaded ahead).
   compiled: (padded instances, platform) -> the programs of `plan` (init, result, the loops of
-    the sizes reached so far, the last result's 'timing').
+    the sizes reached so far, the last result's 'timing', and 'ran <init>' once an init
+    program's warm-up run is done).
   model_checks: padded instances -> the compiled model check.
   """
 
@@ -208,7 +209,9 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
     leaves them out: init, result and the loop of the live instances' lane layout before the
     clock starts; the loops of the other layouts the search can reach also before it with a
     time limit or compile_first (a benchmark's search time: no compiling beside the search),
-    else beside the search (time spent waiting for one is not counted).
+    else beside the search (time spent waiting for one is not counted). With a time limit or
+    compile_first, a call whose init program has not run yet first runs it, one iteration and
+    the result once, unclocked, so that what their first run loads lazily is not on the clock.
   search: a `Programs` to reuse (its compiled programs stay warm between calls), or a
     `make_search` result (compiled for this call only); None builds one.
   min_bucket: the smallest padded instance count (None: 32 on an accelerator, where idle lanes
@@ -299,6 +302,14 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
         programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)
     if stop is not None and stop():
       raise signals.StoppedBeforeSearch('stopped while the programs compiled')
+    if (time_limit_s is not None or compile_first) and f'ran {init_name}' not in programs:
+      # each program's first run loads what it runs lazily (MuJoCo Warp's kernel modules, XLA's
+      # kernels): a throwaway init, iteration and result, so that no clock counts that load
+      warm = programs[init_name](*init_args)
+      warm = programs[('loop', search.lanes_for(warm) if shrink else first)](
+          warm, jax.device_put(np.int32(1)), shrinking)
+      jax.block_until_ready(programs['result'](warm))
+      programs[f'ran {init_name}'] = True
     waiting = {'s': 0.0}  # for the smaller loops during the search
     state = programs[init_name](*init_args)
     if started is not None:
