@@ -309,6 +309,7 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       warm = programs[('loop', search.lanes_for(warm) if shrink else first)](
           warm, jax.device_put(np.int32(1)), shrinking)
       jax.block_until_ready(programs['result'](warm))
+      del warm  # (its buffers freed before the search's own state is made)
       programs[f'ran {init_name}'] = True
     waiting = {'s': 0.0}  # for the smaller loops during the search
     state = programs[init_name](*init_args)
