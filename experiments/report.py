@@ -1209,7 +1209,8 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '20 degrees in Warp, 30.3 in MuJoCo C): the check stays on at 3 s',
      '`1b7cee0`: `closed_loop_gpu/*_pachs-noguard.json`, '
      '`closed_loop_gpu/*_pachs-noguard-planner-world.json`; `b1ec95b`: '
-     '`closed_loop_trace_cpu/*_pachs-noguard*`'),
+     '`closed_loop_trace_cpu/*_pachs-noguard*`; `7a3f2fb`: '
+     '`closed_loop_trace_cpu/two-gaps_pachs*` (the checked trace)'),
     ('The policy\'s fill checked at 1 s per query (`--fill-check 1`, K 64; default physics, '
      'one H200 per planner, the seven layouts, the same instances)',
      'in MuJoCo C 288 episodes solved against 329 unchecked (93 solved only with the check, '

@@ -1,7 +1,7 @@
 """Why a traced closed loop's T tipped: each failed episode's last query replayed from the world's
 state, its executed actions again in MuJoCo C and in the planner's physics.
 
-  python experiments/trace_replay.py experiments/results/closed_loop_trace_cpu/two-gaps_pachs.json
+  python experiments/trace_replay.py experiments/results/closed_loop_trace_gpu/two-gaps_pachs.json
 
 Reads `<run>.pachs.trace.npz` beside a `closed_loop.py --trace 1` result. Per failed episode
 (`episodes.trace`): the world state at which its last query asked; from there, step by step,
