@@ -385,6 +385,7 @@ class SessionAnswers:
     self.clocked, self.ended_before_clock = [], 0  # evaluations [per query and episode], count
     self.clocked_lanes, self.clocked_iterations = [], []  # of the clocked searches: evaluations
     # over their lanes' transitions, iterations
+    self.first_iterations = []  # the running episodes' mean iterations at queries 0, 1, 2
     self.previous_goal, self.survival, self.followed = None, [0, 0], False
 
   def add(self, query: int, info: Dict, nodes, running, evaluated, executed, found) -> None:
@@ -419,6 +420,8 @@ class SessionAnswers:
                                      & (info['remainder_steps'] > 0)))
     self.followed = self.followed or bool(info.get('remainder_followed'))
     self.previous_goal = found.copy() if 'kind' in info else None
+    if query < 3 and 'iterations' in info and running.any():
+      self.first_iterations.append(float(np.mean(info['iterations'][running])))
     if query > 0 and 'iterations' in info:
       self.iterations.append(float(np.max(info['iterations'][running])))
       if 'search_s' in info:
@@ -433,6 +436,7 @@ class SessionAnswers:
                         if session else None),
             'empty_search': self.empty_search if session else None,
             'iterations_per_query_mean': stats.mean_or_none(self.iterations),
+            'iterations_first_queries': self.first_iterations or None,
             'evaluations_per_clocked_query_mean': stats.mean_or_none(self.clocked),
             'lane_utilization_clocked_mean': stats.mean_or_none(self.clocked_lanes),
             'iterations_per_clocked_query_mean': stats.mean_or_none(self.clocked_iterations),
