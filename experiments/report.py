@@ -530,7 +530,9 @@ def closed_loop_rows(src: Sources, folder: str, variants: Sequence[Tuple[str, st
                         ' / '.join(dict.fromkeys([box_contacts(own_run), box_contacts(p)])),
                         episodes_solved(b), episodes_solved(a),
                         points(100 * (b['success_rate'] - a['success_rate'])),
-                        f'{failures(b)} / {failures(a)}'])
+                        f'{failures(b)} / {failures(a)}',
+                        ' / '.join(f'`{r["provenance"]["git_revision"][:7]}`'
+                                   for r in (own_run, p))])
           pairs.setdefault((layout, variant), []).append((b['success_rate'], a['success_rate']))
   pooled = [f'{layout}, {"PACHS" if variant.startswith("pachs") else "the rollout"} '
             f'{pct(sum(o for o, _ in runs) / len(runs))} in its own physics and '
@@ -626,9 +628,11 @@ def closed_loop_sessions(src: Sources) -> str:
       + (f' The default at 3 s (K 128) not run on: {", ".join(missing)}.' if missing else '')
       + ' ' + query_split(src, folder),
       'The plans executed in the planners\' own physics (`--world planner`, Warp) against the '
-      'MuJoCo C world, same protocol:',
+      'MuJoCo C world, same protocol (where the two runs\' revisions differ, so may the code '
+      'they ran: the drop then also holds what changed between them):',
       table(['layout', 'planner', 'T-block contacts', 'own physics', 'MuJoCo C', 'drop',
-             'T tipped (failed), own physics / MuJoCo C'], drops)
+             'T tipped (failed), own physics / MuJoCo C', 'revisions, own physics / MuJoCo C'],
+            drops)
       + ('\n\nOver the runs of a layout run again: ' + '; '.join(pooled) + '.' if pooled else ''),
       traced_tilts(src),
       traced_tilts(src, 'closed_loop_trace_gpu'),
@@ -700,7 +704,10 @@ def replay_sentence(layout: str, name: str, r: Dict, margin_deg: float) -> str:
   apart = lambda a, b: max((abs(row[a] - row[b]) for row in rows if row[b] is not None),
                            default=0.0)
   count = len(r['episodes'])
-  touching = lambda ep: ', '.join(sorted({c for row in ep['rows'] for c in row['t_contacts']}))
+  touching = lambda ep: ', '.join(sorted({c for row in ep['rows'] for c in row['t_contacts']})
+                                  ) or 'neither a block nor the stick'
+  after = lambda ep: (' with no planned step in its last query' if ep['plan_max_tilt'] is None
+                      else f' after a plan of at most {ep["plan_max_tilt"]:.1f} degrees')
   engine = '; '.join(
       f'episode {ep["episode"]}: {ep["planner_replay_tilt_at_failure"]:.1f} degrees in '
       f'{r["planner_physics"]}, {ep["rows"][-1]["tilt_c_replay"]:.1f} in MuJoCo C, the T '
@@ -709,8 +716,7 @@ def replay_sentence(layout: str, name: str, r: Dict, margin_deg: float) -> str:
       f'episode {ep["episode"]}: {ep["rows"][-1]["tilt_c_replay"]:.1f} degrees in MuJoCo C, '
       f'{ep["planner_replay_tilt_at_failure"]:.1f} in {r["planner_physics"]}, '
       + ('on a policy step' if ep.get('on_policy_step') else 'on a step of the plan')
-      + f' after a plan of at most {ep["plan_max_tilt"] or 0.0:.1f} degrees, the T touching '
-      f'{touching(ep)}' for ep in both)
+      + f'{after(ep)}, the T touching {touching(ep)}' for ep in both)
   parts = []
   if both:
     parts.append(f'in {len(both)} both engines tipped the T alike ({alike})')
@@ -1245,6 +1251,20 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      'the same runs (`c365457`, not kept) solved 289: the follow off the clock won 27 '
      'episodes and the check still loses at 1 s',
      '`aaa0e99`: `closed_loop_gpu/*_pachs-guard-q1.json`'),
+    ('The closed loop\'s first queries on the clock: an episode\'s first query searched 1 '
+     'iteration (its programs\' first run, which loads MuJoCo Warp\'s kernel modules, on the '
+     'clock) and the session\'s first follow and the choice\'s compile were charged to the '
+     'next queries (the default at 3 s and 1 s, the rollout with its first run on the clock '
+     'too; default physics, one H200 per run, 100 episodes a layout)',
+     'PACHS at 3 s solved gate 97% (98% run again), wall 97%, two-gaps 80%, gate-mirror 86%, '
+     'wall-right 94% (95% run again), slot 86% and detour 8%, against 98, 100, 86, 96, 97, 95 '
+     'and 7% with 8-9 iterations in each of an episode\'s first three queries; the rollout 73, '
+     '62, 20, 42, 59, 52 and 2% against 67, 74, 15, 49, 72, 57 and 4%; at 1 s PACHS gate 78%, '
+     'wall 69% and two-gaps 29% against 87, 88 and 36%, the rollout 18, 31 and 0% against 15, '
+     '32 and 2%',
+     '`16cdef3`: `closed_loop_gpu/*_{pachs,parallel}.json`, '
+     '`closed_loop_gpu/{gate,wall,two-gaps}_{pachs,parallel}-q1.json`, '
+     '`closed_loop_gpu/repeat/`'),
 )
 
 
