@@ -249,10 +249,12 @@ def make_query(name: str, task: str, env, model, args, num: int):
                         **{f: getattr(rollout, f).lower(shape).compile()
                            for f in ('stop', 'result')})
         steps.update({s: rollout.step.lower(shape, size=s).compile() for s in (None,) + sizes})
-        # one unclocked run, as PACHS's: what the programs' first run loads lazily (MuJoCo
-        # Warp's kernel modules, XLA's kernels) is not on the first query's clock
-        jax.block_until_ready(compiled['result'](compiled['stop'](
-            steps[None](compiled['init'](nodes, keys)))))
+        # one unclocked run of each program, as PACHS's: what a program's first run loads
+        # lazily (MuJoCo Warp's kernel modules, XLA's kernels) is on no query's clock
+        warm = compiled['init'](nodes, keys)
+        for step in steps.values():
+          warm = step(warm)
+        jax.block_until_ready(compiled['result'](compiled['stop'](warm)))
       # the smallest batch that holds the running episodes' copies (instances only stop)
       live = int(np.sum(~np.asarray(episodes_at_goal(nodes)))) * args.copies
       size = next((s for s in sizes if s >= live), None)

@@ -49,22 +49,34 @@ def test_compile_first_compiles_every_reachable_loop_before_the_search():
 
 def test_a_clocked_plan_first_runs_its_new_programs_once_off_the_clock():
   """With a time limit, the first call whose init program has not run yet runs init, one
-  iteration and the result once before the clock (what a first run loads lazily, e.g. MuJoCo
-  Warp's kernel modules, is not on the clock); later calls do not, and the result is that of
-  an unclocked plan."""
+  iteration of every reachable layout's loop and the result once before the clock (what a
+  first run loads lazily, e.g. MuJoCo Warp's kernel modules, is on no clock, also where the
+  search shrinks to a smaller layout later); later calls do not, and the result is that of an
+  unclocked plan."""
   env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
   ac = gridworld.GridActorCritic(env)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=200)
-  nodes = env.node(np.array([[0, 0], [7, 7]]), np.array([[6, 5], [0, 1]]))
+  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=200,
+                        compact_fractions=(0.25, 0.5))
+  nodes = env.node(np.array([[0, 0], [7, 7], [2, 6], [5, 1]]),
+                   np.array([[6, 5], [0, 1], [7, 0], [5, 6]]))
   key = jax.random.PRNGKey(3)
   search = Programs(make_search(env, ac, config))
   want = plan(env, ac, nodes, config, key, search=search)  # unclocked: compiles, no warm-up
   (programs,) = search.compiled.values()
   runs = []
-  init = programs['init']
-  programs['init'] = lambda *args: runs.append(1) or init(*args)
+
+  def count(name):
+    program = programs[name]
+    programs[name] = lambda *args: runs.append(name) or program(*args)
+
+  reachable = search.search.reachable(4, 4)
+  assert len(reachable) == 3
+  for name in ['init', 'result'] + [('loop', lanes) for lanes in reachable]:
+    count(name)
   got = plan(env, ac, nodes, config, key, search=search, time_limit_s=600.0)
-  assert len(runs) == 2  # the warm-up's init, then the search's
+  warm_up = runs[:runs.index('init', 1)]  # before the search's own init
+  assert warm_up == ['init'] + [('loop', lanes) for lanes in reachable] + ['result'], warm_up
   assert_results_equal(got, want)
+  runs.clear()
   plan(env, ac, nodes, config, key, search=search, time_limit_s=600.0)
-  assert len(runs) == 3  # warmed once
+  assert runs.count('init') == 1  # warmed once

@@ -304,10 +304,12 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
       raise signals.StoppedBeforeSearch('stopped while the programs compiled')
     if (time_limit_s is not None or compile_first) and f'ran {init_name}' not in programs:
       # each program's first run loads what it runs lazily (MuJoCo Warp's kernel modules, XLA's
-      # kernels): a throwaway init, iteration and result, so that no clock counts that load
-      warm = programs[init_name](*init_args)
-      warm = programs[('loop', search.lanes_for(warm) if shrink else first)](
-          warm, jax.device_put(np.int32(1)), shrinking)
+      # kernels): a throwaway init, one iteration of each reachable layout's loop (not stopped
+      # by its layout's floor) and result, so that no clock counts that load
+      warm, one, stay = (programs[init_name](*init_args), jax.device_put(np.int32(1)),
+                         jax.device_put(np.bool_(False)))
+      for lanes in reachable:
+        warm = programs[('loop', lanes)](warm, one, stay)
       jax.block_until_ready(programs['result'](warm))
       del warm  # (its buffers freed before the search's own state is made)
       programs[f'ran {init_name}'] = True
