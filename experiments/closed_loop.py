@@ -279,7 +279,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
     config = dataclasses.replace(config, max_iterations=config.budget
                                  // config.evaluations_per_iteration)
     mppi = bl.make_mppi(env, model, config)
-    previous, timing = {}, {}
+    previous, timing, compiled = {}, {}, {}  # (compiled: its programs, kept between queries)
 
     def query(nodes, keys, executed, running, time_limit_s):
       # warm start: the last plan without its executed actions (its last action repeated),
@@ -292,7 +292,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
         shifted = np.take_along_axis(previous['actions'], idx[:, :, None], axis=1)
         nominal = np.where((left > 0)[:, None, None], shifted, nominal)
       out = anytime.run_search(mppi, nodes, keys, jnp.asarray(nominal),
-                               time_limit_s=time_limit_s, timing=timing)
+                               time_limit_s=time_limit_s, timing=timing, compiled=compiled)
       previous.update(actions=np.asarray(out.path_actions), length=np.asarray(out.path_length))
       return Asked(previous['actions'], previous['length'], np.asarray(out.evaluated),
                    np.asarray(out.found), {})

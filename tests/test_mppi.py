@@ -135,6 +135,43 @@ def test_batch_equals_one_by_one(start, planner, result):
     assert_results_equal(one, take(result, i))
 
 
+class _Counted:
+  """A jitted function whose compiled programs note each run in `runs` (under `name`)."""
+
+  def __init__(self, fn, runs, name):
+    self.fn, self.runs, self.name = fn, runs, name
+
+  def __call__(self, *args):
+    return self.fn(*args)
+
+  def lower(self, *args):
+    lowered, runs, name = self.fn.lower(*args), self.runs, self.name
+
+    class Lowered:
+      def compile(self):
+        program = lowered.compile()
+        return lambda *a: runs.append(name) or program(*a)
+    return Lowered()
+
+
+def test_kept_programs_compile_once_and_run_once_before_the_first_clock(start, planner, result):
+  """With a dict kept between calls, run_search compiles a shape's programs once and runs them
+  once before their first clock (a first run's lazy loads on no clock); a later call neither
+  compiles nor warms again, and both return the uncached result."""
+  runs, compiled = [], {}
+  counted = dataclasses.replace(planner, **{name: _Counted(getattr(planner, name), runs, name)
+                                            for name in ('init', 'step', 'result')})
+  got = anytime.run_search(counted, start, jax.random.PRNGKey(0), time_limit_s=1e6,
+                           compiled=compiled)
+  assert runs[:4] == ['init', 'step', 'result', 'init'], runs[:4]  # the warm-up, then the search
+  assert_results_equal(got, result)
+  runs.clear()
+  again = anytime.run_search(counted, start, jax.random.PRNGKey(0), time_limit_s=1e6,
+                             compiled=compiled)
+  assert runs.count('init') == 1 and len(compiled) == 1
+  assert_results_equal(again, result)
+
+
 def test_time_limit_stops_after_one_iteration(start, planner):
   out = anytime.run_search(planner, start, jax.random.PRNGKey(0), time_limit_s=1e-9)
   np.testing.assert_array_equal(np.asarray(out.iterations), [1, 1, 0])

@@ -113,17 +113,29 @@ def timed_result(advance: Callable[..., Any], state: Any,
 
 def run_search(search: Any, start_nodes: Any, key: jax.Array, *init_args,
                time_limit_s: Optional[float] = None,
-               timing: Optional[Dict[str, float]] = None) -> SearchResult:
+               timing: Optional[Dict[str, float]] = None,
+               compiled: Optional[Dict[Any, Any]] = None) -> SearchResult:
   """The SearchResult [I] of a search given as jitted `init(start_nodes [I], key, *init_args)`,
   `step`, `run` and `result` (e.g. `search.baselines.Mppi`). time_limit_s None: `run` to the
   end in one call; otherwise one `step` per host step while the next one and the result, timed
   as their last runs (`timing`, see `timed_result`), would end within the limit (at least one);
-  instances still running then report TIME_LIMIT. Compiled before the clock starts."""
+  instances still running then report TIME_LIMIT. Compiled before the clock starts; compiled:
+  a dict the caller keeps between calls, where the programs of each input shape are compiled
+  once and, with a time limit, run once before their first clock (what a first run loads
+  lazily, e.g. MuJoCo Warp's kernel modules, is on no clock)."""
   if time_limit_s is not None and not time_limit_s > 0:
     raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
-  init = search.init.lower(start_nodes, key, *init_args).compile()
-  shape = jax.eval_shape(search.init, start_nodes, key, *init_args)
-  loop = (search.run if time_limit_s is None else search.step).lower(shape).compile()
-  result = search.result.lower(shape).compile()
-  return timed_result(loop, init(start_nodes, key, *init_args), result, time_limit_s,
-                      timing=timing)
+  args = (start_nodes, key, *init_args)
+  signature = (time_limit_s is None, jax.tree.structure(args),
+               tuple((jnp.shape(x), jnp.result_type(x)) for x in jax.tree.leaves(args)))
+  programs = {} if compiled is None else compiled
+  if signature not in programs:
+    shape = jax.eval_shape(search.init, *args)
+    init = search.init.lower(*args).compile()
+    loop = (search.run if time_limit_s is None else search.step).lower(shape).compile()
+    result = search.result.lower(shape).compile()
+    if compiled is not None and time_limit_s is not None:
+      jax.block_until_ready(result(loop(init(*args))))
+    programs[signature] = init, loop, result
+  init, loop, result = programs[signature]
+  return timed_result(loop, init(*args), result, time_limit_s, timing=timing)
