@@ -111,7 +111,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import stats  # noqa: E402
 from pachs_jax import planner, replan, trees  # noqa: E402
-from pachs_jax.runtime import anytime, signals  # noqa: E402
+from pachs_jax.runtime import anytime, compile_cache, signals  # noqa: E402
 from pachs_jax import episodes as episodes_lib  # noqa: E402
 from pachs_jax.episodes import Worlds  # noqa: E402
 from pachs_jax.envs import pusht, world as world_lib  # noqa: E402
@@ -564,6 +564,7 @@ def main():
   label = common.task_label(args.task, args.layout, args.physics)
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
+  compile_cache.enable()  # a later run of the same programs skips XLA's compilation
   env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
                                   physics=args.physics)
   args.fill_check = fill_check(args, env.physics)
