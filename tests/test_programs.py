@@ -48,8 +48,8 @@ def test_compile_first_compiles_every_reachable_loop_before_the_search():
 
 
 def test_a_clocked_plan_first_runs_its_new_programs_once_off_the_clock():
-  """With a time limit, the first call whose init program has not run yet runs init, one
-  iteration of every reachable layout's loop and the result once before the clock (what a
+  """With a time limit, the first call whose programs have not run yet runs one iteration of
+  every reachable layout's loop (each from an init) and the result once before the clock (what a
   first run loads lazily, e.g. MuJoCo Warp's kernel modules, is on no clock, also where the
   search shrinks to a smaller layout later); later calls do not, and the result is that of an
   unclocked plan."""
@@ -63,19 +63,27 @@ def test_a_clocked_plan_first_runs_its_new_programs_once_off_the_clock():
   search = Programs(make_search(env, ac, config))
   want = plan(env, ac, nodes, config, key, search=search)  # unclocked: compiles, no warm-up
   (programs,) = search.compiled.values()
-  runs = []
+  runs, advanced = [], []  # the programs run; the iterations each loop run reached
 
   def count(name):
     program = programs[name]
-    programs[name] = lambda *args: runs.append(name) or program(*args)
+
+    def run(*args):
+      runs.append(name)
+      out = program(*args)
+      if isinstance(name, tuple):
+        advanced.append(int(np.max(np.asarray(out.iterations))))
+      return out
+    programs[name] = run
 
   reachable = search.search.reachable(4, 4)
   assert len(reachable) == 3
   for name in ['init', 'result'] + [('loop', lanes) for lanes in reachable]:
     count(name)
   got = plan(env, ac, nodes, config, key, search=search, time_limit_s=600.0)
-  warm_up = runs[:runs.index('init', 1)]  # before the search's own init
-  assert warm_up == ['init'] + [('loop', lanes) for lanes in reachable] + ['result'], warm_up
+  warm_up = runs[:runs.index('result')]
+  assert warm_up == [name for lanes in reachable for name in ('init', ('loop', lanes))], warm_up
+  assert advanced[:len(reachable)] == [1] * len(reachable)  # one iteration each
   assert_results_equal(got, want)
   runs.clear()
   plan(env, ac, nodes, config, key, search=search, time_limit_s=600.0)

@@ -126,7 +126,7 @@ def run_search(search: Any, start_nodes: Any, key: jax.Array, *init_args,
   if time_limit_s is not None and not time_limit_s > 0:
     raise ValueError(f'time_limit_s must be > 0 or None, got {time_limit_s!r}')
   args = (start_nodes, key, *init_args)
-  signature = (time_limit_s is None, jax.tree.structure(args),
+  signature = (id(search), time_limit_s is None, jax.tree.structure(args),
                tuple((jnp.shape(x), jnp.result_type(x)) for x in jax.tree.leaves(args)))
   programs = {} if compiled is None else compiled
   if signature not in programs:

@@ -63,8 +63,8 @@ class Programs:
   search: a `make_search` result. prefetch: a command line's `compile_cache.Prefetch` (None:
     nothing loaded ahead).
   compiled: (padded instances, platform) -> the programs of `plan` (init, result, the loops of
-    the sizes reached so far, the last result's 'timing', and 'ran <init>' once an init
-    program's warm-up run is done).
+    the sizes reached so far, the last result's 'timing', and 'ran': the names of the init programs
+    and loop layouts whose warm-up run is done).
   model_checks: padded instances -> the compiled model check.
   """
 
@@ -302,17 +302,17 @@ def plan(env: base.Env, actor_critic: ActorCritic, start_nodes: base.NodeState,
         programs[('loop', lanes)] = _wait(programs[('loop', lanes)], stop)
     if stop is not None and stop():
       raise signals.StoppedBeforeSearch('stopped while the programs compiled')
-    if (time_limit_s is not None or compile_first) and f'ran {init_name}' not in programs:
+    ran = programs.setdefault('ran', set())  # the programs whose warm-up run is done
+    if (time_limit_s is not None or compile_first) and not {init_name, *reachable} <= ran:
       # each program's first run loads what it runs lazily (MuJoCo Warp's kernel modules, XLA's
-      # kernels): a throwaway init, one iteration of each reachable layout's loop (not stopped
-      # by its layout's floor) and result, so that no clock counts that load
-      warm, one, stay = (programs[init_name](*init_args), jax.device_put(np.int32(1)),
-                         jax.device_put(np.bool_(False)))
-      for lanes in reachable:
-        warm = programs[('loop', lanes)](warm, one, stay)
+      # kernels): one iteration of each reachable layout's loop (not stopped by its layout's
+      # floor) from a throwaway init, and a result, so that no clock counts that load
+      one, stay = jax.device_put(np.int32(1)), jax.device_put(np.bool_(False))
+      for lanes in reachable:  # (each from a new init: its instances active)
+        warm = programs[('loop', lanes)](programs[init_name](*init_args), one, stay)
       jax.block_until_ready(programs['result'](warm))
       del warm  # (its buffers freed before the search's own state is made)
-      programs[f'ran {init_name}'] = True
+      ran.update({init_name, *reachable})
     waiting = {'s': 0.0}  # for the smaller loops during the search
     state = programs[init_name](*init_args)
     if started is not None:
