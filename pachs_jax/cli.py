@@ -282,9 +282,11 @@ def _plan(args: argparse.Namespace, prefetch=None, guard=None) -> int:
   return code or (guard.exit_code if guard is not None else 0)
 
 
-def _loop(args: argparse.Namespace) -> int:
+def _loop(args: argparse.Namespace, guard=None) -> int:
   """`pachs loop`: episodes of canonical instances in MuJoCo C worlds, planned through a
-  replanning session (`episodes.run`); a table per episode, then --json and --video."""
+  replanning session (`episodes.run`); a table per episode, then --json and --video. guard: the
+  command's `signals.SignalGuard` (None: signals as Python handles them): once the episodes
+  run, a first signal ends them before the next query and what ran is written."""
   from pachs_jax import outputs  # start-up path: lazy (JAX)
   if args.json:
     check_output_path('--json', args.json)
@@ -314,8 +316,18 @@ def _loop(args: argparse.Namespace) -> int:
         f'K {config.pop_size}, the policy\'s fill {"" if args.fill_check else "not "}checked',
         flush=True)
   import jax  # pylint: disable=import-outside-toplevel
+  stop = None
+  if guard is not None:
+    guard.notice = 'stopping before the next query; a second signal exits at once'
+    stop = guard.keep()
+
+  def said(query, nodes, running, executed, answer, seconds):  # a line per query (stderr)
+    print(f'query {query}: answered {int(running.sum())} running episodes in {seconds:.2f} s',
+          file=sys.stderr, flush=True)
+
   log = episodes.run(session, worlds, args.query_time, args.execute,
-                     args.max_queries, jax.random.PRNGKey(args.seed))
+                     args.max_queries, jax.random.PRNGKey(args.seed), stop=stop,
+                     on_answer=said)
   names = replan.AnswerKind.NAMES
   rows = [dict({'instance': int(inst), 'success': bool(worlds.success[e]),
                 'failed': bool(worlds.failed[e]),
@@ -325,7 +337,9 @@ def _loop(args: argparse.Namespace) -> int:
           for e, inst in enumerate(instances)]
   print(planner.format_table(rows, ['instance', 'success', 'failed', 'steps', 'queries']
                              + list(names) + ['policy_steps', 'cut_fills']))
-  print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes')
+  print(f'reached the goal in {int(worlds.success.sum())}/{len(rows)} episodes'
+        + ('' if log.interrupted_at_query is None else
+           f' (interrupted before query {log.interrupted_at_query}: the episodes end there)'))
   if log.fill_wait_s:  # (the fill's follow after each answer, while its own actions ran)
     waited = 1e3 * sum(log.fill_wait_s) / len(log.fill_wait_s)
     print(f'the checked fill took {waited:.0f} ms a query after the answer, '
@@ -338,7 +352,7 @@ def _loop(args: argparse.Namespace) -> int:
                 'settings': {'query_time_s': args.query_time, 'execute': args.execute,
                              'max_queries': args.max_queries, 'fill_check': args.fill_check,
                              'seed': args.seed},
-                'rows': rows,
+                'rows': rows, 'interrupted_at_query': log.interrupted_at_query,
                 'queries': {'clock_s': log.clock_s, 'fill_wait_s': log.fill_wait_s,
                             'charged_s': log.charged_s}}
 
@@ -355,7 +369,7 @@ def _loop(args: argparse.Namespace) -> int:
       outputs.write_gif(args.video, env, frames, int(worlds.steps[e]) + 1)
       print(f'wrote the world of instance {shown} to {args.video}')
     writes.append(('--video', args.video, video))
-  return _write_outputs('pachs loop', writes)
+  return _write_outputs('pachs loop', writes) or (guard.exit_code if guard is not None else 0)
 
 
 def _check_listen(host: str, port: int) -> None:
@@ -680,7 +694,9 @@ def _main(words, prefetch=None, guard=None) -> int:
     parser.exit(2, f'pachs {args.command}: error: --layout applies to --task pusht-obs only, '
                 f'not {args.task!r} (see --help)\n')
   try:
-    return args.func(args, prefetch, guard) if args.command == 'plan' else args.func(args)
+    if args.command == 'plan':
+      return args.func(args, prefetch, guard)
+    return args.func(args, guard) if args.command == 'loop' else args.func(args)
   except (ValueError, OSError, ImportError) as err:  # one line, no traceback
     if guard is not None and guard.early is not None:  # a library turned the signal's
       raise signals.Interrupted(guard.early) from err  # Interrupted into an error of its own

@@ -67,3 +67,14 @@ def test_at_least_one_chunk_runs(clock):
                              timing={'result_s': 10.0})
   assert result.chunks == 1
   assert out.stop_reason[0] == StopReason.TIME_LIMIT
+
+
+def test_a_limit_too_far_to_count_in_chunks_runs_to_the_end(clock):
+  """A time limit whose chunks' count overflows an int (1e308 s) runs until the instances
+  stop, as no limit does."""
+  advance, result = make_planner(clock, chunk_s=0.25, result_s=0.0, stop_after=5)
+  out = anytime.timed_result(lambda state, iterations: advance(state),
+                             State(np.array([True, False])), result, 1e308,
+                             sizes=anytime.ChunkSizes())
+  assert result.chunks == 5
+  assert list(out.stop_reason) == [StopReason.GOAL, StopReason.GOAL]

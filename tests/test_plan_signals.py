@@ -1,6 +1,7 @@
 """`pachs plan` in real processes: SIGINT or SIGTERM during the search stops it within a chunk,
 prints the table, writes the JSON (unfinished rows 'interrupted') and exits 130 / 143; a signal
-during start-up prints one line and no traceback."""
+during start-up prints one line and no traceback. `pachs loop`: a signal while the episodes run
+ends them before the next query and writes what ran."""
 
 import json
 import os
@@ -126,3 +127,24 @@ def test_a_signal_during_start_up_prints_one_line(cache_dir, wait_for):
   assert [line for line in err.strip().splitlines() if not line.startswith('note: ')] == [
       'pachs plan: SIGINT: stopped during start-up; nothing written'], err
   assert not [line for line in out.splitlines() if line.startswith(('instance', 'found '))]
+
+
+def test_a_signal_during_the_closed_loop_keeps_the_episodes(tmp_path, cache_dir):
+  """Detour's episodes rarely reach the goal: 30 queries of 1 s would run long after the
+  signal, which ends them before the next query; the table and the JSON hold what ran."""
+  saved = tmp_path / 'loop.json'
+  process, lines, stderr = _start(['loop', '--task', 'pusht-obs', '--layout', 'detour',
+                                   '--instances', '0-1', '--query-time', '1', '--json',
+                                   str(saved)], cache_dir)
+  _wait_for(lines, 'query 0: answered 2 running episodes')
+  process.send_signal(signal.SIGINT)
+  returncode, out, err = _finish(process, stderr)
+  assert returncode == 130, err
+  assert 'pachs loop: SIGINT: stopping before the next query' in err
+  assert 'Traceback' not in err
+  document = json.loads(saved.read_text())
+  stopped = document['interrupted_at_query']
+  assert stopped is not None and 0 < stopped < 30
+  assert f'(interrupted before query {stopped}: the episodes end there)' in out
+  assert [row['instance'] for row in document['rows']] == [0, 1]
+  assert all(row['queries'] <= stopped for row in document['rows'])

@@ -79,7 +79,7 @@ def run_until(advance: Callable[..., Any], state: Any, time_limit_s: Optional[fl
       continue
     upcoming = sizes.next(iterations, took)
     if left < math.inf:
-      upcoming = min(upcoming, int(left * iterations / max(took, 1e-9)))
+      upcoming = int(min(upcoming, left * iterations / max(took, 1e-9)))  # (left may be huge)
       if upcoming < 1:
         return Run(state, True, False)
     iterations = upcoming
