@@ -111,7 +111,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import stats  # noqa: E402
 from pachs_jax import planner, replan, trees  # noqa: E402
-from pachs_jax.runtime import anytime, compile_cache, signals  # noqa: E402
+from pachs_jax.runtime import anytime, compile_cache, programs, signals  # noqa: E402
 from pachs_jax import episodes as episodes_lib  # noqa: E402
 from pachs_jax.episodes import Worlds  # noqa: E402
 from pachs_jax.envs import pusht, world as world_lib  # noqa: E402
@@ -188,6 +188,16 @@ class Asked:
   states: Optional[object] = None  # with --trace: the answer's states NodeState [E, T + 1]
 
 
+def pachs_config(name: str, task: str, env, args):
+  """The SearchConfig of planner `name` (pachs: the default, K from the query time unless -K
+  says; pachs-original: the published algorithm) under the command line's settings."""
+  algorithm = 'original' if name == 'pachs-original' else 'pachs'
+  overrides = flags.search_overrides(args)
+  if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
+    overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, env.physics)
+  return planner.default_config(task, algorithm, budget=args.budget, **overrides)
+
+
 def make_query(name: str, task: str, env, model, args, num: int):
   """(query(nodes [E], keys [E, 2], executed [E], running [E]) -> `Asked`, the planner's
   config).
@@ -199,11 +209,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
   if name == 'pachs' and args.server:
     return served_query(task, args, num)
   if name in ('pachs', 'pachs-original'):  # the default PACHS, or the published algorithm
-    algorithm = 'original' if name == 'pachs-original' else 'pachs'
-    overrides = flags.search_overrides(args)
-    if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
-      overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, env.physics)
-    config = planner.default_config(task, algorithm, budget=args.budget, **overrides)
+    config = pachs_config(name, task, env, args)
     check = None
     if args.check_copies:
       check = replan.AnswerCheck(functools.partial(
@@ -565,12 +571,16 @@ def main():
   out = args.out or f'experiments/results/closed_loop_{label}.json'
 
   compile_cache.enable()  # a later run of the same programs skips XLA's compilation
-  env, model = planner.load_model(args.task, backend=args.backend, layout=args.layout,
-                                  physics=args.physics)
+  env, model = common.checked(parser, lambda: planner.load_model(
+      args.task, backend=args.backend, layout=args.layout, physics=args.physics))
   args.fill_check = fill_check(args, env.physics)
   starts = env.canonical_instances(args.instances)
   index = np.tile(np.arange(args.instances), args.rounds)
   starts = jax.tree.map(lambda x: np.asarray(x)[index], starts)
+  for name in {'pachs', 'pachs-original'} & set(names) - ({'pachs'} if args.server else set()):
+    # a search that cannot hold its budget, or does not fit the device, before any planner runs
+    common.checked(parser, lambda name=name: programs.check_memory(
+        env, model, starts, pachs_config(name, args.task, env, args)))
   payload = {'provenance': common.provenance(getattr(args, 'server_device', None)),
              'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},

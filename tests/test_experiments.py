@@ -227,6 +227,10 @@ def test_merge_open_of_a_merged_file_keeps_its_sources_flat():
     (closed_loop, ['--planners', 'pachs', '-K', '0'], 'argument --pop-size/-K: must be a positive integer'),
     (closed_loop, ['--check-copies', '-1'], 'argument --check-copies: must be >= 0, got -1'),
     (closed_loop, ['--world', 'planner', '--trace', '1'], '--trace records MuJoCo C worlds'),
+    # found once the model is loaded, before the first planner (here the policy alone) runs
+    (closed_loop, ['--backend', 'mujoco-c', '--instances', '1', '--rounds', '1',
+                   '--planners', 'single,pachs', '--budget', '10000000000'],
+     'the pool capacity * (edges per node + 1) must stay below 2**31'),
     (trace_replay, ['/nonexistent/run.json'], '/nonexistent/run.json: no trace beside it'),
     (closed_loop, ['--server', 'ws://x', '--check-copies', '2'],
      '--check-copies checks the answers of an in-process PACHS, not --server'),
