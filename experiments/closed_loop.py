@@ -626,6 +626,7 @@ def run_one(name, args, env, model, starts, perturbation, payload, out, stop) ->
                                'success_step': episodes.success_step.tolist(),
                                'steps': episodes.steps.tolist()}
   common.write_result(out, payload, markdown(payload))
+  print(f'wrote {os.path.abspath(out)} and its .md', flush=True)
 
 
 def markdown(payload: Dict) -> List[str]:
