@@ -116,7 +116,7 @@ from pachs_jax import episodes as episodes_lib  # noqa: E402
 from pachs_jax.episodes import Worlds  # noqa: E402
 from pachs_jax.envs import pusht, world as world_lib  # noqa: E402
 from pachs_jax.search import baselines as bl  # noqa: E402
-from pachs_jax.search import compact  # noqa: E402
+from pachs_jax.search import compact, memory  # noqa: E402
 from pachs_jax.search.result import StopReason  # noqa: E402
 # pylint: enable=wrong-import-position
 
@@ -196,6 +196,21 @@ def pachs_config(name: str, task: str, env, args):
   if algorithm == 'pachs' and overrides.get('pop_size') is None:  # K from the query time
     overrides['pop_size'] = planner.replan_pop_size(task, args.query_time, env.physics)
   return planner.default_config(task, algorithm, budget=args.budget, **overrides)
+
+
+def check_rollout_memory(env, model, starts, args) -> None:
+  """ValueError naming --copies when the parallel rollout's state for the episodes' starts
+  [E] (their copies' states; traced, nothing compiled) exceeds the device's memory."""
+  rollout = bl.make_parallel_rollout(env, model, bl.ParallelRolloutConfig(
+      num_copies=args.copies, budget=args.budget))
+  num = jax.tree.leaves(starts)[0].shape[0]
+  keys = jax.ShapeDtypeStruct((num, 2), jnp.uint32)
+  need = memory.tree_bytes(jax.eval_shape(rollout.init, starts, keys))
+  available, where = memory.device_memory()
+  if need > available:
+    raise ValueError(f'--copies {args.copies}: the parallel rollout of {num} episode{"s" * (num > 1)} keeps '
+                     f'{need / 1e9:.3g} GB of state, but {where}: lower --copies, or run fewer '
+                     '--instances or --rounds')
 
 
 def make_query(name: str, task: str, env, model, args, num: int):
@@ -581,6 +596,8 @@ def main():
     # a search that cannot hold its budget, or does not fit the device, before any planner runs
     common.checked(parser, lambda name=name: programs.check_memory(
         env, model, starts, pachs_config(name, args.task, env, args)))
+  if 'parallel' in names:
+    common.checked(parser, lambda: check_rollout_memory(env, model, starts, args))
   payload = {'provenance': common.provenance(getattr(args, 'server_device', None)),
              'task': args.task, 'env': env.name,
              'settings': {k: v for k, v in vars(args).items() if k != 'out'},
