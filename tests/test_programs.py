@@ -19,14 +19,19 @@ def _loops(search: Programs):
   return {name[1]: p for name, p in programs.items() if isinstance(name, tuple)}
 
 
-def test_compile_first_compiles_every_reachable_loop_before_the_search():
+def _four_instances():
+  """(env, actor-critic, config, start nodes [4], key): an open 8 x 8 grid, K 4, three lane
+  layouts (compact fractions 0.25 and 0.5)."""
   env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
-  ac = gridworld.GridActorCritic(env)
   config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=200,
                         compact_fractions=(0.25, 0.5))
   nodes = env.node(np.array([[0, 0], [7, 7], [2, 6], [5, 1]]),
                    np.array([[6, 5], [0, 1], [7, 0], [5, 6]]))
-  key = jax.random.PRNGKey(3)
+  return env, gridworld.GridActorCritic(env), config, nodes, jax.random.PRNGKey(3)
+
+
+def test_compile_first_compiles_every_reachable_loop_before_the_search():
+  env, ac, config, nodes, key = _four_instances()
   pending = {}
 
   def record(search):
@@ -53,13 +58,7 @@ def test_a_clocked_plan_first_runs_its_new_programs_once_off_the_clock():
   first run loads lazily, e.g. MuJoCo Warp's kernel modules, is on no clock, also where the
   search shrinks to a smaller layout later); later calls do not, and the result is that of an
   unclocked plan."""
-  env = gridworld.GridWorld(np.zeros((8, 8), bool), connectivity=8)
-  ac = gridworld.GridActorCritic(env)
-  config = SearchConfig(weight=1.5, num_actions=8, pop_size=4, budget=200,
-                        compact_fractions=(0.25, 0.5))
-  nodes = env.node(np.array([[0, 0], [7, 7], [2, 6], [5, 1]]),
-                   np.array([[6, 5], [0, 1], [7, 0], [5, 6]]))
-  key = jax.random.PRNGKey(3)
+  env, ac, config, nodes, key = _four_instances()
   search = Programs(make_search(env, ac, config))
   want = plan(env, ac, nodes, config, key, search=search)  # unclocked: compiles, no warm-up
   (programs,) = search.compiled.values()
