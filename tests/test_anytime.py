@@ -1,6 +1,9 @@
 """The anytime wall-clock rule on a simulated clock: chunks stop where the next chunk and the
 result, timed as their last runs, would pass the limit."""
 
+import gc
+import threading
+
 import numpy as np
 import pytest
 
@@ -78,3 +81,57 @@ def test_a_limit_too_far_to_count_in_chunks_runs_to_the_end(clock):
                              sizes=anytime.ChunkSizes())
   assert result.chunks == 5
   assert list(out.stop_reason) == [StopReason.GOAL, StopReason.GOAL]
+
+
+def test_the_collector_waits_for_the_clocked_loop_of_every_thread(clock):
+  """A clocked loop runs with Python's garbage collector paused (a full collection takes a short
+  query's iterations), resumed when the last loop of any thread is out, also after an error;
+  a loop without a limit leaves it on, and a collector the caller turned off stays off."""
+  seen = []
+
+  def advance(state):
+    seen.append(gc.isenabled())
+    clock.now += 0.25
+    return State(np.array([state.done < 1, False]), state.done + 1)
+
+  def result(state):
+    seen.append(gc.isenabled())
+    return Result(np.full(2, StopReason.GOAL))
+
+  assert gc.isenabled()
+  anytime.timed_result(advance, State(np.array([True, False])), result, 3.0)
+  assert seen == [False, False, False] and gc.isenabled()
+  seen.clear()
+  anytime.timed_result(advance, State(np.array([True, False])), result, None)
+  assert seen == [True, True, True]
+
+  inside, leave = threading.Event(), threading.Event()
+
+  def held(state):  # another thread's loop, in its clock until `leave`
+    inside.set()
+    leave.wait(10)
+    return State(np.array([False, False]))
+
+  other = threading.Thread(target=anytime.timed_result,
+                           args=(held, State(np.array([True, False])), result, 3.0))
+  other.start()
+  inside.wait(10)
+  seen.clear()
+  anytime.timed_result(advance, State(np.array([True, False])), result, 3.0)
+  assert not gc.isenabled()  # the other loop is still in its clock
+  leave.set()
+  other.join(10)
+  assert gc.isenabled()
+
+  def failing(state):
+    raise RuntimeError('chunk failed')
+
+  with pytest.raises(RuntimeError, match='chunk failed'):
+    anytime.timed_result(failing, State(np.array([True, False])), result, 3.0)
+  assert gc.isenabled()
+  gc.disable()
+  try:
+    anytime.timed_result(advance, State(np.array([True, False])), result, 3.0)
+    assert not gc.isenabled()
+  finally:
+    gc.enable()
