@@ -1265,6 +1265,14 @@ LEDGER: Tuple[Tuple[str, object, str], ...] = (
      '`16cdef3`: `closed_loop_gpu/*_{pachs,parallel}.json`, '
      '`closed_loop_gpu/{gate,wall,two-gaps}_{pachs,parallel}-q1.json`, '
      '`closed_loop_gpu/repeat/`'),
+    ('The rollout at 1 s per query with Python\'s garbage collector free to run during the '
+     'clock (gate-mirror and wall-right, default physics, one H200 per run)',
+     'an episode\'s third query searched 2 iterations, against 14-16 and 9-10 in the first '
+     'two ([14, 10, 2] and [15, 9, 2]: a full collection, 0.4-0.65 s over a compiled '
+     'process\'s million objects on a CPU core, in one query\'s clock); solved 5% and 22%. '
+     'With the collector paused in the clocked loop: [16, 10, 10] and [16, 10, 11], the '
+     'longest query 1.03 s against 1.09 and 1.13 s, solved 8% and 23%',
+     '`d559736`: `closed_loop_gpu/{gate-mirror,wall-right}_parallel-q1.json`'),
 )
 
 
