@@ -92,8 +92,8 @@ class CollectorPause:
   """A context in which Python's cyclic garbage collector is paused, for the clocked loops of
   all threads together (the last one out resumes it, unless it was off before the first came
   in). A full collection walks every object of the process, about a million once the programs
-  are compiled: 0.3-0.7 s on a CPU core, a stall that takes the iterations of a short query; it
-  runs after the clock instead."""
+  are compiled: 0.4-0.65 s on a CPU core, a stall that takes most of a 1 s query's iterations;
+  it runs after the clock instead."""
 
   def __init__(self):
     self._lock = threading.Lock()
