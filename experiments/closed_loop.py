@@ -198,11 +198,15 @@ def pachs_config(name: str, task: str, env, args):
   return planner.default_config(task, algorithm, budget=args.budget, **overrides)
 
 
+def rollout_config(args) -> bl.ParallelRolloutConfig:
+  """The parallel rollout's config under the command line's --copies and --budget."""
+  return bl.ParallelRolloutConfig(num_copies=args.copies, budget=args.budget)
+
+
 def check_rollout_memory(env, model, starts, args) -> None:
   """ValueError naming --copies when the parallel rollout's state for the episodes' starts
   [E] (their copies' states; traced, nothing compiled) exceeds the device's memory."""
-  rollout = bl.make_parallel_rollout(env, model, bl.ParallelRolloutConfig(
-      num_copies=args.copies, budget=args.budget))
+  rollout = bl.make_parallel_rollout(env, model, rollout_config(args))
   num = jax.tree.leaves(starts)[0].shape[0]
   keys = jax.ShapeDtypeStruct((num, 2), jnp.uint32)
   need = memory.tree_bytes(jax.eval_shape(rollout.init, starts, keys))
@@ -256,7 +260,7 @@ def make_query(name: str, task: str, env, model, args, num: int):
               **({'kind': answer.kind, 'states': answer.states} if args.trace else {}))
     return query, config
   if name == 'parallel':
-    config = bl.ParallelRolloutConfig(num_copies=args.copies, budget=args.budget)
+    config = rollout_config(args)
     rollout = bl.make_parallel_rollout(env, model, config)
     # physics batches as PACHS's: the copies of the episodes still running, gathered
     sizes = compact.batch_sizes(num * args.copies, args.compact_fractions, minimum=args.copies)
